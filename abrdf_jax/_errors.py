@@ -1,0 +1,22 @@
+"""Error types shared by the package: bad input is reported, never silently accepted."""
+
+from __future__ import annotations
+
+
+class InputError(ValueError):
+    """Bad user input: a malformed file, argument or value.
+
+    The message names the file, line or argument at fault. The command line turns it into a
+    one-line message and a non-zero exit status instead of a traceback.
+    """
+
+
+def located(message: str, path=None, line: int | None = None) -> InputError:
+    """Build an :class:`InputError` whose message starts with ``path:line:``."""
+    where = ""
+    if path is not None:
+        where = f"{path}"
+        if line is not None:
+            where += f":{line}"
+        where += ": "
+    return InputError(where + message)

@@ -1,0 +1,150 @@
+"""Directions and their parameterizations.
+
+Conventions (``../shared/PROTOCOL.md``): angles given by users are in degrees; unit vectors are
+``x = sin θ cos φ, y = sin θ sin φ, z = cos θ`` with ``z`` the surface normal and ``x`` the tangent.
+Internally every function here works in radians.
+
+Parameterizations of one direction:
+
+- spherical ``(θ, φ)``;
+- onion ``(α, β)`` (Havran, Filip & Myszkowski, CGF 29(1), 2010): ``β = asin(x)``,
+  ``α = atan2(y, z)``; inverse ``x = sin β``, ``y = sin α cos β``, ``z = cos α cos β``. It has no
+  azimuth seam and the normal maps to ``(0, 0)``.
+
+Of a pair of directions: Rusinkiewicz (1998) half/difference angles ``(θh, φh, θd, φd)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+# UBO2003: elevations and the number of azimuths on each ring (PROTOCOL.md).
+UBO_THETAS_DEG = (0.0, 15.0, 30.0, 45.0, 60.0, 75.0)
+UBO_COUNTS = (1, 6, 12, 18, 20, 24)
+
+
+def ubo_grid() -> tuple[np.ndarray, np.ndarray]:
+    """The UBO2003 81-direction hemisphere grid.
+
+    Returns:
+        ``(theta_deg, phi_deg)``, two float64 numpy arrays of shape ``(81,)``, ordered by θ
+        ascending then φ ascending; index 0 is the normal, 1–6 the 15° ring, …, 57–80 the 75° ring.
+    """
+    theta, phi = [], []
+    for t, n in zip(UBO_THETAS_DEG, UBO_COUNTS):
+        for k in range(n):
+            theta.append(t)
+            phi.append(k * 360.0 / n)
+    return np.asarray(theta), np.asarray(phi)
+
+
+def ring_indices(theta_deg: float) -> np.ndarray:
+    """Indices into the UBO grid of the ring at elevation ``theta_deg`` (one of ``UBO_THETAS_DEG``)."""
+    theta, _ = ubo_grid()
+    idx = np.nonzero(np.isclose(theta, theta_deg))[0]
+    if idx.size == 0:
+        raise ValueError(
+            f"theta={theta_deg} deg is not a ring of the UBO2003 grid; rings are {UBO_THETAS_DEG}"
+        )
+    return idx
+
+
+def pair_grid(theta_deg: np.ndarray | None = None, phi_deg: np.ndarray | None = None):
+    """All (illumination, view) pairs of a direction set, illumination-major.
+
+    Returns:
+        ``(theta_i, phi_i, theta_v, phi_v)`` in degrees, each of shape ``(n*n,)``; entry
+        ``i*n + v`` is illumination ``i`` and view ``v`` (the layout of ``table[i, v]``).
+    """
+    if theta_deg is None:
+        theta_deg, phi_deg = ubo_grid()
+    n = len(theta_deg)
+    ti = np.repeat(theta_deg, n)
+    pi = np.repeat(phi_deg, n)
+    tv = np.tile(theta_deg, n)
+    pv = np.tile(phi_deg, n)
+    return ti, pi, tv, pv
+
+
+def to_vector(theta: Float[Array, "..."], phi: Float[Array, "..."]) -> Float[Array, "... 3"]:
+    """Spherical angles (radians) to unit vectors."""
+    st = jnp.sin(theta)
+    return jnp.stack([st * jnp.cos(phi), st * jnp.sin(phi), jnp.cos(theta)], axis=-1)
+
+
+def from_vector(w: Float[Array, "... 3"]) -> tuple[Float[Array, "..."], Float[Array, "..."]]:
+    """Unit vectors to spherical angles ``(θ, φ)`` in radians, ``φ`` in ``[0, 2π)``.
+
+    The argument of ``arccos`` is clamped to ``[-1, 1]`` so that rounding never gives NaN.
+    """
+    theta = jnp.arccos(jnp.clip(w[..., 2], -1.0, 1.0))
+    phi = jnp.mod(jnp.arctan2(w[..., 1], w[..., 0]), 2 * jnp.pi)
+    return theta, phi
+
+
+def onion_from_vector(w: Float[Array, "... 3"]) -> Float[Array, "... 2"]:
+    """Unit vectors to onion coordinates ``(α, β)`` in radians (Havran et al. 2010)."""
+    beta = jnp.arcsin(jnp.clip(w[..., 0], -1.0, 1.0))
+    alpha = jnp.arctan2(w[..., 1], w[..., 2])
+    return jnp.stack([alpha, beta], axis=-1)
+
+
+def vector_from_onion(ab: Float[Array, "... 2"]) -> Float[Array, "... 3"]:
+    """Onion coordinates ``(α, β)`` (radians) to unit vectors."""
+    a, b = ab[..., 0], ab[..., 1]
+    cb = jnp.cos(b)
+    return jnp.stack([jnp.sin(b), jnp.sin(a) * cb, jnp.cos(a) * cb], axis=-1)
+
+
+def onion(theta: Float[Array, "..."], phi: Float[Array, "..."]) -> Float[Array, "... 2"]:
+    """Spherical angles (radians) to onion coordinates ``(α, β)`` (radians)."""
+    return onion_from_vector(to_vector(theta, phi))
+
+
+def _rot_z(w, a):
+    c, s = jnp.cos(a), jnp.sin(a)
+    return jnp.stack([c * w[..., 0] - s * w[..., 1], s * w[..., 0] + c * w[..., 1], w[..., 2]], -1)
+
+
+def _rot_y(w, a):
+    c, s = jnp.cos(a), jnp.sin(a)
+    return jnp.stack([c * w[..., 0] + s * w[..., 2], w[..., 1], -s * w[..., 0] + c * w[..., 2]], -1)
+
+
+def half_diff(wi: Float[Array, "... 3"], wv: Float[Array, "... 3"]) -> Float[Array, "... 4"]:
+    """Rusinkiewicz (1998) half/difference angles ``(θh, φh, θd, φd)`` in radians.
+
+    ``h = normalize(wi + wv)``; ``d`` is ``wi`` rotated by ``-φh`` about z, then by ``-θh`` about y.
+    ``φh, φd`` are in ``[0, 2π)``. Where ``wi = -wv`` the half vector is undefined; the sum's
+    norm is floored so that the result stays finite.
+    """
+    hs = wi + wv
+    n2 = jnp.sum(hs * hs, axis=-1, keepdims=True)
+    safe = jnp.where(n2 > 1e-30, n2, 1.0)
+    h = jnp.where(n2 > 1e-30, hs / jnp.sqrt(safe), jnp.array([0.0, 0.0, 1.0], dtype=wi.dtype))
+    th, ph = from_vector(h)
+    d = _rot_y(_rot_z(wi, -ph), -th)
+    td, pd = from_vector(d)
+    return jnp.stack([th, ph, td, pd], axis=-1)
+
+
+def vectors_from_half_diff(hd: Float[Array, "... 4"]) -> tuple[Float[Array, "... 3"], Float[Array, "... 3"]]:
+    """Inverse of :func:`half_diff`: ``(θh, φh, θd, φd)`` to ``(wi, wv)`` unit vectors."""
+    th, ph, td, pd = hd[..., 0], hd[..., 1], hd[..., 2], hd[..., 3]
+    d = to_vector(td, pd)
+    wi = _rot_z(_rot_y(d, th), ph)
+    h = to_vector(th, ph)
+    wv = 2.0 * jnp.sum(wi * h, axis=-1, keepdims=True) * h - wi
+    return wi, wv
+
+
+def wrap_deg(x):
+    """Angles in degrees wrapped to ``[0, 360)`` (numpy or jax arrays)."""
+    return x % 360.0
+
+
+def wrap_pi(x):
+    """Angles in radians wrapped to ``(-π, π]``."""
+    return jnp.pi - jnp.mod(jnp.pi - x, 2 * jnp.pi)
