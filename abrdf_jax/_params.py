@@ -1,0 +1,113 @@
+"""Configuration (discrete, static) and parameters (continuous, traced) of a reconstruction."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._interp1d import METHODS as INTERP_METHODS
+from ._kernels import KERNELS
+from ._rbf import resolve_degree
+from ._slices import PROTOCOL_ALPHA_DEG, PROTOCOL_PAIRS, protocol_counts
+from ._subspace import RULES
+
+BUDGETS = ("iso102", "aniso204")
+PARAMETERIZATIONS = ("onion", "spherical", "halfdiff")
+VALUE_SPACES = ("linear", "log")
+
+
+class Config(eqx.Module):
+    """Discrete choices of the method. Every field is static: changing one recompiles.
+
+    Attributes:
+        budget: ``"iso102"`` (the 4 diagonal slices, eq. 5) or ``"aniso204"`` (all 8 slices).
+        rule: toroidal subspace rule for anisotropic data (see :mod:`abrdf_jax._subspace`); the
+            isotropic budget always uses eq. (5) (``"diagonal"``).
+        kernel: RBF kernel (see :data:`abrdf_jax._kernels.KERNELS`).
+        degree: polynomial tail degree, ``None`` for the kernel's minimum.
+        parameterization: coordinates of a direction pair for the RBF: ``"onion"``
+            ``[αi, βi, αv, βv]`` (the paper's), ``"spherical"`` ``[θi, φi, θv, φv]`` or
+            ``"halfdiff"`` ``[θh, φh, θd, φd]``.
+        interp: 1D slice interpolation (``"linear"`` or ``"cubic"``).
+        value_space: ``"linear"`` (the paper) or ``"log"``: the RBF interpolates
+            ``ln(x + ε)`` with ``ε = log_eps · mean sample``, which keeps shiny materials'
+            highlights from ringing into the body of the material.
+        pairs: measured elevation pairs ``(θi, θv)`` in degrees (UBO rings).
+    """
+
+    budget: str = "iso102"
+    rule: str = "filip2012"
+    kernel: str = "gaussian"
+    degree: int | None = None
+    parameterization: str = "onion"
+    interp: str = "linear"
+    value_space: str = "linear"
+    log_eps: float = 0.01
+    pairs: tuple = PROTOCOL_PAIRS
+
+    def __check_init__(self):
+        for name, value, allowed in (
+            ("budget", self.budget, BUDGETS),
+            ("rule", self.rule, RULES),
+            ("kernel", self.kernel, KERNELS),
+            ("parameterization", self.parameterization, PARAMETERIZATIONS),
+            ("interp", self.interp, INTERP_METHODS),
+            ("value_space", self.value_space, VALUE_SPACES),
+        ):
+            if value not in allowed:
+                raise ValueError(f"Config.{name} must be one of {allowed}, got {value!r}")
+        resolve_degree(self.kernel, self.degree)
+        if not (isinstance(self.log_eps, float) and self.log_eps > 0):
+            raise ValueError(f"Config.log_eps must be a positive float, got {self.log_eps!r}")
+
+    @property
+    def subspace_rule(self) -> str:
+        return "diagonal" if self.budget == "iso102" else self.rule
+
+    @property
+    def counts(self) -> tuple[int, ...]:
+        if self.pairs != PROTOCOL_PAIRS:
+            raise ValueError("protocol sample counts are defined for the PROTOCOL pairs only")
+        return protocol_counts(self.budget)
+
+
+# Defaults chosen on the MERL *train* split by `python -m benchmarks.select_defaults`
+# (grid search, iso102, mean ΔE76); see docs/notes.md. Widths are in radians of the
+# parameterization's coordinates.
+DEFAULT_WIDTHS = {
+    "onion": (0.6, 0.6, 0.6, 0.6),
+    "spherical": (0.6, 1.2, 0.6, 1.2),
+    "halfdiff": (0.6, 1.2, 0.6, 1.2),
+}
+DEFAULT_REG = 1e-3
+
+
+class Params(eqx.Module):
+    """Continuous parameters: traced, differentiable, never a recompile.
+
+    Attributes:
+        alpha: slice offset α in radians.
+        widths: ``(4,)`` RBF widths ℓ per coordinate of the parameterization (radians).
+        reg: RBF regularisation λ (added to the Gram diagonal).
+    """
+
+    alpha: Float[Array, ""] = eqx.field(converter=jnp.asarray)
+    widths: Float[Array, " 4"] = eqx.field(converter=jnp.asarray)
+    reg: Float[Array, ""] = eqx.field(converter=jnp.asarray)
+
+    @classmethod
+    def default(cls, config: Config | None = None, alpha_deg: float = PROTOCOL_ALPHA_DEG, dtype=None) -> "Params":
+        """The package defaults for ``config`` (α = 15°, widths and λ chosen on the train split)."""
+        config = config or Config()
+        dt = dtype or jnp.zeros(()).dtype
+        return cls(
+            jnp.asarray(np.deg2rad(alpha_deg), dt),
+            jnp.asarray(DEFAULT_WIDTHS[config.parameterization], dt),
+            jnp.asarray(DEFAULT_REG, dt),
+        )
+
+    @property
+    def alpha_deg(self) -> float:
+        return float(np.rad2deg(np.asarray(self.alpha)))
