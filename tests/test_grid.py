@@ -1,0 +1,71 @@
+import jax.numpy as jnp
+import numpy as np
+
+import abrdf_jax as aj
+from abrdf_jax._grid import from_vector, ring_indices, vectors_from_half_diff, wrap_pi
+
+
+def test_ubo_grid_layout():
+    theta, phi = aj.ubo_grid()
+    assert theta.shape == phi.shape == (81,)
+    assert theta[0] == 0 and phi[0] == 0
+    np.testing.assert_array_equal(theta[1:7], 15.0)
+    np.testing.assert_allclose(phi[1:7], [0, 60, 120, 180, 240, 300])
+    np.testing.assert_array_equal(theta[57:], 75.0)
+    np.testing.assert_allclose(phi[57:], np.arange(24) * 15.0)
+    # sorted by theta, then phi
+    order = np.lexsort((phi, theta))
+    np.testing.assert_array_equal(order, np.arange(81))
+    assert list(ring_indices(30.0)) == list(range(7, 19))
+
+
+def test_pair_grid_is_illumination_major():
+    ti, pi_, tv, pv = aj.pair_grid()
+    assert ti.shape == (6561,)
+    theta, phi = aj.ubo_grid()
+    k = 20 * 81 + 45
+    assert (ti[k], pi_[k], tv[k], pv[k]) == (theta[20], phi[20], theta[45], phi[45])
+
+
+def test_vectors_and_angles_round_trip(rng):
+    t = rng.uniform(0, np.pi / 2, 100)
+    p = rng.uniform(0, 2 * np.pi, 100)
+    w = aj.to_vector(t, p)
+    np.testing.assert_allclose(jnp.linalg.norm(w, axis=-1), 1.0, atol=1e-12)
+    t2, p2 = from_vector(w)
+    np.testing.assert_allclose(t2, t, atol=1e-10)
+    np.testing.assert_allclose(p2, p, atol=1e-10)
+
+
+def test_onion_conventions(rng):
+    # the normal maps to (0, 0); x-axis tilt is beta, y-z tilt is alpha
+    np.testing.assert_allclose(aj.onion(0.0, 0.0), [0.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(aj.onion(np.pi / 6, 0.0), [0.0, np.pi / 6], atol=1e-12)
+    np.testing.assert_allclose(aj.onion(np.pi / 6, np.pi / 2), [np.pi / 6, 0.0], atol=1e-12)
+    w = aj.to_vector(rng.uniform(0, np.pi / 2, 50), rng.uniform(0, 2 * np.pi, 50))
+    ab = aj.onion_from_vector(w)
+    assert np.all(np.abs(ab) <= np.pi / 2 + 1e-12)
+    np.testing.assert_allclose(aj.vector_from_onion(ab), w, atol=1e-12)
+
+
+def test_half_diff_check_value_from_evaluation_md():
+    # ../shared/data/merl-nbrdf/EVALUATION.md: w_i = (45, 20), w_o = (60, 230) degrees
+    wi = aj.to_vector(np.deg2rad(45.0), np.deg2rad(20.0))
+    wo = aj.to_vector(np.deg2rad(60.0), np.deg2rad(230.0))
+    th, ph, td, pd = np.rad2deg(np.asarray(aj.half_diff(wi, wo)))
+    np.testing.assert_allclose(th, 19.822970, atol=1e-5)
+    np.testing.assert_allclose(ph, 360 - 75.657130, atol=1e-5)
+    np.testing.assert_allclose(td, 50.091034, atol=1e-5)
+    np.testing.assert_allclose(pd, 113.459050, atol=1e-5)
+
+
+def test_half_diff_round_trip(rng):
+    wi = aj.to_vector(rng.uniform(0.05, 1.5, 64), rng.uniform(0, 2 * np.pi, 64))
+    wv = aj.to_vector(rng.uniform(0.05, 1.5, 64), rng.uniform(0, 2 * np.pi, 64))
+    a, b = vectors_from_half_diff(aj.half_diff(wi, wv))
+    np.testing.assert_allclose(a, wi, atol=1e-10)
+    np.testing.assert_allclose(b, wv, atol=1e-10)
+
+
+def test_wrap_pi():
+    np.testing.assert_allclose(wrap_pi(jnp.array([0.0, 3 * np.pi / 2, -3 * np.pi / 2])), [0, -np.pi / 2, np.pi / 2])
