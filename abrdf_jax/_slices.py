@@ -207,6 +207,7 @@ def group_slices(
     tol_deg: float = 0.5,
     nmax: int | None = None,
     dtype=np.float32,
+    min_axial: int = 3,
 ) -> tuple[Measurements, dict]:
     """Group arbitrary measured samples into the slices of ``pairs``.
 
@@ -214,7 +215,8 @@ def group_slices(
     ``tol_deg`` and its azimuths satisfy ``φi − φv ≡ α`` (axial) or ``φi + φv ≡ α`` (diagonal)
     within ``tol_deg`` (mod 360°). Other samples are off-slice: they are tolerated, counted and
     left out. Repeated angles within a slice are averaged (a duplicated sample would otherwise
-    make the interpolation ill-defined).
+    make the interpolation ill-defined). A sample where the slices cross belongs to both; an
+    axial slice with fewer than ``min_axial`` samples of its own counts as not measured.
 
     Args:
         samples: the measured samples (degrees).
@@ -242,7 +244,11 @@ def group_slices(
     for a_t, v_t in pairs:
         on_pair = (np.abs(ti - a_t) <= tol_deg) & (np.abs(tv - v_t) <= tol_deg)
         ax = on_pair & close(pi_ - pv, alpha_deg)
-        dg = on_pair & close(pi_ + pv, alpha_deg) & ~ax
+        dg = on_pair & close(pi_ + pv, alpha_deg)
+        # Samples at the two crossings (φi, φv) = (α, 0), (α + π, π) lie on both slices and
+        # serve both. An axial slice made of crossing samples alone was not measured.
+        if np.count_nonzero(ax & ~dg) < min_axial:
+            ax = np.zeros_like(ax)
         groups.append((pi_[ax] % 360.0, rgb[ax]))
         groups.append((pv[dg] % 360.0, rgb[dg]))
         used |= ax | dg
