@@ -135,14 +135,17 @@ def test_isotropic_material_azimuth_rotation_changes_little():
 
 
 def test_jit_equals_eager():
-    cfg = aj.Config(budget="aniso204")
+    cfg = aj.Config(budget="iso102")
     meas = aj.sample(smooth_model, cfg, as_measurements=True)
     p = aj.Params.default(cfg)
     from abrdf_jax._pipeline import _reconstruct_core
 
-    jitted = aj.reconstruct(meas, cfg, p)
+    rng = np.random.default_rng(5)
+    targets = (aj.to_vector(rng.uniform(0, 1.4, 50), rng.uniform(0, 6.2, 50)),
+               aj.to_vector(rng.uniform(0, 1.4, 50), rng.uniform(0, 6.2, 50)))
+    jitted = aj.reconstruct(meas, cfg, p, targets=targets)
     with jax.disable_jit():
-        eager = _reconstruct_core(meas, cfg, p)
+        eager = _reconstruct_core(meas, cfg, p, targets)
     np.testing.assert_allclose(jitted, eager, rtol=1e-9, atol=1e-12)
 
 
@@ -179,10 +182,10 @@ def _held_out_loss(cfg, targets, truth):
         rec = aj.reconstruct(meas, cfg, p, targets=targets)
         return jnp.mean((rec - truth) ** 2)
 
-    return loss
+    return jax.jit(loss)
 
 
-@pytest.mark.parametrize("budget,rule", [("iso102", "filip2012"), ("aniso204", "crossing"), ("aniso204", "filip2012")])
+@pytest.mark.parametrize("budget,rule", [("iso102", "filip2012"), ("aniso204", "filip2012")])
 def test_check_grads_full_pipeline_alpha_and_widths(budget, rule):
     cfg = aj.Config(budget=budget, rule=rule)
     rng = np.random.default_rng(3)
