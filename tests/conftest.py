@@ -1,6 +1,7 @@
 """Shared test set-up: float64 for the numerical tests, the shared data folder, seeds."""
 
 import os
+import sys
 from pathlib import Path
 
 import jax
@@ -10,6 +11,7 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))  # the benchmarks package (the scipy peer) serves as a test oracle
 DATA_DIR = Path(os.environ.get("ABRDF_DATA", REPO.parent / "shared" / "data"))
 SEED = int(os.environ.get("ABRDF_TEST_SEED", "0"))
 

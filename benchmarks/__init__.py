@@ -1,0 +1,1 @@
+"""Benchmarks of abrdf_jax: accuracy on the MERL split, speed, and the scipy peer."""

@@ -1,0 +1,74 @@
+"""Shared helpers of the benchmark scripts: data, sampling, evaluation, machine description."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import abrdf_jax as aj
+from abrdf_jax.materials import load_tables81, stack_nbrdf, load_nbrdf_all
+from abrdf_jax.metrics import evaluate_batch
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def machine() -> dict:
+    """Machine, device, thread and version facts stored beside every figure."""
+    return {
+        "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "jax_devices": [str(d) for d in jax.devices()],
+        "jax": jax.__version__,
+        "numpy": np.__version__,
+        "x64": bool(jax.config.jax_enable_x64),
+        "threads_env": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "XLA_FLAGS") if os.environ.get(k)},
+    }
+
+
+def merl_split(split: str, data_dir=None):
+    """Names, stacked neural models and reference tables of a PROTOCOL split."""
+    t = load_tables81(data_dir)
+    idx = np.nonzero(t["split"] == split)[0]
+    names = [str(n) for n in t["names"][idx]]
+    models = stack_nbrdf(load_nbrdf_all(names, data_dir))
+    return names, models, jnp.asarray(t["abrdf"][idx]), [str(g) for g in t["group"][idx]]
+
+
+def sample_batch(models, config, params=None) -> aj.Measurements:
+    """PROTOCOL slice samples of every stacked model (exact angles, vmapped)."""
+    params = params or aj.Params.default(config)
+    return jax.jit(jax.vmap(lambda m: aj.sample(m, config, params, as_measurements=True)))(models)
+
+
+def metrics_of(rec, ref) -> dict:
+    m = evaluate_batch(jnp.asarray(rec), jnp.asarray(ref))
+    return {k: np.asarray(v) for k, v in m.items()}
+
+
+def mean_metrics(per: dict) -> dict:
+    return {k: float(np.mean(v)) for k, v in per.items()}
+
+
+def mean_fill(meas: aj.Measurements) -> jnp.ndarray:
+    """The trivial reconstruction: every value is the mean of the samples (per channel)."""
+    valid = (jnp.arange(meas.y.shape[-2])[None, None, :] < meas.count[..., None])[..., None]
+    mean = jnp.sum(jnp.where(valid, meas.y, 0), axis=(1, 2)) / jnp.sum(meas.count, axis=1)[:, None]
+    return jnp.broadcast_to(mean[:, None, None, :], (mean.shape[0], 81, 81, 3))
+
+
+def write_json(name: str, payload: dict) -> Path:
+    RESULTS.mkdir(exist_ok=True)
+    path = RESULTS / name
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(payload, indent=2, default=float))
+    os.replace(tmp, path)
+    return path
