@@ -97,5 +97,10 @@ def scaled_sqdist(x, y, widths):
     Direct differences (not ``|x|² + |y|² − 2x·y``) keep ``r² ≥ 0`` exactly and zero on the
     diagonal, which the kernels' safe branches rely on.
     """
-    diff = (x[:, None, :] - y[None, :, :]) / widths
-    return jnp.sum(diff * diff, axis=-1)
+    # A sum of 2D terms (d is small) fuses into one pass: no (n, m, d) temporary in memory.
+    widths = jnp.broadcast_to(widths, (x.shape[-1],))
+    r2 = jnp.zeros((x.shape[0], y.shape[0]), jnp.result_type(x, y, widths))
+    for k in range(x.shape[-1]):
+        diff = (x[:, k, None] - y[None, :, k]) / widths[k]
+        r2 = r2 + diff * diff
+    return r2
