@@ -83,8 +83,8 @@ def _expand_inputs(inputs: list[str]) -> tuple[list[Path], bool]:
     return files, folder_mode
 
 
-def _params_for(aj, budget: str, alpha_deg: float):
-    config = aj.Config(budget=budget)
+def _params_for(aj, budget: str, alpha_deg: float, preset: str = "recommended"):
+    config = aj.Config.recommended(budget) if preset == "recommended" else aj.Config(budget=budget)
     return config, aj.Params.default(config, alpha_deg=alpha_deg)
 
 
@@ -138,10 +138,10 @@ def cmd_reconstruct(args) -> int:
 
     if not folder_mode:
         budget, alpha = plans[0]
-        config, params = _params_for(aj, budget, alpha)
+        config, params = _params_for(aj, budget, alpha, args.preset)
         table = np.asarray(aj.reconstruct(samples[0], config, params))
         io.write_table(out, table)
-        print(f"{out}: reconstructed from {len(samples[0])} samples ({budget}, alpha {alpha:g} deg)")
+        print(f"{out}: reconstructed from {len(samples[0])} samples ({budget}, alpha {alpha:g} deg, {args.preset} settings)")
         return 0
 
     from tqdm import tqdm
@@ -153,7 +153,7 @@ def cmd_reconstruct(args) -> int:
     with tqdm(total=len(files), desc="reconstruct", unit="file", file=sys.stderr,
               disable=args.quiet, dynamic_ncols=True) as bar:
         for (budget, alpha), members in groups.items():
-            config, params = _params_for(aj, budget, alpha)
+            config, params = _params_for(aj, budget, alpha, args.preset)
             for start in range(0, len(members), _CHUNK):
                 chunk = members[start:start + _CHUNK]
                 tables = np.asarray(aj.reconstruct_batch([samples[k] for k in chunk], config, params))
@@ -295,6 +295,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--alpha", type=float, metavar="DEG", help="slice offset (default: read off the data)")
     r.add_argument("--format", choices=("npz", "exr"), help="table format in folder mode (default npz)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--preset", choices=("recommended", "paper"), default="recommended",
+                   help="recommended: log-value RBF chosen on the MERL train split (default); "
+                        "paper: Filip 2012 as published (linear values)")
     r.set_defaults(func=cmd_reconstruct)
 
     s = sub.add_parser("sample", parents=[common], help="table or material -> measurement CSV",

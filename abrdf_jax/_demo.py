@@ -137,7 +137,7 @@ def run_demo(
     rows, results = [], []
     compiled: set[str] = set()
     for name, model, budget in chosen:
-        config = aj.Config(budget=budget)
+        config = aj.Config.recommended(budget)
         params = aj.Params.default(config)
         reference = np.asarray(materials.dense_table(model), dtype=np.float32)
         measured = _sample_measurements(model, config, params)

@@ -34,7 +34,9 @@ class Config(eqx.Module):
         value_space: ``"linear"`` (the paper) or ``"log"``: the RBF interpolates
             ``ln(x + ε)`` with ``ε = log_eps · mean sample``, which keeps shiny materials'
             highlights from ringing into the body of the material.
-        pairs: measured elevation pairs ``(θi, θv)`` in degrees (UBO rings).
+        pairs: measured elevation pairs ``(θi, θv)`` in degrees. Off the UBO rings the RBF
+            centres of a pair take 24 azimuths per direction.
+        slice_count: samples per slice when sampling pairs other than PROTOCOL.md's.
     """
 
     budget: str = "iso102"
@@ -46,6 +48,7 @@ class Config(eqx.Module):
     value_space: str = "linear"
     log_eps: float = 0.01
     pairs: tuple = PROTOCOL_PAIRS
+    slice_count: int = 24
 
     def __check_init__(self):
         for name, value, allowed in (
@@ -59,6 +62,10 @@ class Config(eqx.Module):
             if value not in allowed:
                 raise ValueError(f"Config.{name} must be one of {allowed}, got {value!r}")
         resolve_degree(self.kernel, self.degree)
+        if not self.pairs or any(len(p) != 2 or not all(0 <= float(t) < 90 for t in p) for p in self.pairs):
+            raise ValueError(f"Config.pairs must be (theta_i, theta_v) pairs in [0, 90) degrees, got {self.pairs!r}")
+        if not (isinstance(self.slice_count, int) and self.slice_count >= 2):
+            raise ValueError(f"Config.slice_count must be an int >= 2, got {self.slice_count!r}")
         if not (isinstance(self.log_eps, float) and self.log_eps > 0):
             raise ValueError(f"Config.log_eps must be a positive float, got {self.log_eps!r}")
 
@@ -77,9 +84,15 @@ class Config(eqx.Module):
 
     @property
     def counts(self) -> tuple[int, ...]:
-        if self.pairs != PROTOCOL_PAIRS:
-            raise ValueError("protocol sample counts are defined for the PROTOCOL pairs only")
-        return protocol_counts(self.budget)
+        """Samples per slice (axial, diagonal per pair) when sampling this configuration.
+
+        The PROTOCOL pairs use PROTOCOL.md's counts (25, 25, 26, 26); other elevation pairs take
+        ``slice_count`` samples per measured slice.
+        """
+        if tuple(map(tuple, self.pairs)) == PROTOCOL_PAIRS:
+            return protocol_counts(self.budget)
+        axial = self.slice_count if self.budget == "aniso204" else 0
+        return tuple(c for _ in self.pairs for c in (axial, self.slice_count))
 
 
 # Defaults chosen on the MERL *train* split, iso102, by mean ΔE76 with

@@ -197,3 +197,18 @@ def test_check_grads_full_pipeline_alpha_and_widths(budget, rule):
     ga, gw = jax.grad(loss, argnums=(0, 1))(a0, w0)
     assert np.isfinite(ga) and np.all(np.isfinite(gw)) and np.abs(ga) > 0
     check_grads(loss, (a0, w0), order=1, modes=("rev",), atol=1e-5, rtol=1e-3, eps=1e-5)
+
+
+def test_other_elevation_pairs_and_alpha():
+    """Any elevation pairs (UBO rings or not) and any α: sample, group and reconstruct."""
+    cfg = aj.Config(budget="aniso204", pairs=((45.0, 45.0), (20.0, 70.0)), slice_count=16)
+    assert cfg.counts == (16, 16, 16, 16)
+    p = aj.Params.default(cfg, alpha_deg=25.0)
+    s = aj.sample(smooth_model, cfg, p)
+    assert len(s) == 64
+    meas, rep = aj.group_slices(s, alpha_deg=None, pairs=cfg.pairs)
+    assert abs(rep["alpha_deg"] - 25.0) < 1e-4 and rep["n_off_slice"] == 0
+    rec = aj.reconstruct(meas, cfg, p)
+    assert rec.shape == (81, 81, 3) and np.all(np.isfinite(rec))
+    with pytest.raises(ValueError, match="Config.pairs"):
+        aj.Config(pairs=((95.0, 30.0),))
