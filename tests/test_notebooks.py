@@ -78,11 +78,12 @@ def test_notebooks_found():
 
 
 def _run_probe(km: KernelManager) -> str:
-    """Execute a one-cell notebook that prints the kernel's interpreter and package location."""
+    """Run a one-cell notebook that imports abrdf_jax and prints the kernel's interpreter."""
     from nbformat.v4 import new_code_cell, new_notebook
 
     nb = new_notebook(cells=[new_code_cell("import sys, abrdf_jax; print(sys.executable)")])
-    nbclient.NotebookClient(nb, km=km, timeout=60, resources={"metadata": {"path": str(NOTEBOOK_DIR)}}).execute()
+    resources = {"metadata": {"path": str(NOTEBOOK_DIR)}}
+    nbclient.NotebookClient(nb, km=km, timeout=60, resources=resources).execute()
     return "".join(o.get("text", "") for o in nb.cells[0].outputs).strip()
 
 
@@ -108,7 +109,7 @@ def test_notebook_runs(path: Path, tmp_path: Path):
     )
     try:
         client.execute()
-    except CellExecutionError as exc:  # names the notebook; exc already holds cell source and traceback
+    except CellExecutionError as exc:  # exc holds the cell's source and traceback
         pytest.fail(f"{path.name}: a cell raised\n{exc}", pytrace=False)
     errors = [
         (i, out.get("ename"), out.get("evalue"))
