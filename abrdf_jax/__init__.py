@@ -35,6 +35,6 @@ from ._slices import (
 )
 from ._subspace import RULES as RULES, subspace as subspace
 
-from . import io as io, materials as materials, metrics as metrics, render as render
+from . import io as io, materials as materials, metrics as metrics, render as render, tuning as tuning
 
 __version__ = "0.1.0"

@@ -1,0 +1,237 @@
+"""One small fitting API over optimistix and jaxopt.
+
+``fit(problem, data, params, solver=...)`` minimises a tuning problem (:mod:`abrdf_jax._tuning`)
+and returns a :class:`FitResult`. Solvers:
+
+========  ===========================================  ==================================
+name      algorithm                                    library
+========  ===========================================  ==================================
+``lm``    Levenberg–Marquardt on the residuals          ``optimistix.LevenbergMarquardt``
+``gn``    Gauss–Newton on the residuals                 ``optimistix.GaussNewton``
+``bfgs``  BFGS on half the mean squared residual        ``optimistix.BFGS``
+``lbfgs`` L-BFGS on the same scalar                     ``jaxopt.LBFGS``
+``lbfgsb`` L-BFGS-B with box bounds on log-width/log-λ   ``jaxopt.LBFGSB``
+========  ===========================================  ==================================
+
+The whole solve is one compiled program (the solver's loop is a ``lax.while_loop``), compiled
+ahead of time once per (problem, solver, step budget, data shapes): new data or starting values
+never recompile, and the compile time is reported apart from the solve time. Progress comes from
+a host callback in the objective (one line per evaluation batch, or a user callback). A fit that
+produces non-finite parameters or loss ends with ``status="diverged"`` and returns the starting
+parameters, never NaN.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._errors import InputError
+from ._params import Params
+from ._tuning import AbstractProblem
+
+SOLVERS = ("lm", "gn", "bfgs", "lbfgs", "lbfgsb")
+LEAST_SQUARES = ("lm", "gn")
+
+
+@dataclass
+class FitResult:
+    """What a fit returns.
+
+    Attributes:
+        params: the fitted :class:`Params` (the starting ones if the fit diverged).
+        theta: the unconstrained coordinates of ``params``.
+        status: ``"converged"``, ``"max_steps"`` (budget used up; the result is still the best
+            point reached by the solver), ``"diverged"`` (non-finite loss or parameters) or
+            ``"failed"`` (the solver reported another failure).
+        loss_initial, loss_final: the objective (half the mean squared residual) before and after.
+        steps: solver iterations; evaluations: objective evaluations seen by the progress hook.
+        seconds: wall time of the solve; compile_seconds: of its compilation.
+        history: the objective at every evaluation, in order.
+        solver: the solver's name; message: the solver's own result text.
+    """
+
+    params: Params
+    theta: dict
+    status: str
+    loss_initial: float
+    loss_final: float
+    steps: int
+    evaluations: int
+    seconds: float
+    compile_seconds: float
+    solver: str
+    message: str = ""
+    history: list = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return self.status in ("converged", "max_steps")
+
+    def summary(self) -> dict:
+        """JSON-friendly summary (no arrays but the parameters as lists)."""
+        p = self.params
+        return {
+            "solver": self.solver,
+            "status": self.status,
+            "message": self.message,
+            "loss_initial": self.loss_initial,
+            "loss_final": self.loss_final,
+            "steps": self.steps,
+            "evaluations": self.evaluations,
+            "seconds": self.seconds,
+            "compile_seconds": self.compile_seconds,
+            "alpha_deg": p.alpha_deg,
+            "widths": [float(w) for w in np.asarray(p.widths)],
+            "reg": float(p.reg),
+        }
+
+
+# The progress hook: a module-level sink so that the compiled program never depends on it.
+_SINK: list[Callable[[float], None]] = []
+
+
+def _report(value):
+    v = float(np.asarray(value))
+    for f in _SINK:
+        f(v)
+
+
+def _objective(problem: AbstractProblem, theta, data, least_squares: bool):
+    r = problem.residuals(theta, data)
+    loss = 0.5 * jnp.mean(r * r)
+    jax.debug.callback(_report, loss)
+    return r if least_squares else loss
+
+
+def _solve(problem, solver_name, max_steps, rtol, atol, theta0, data, lo, hi):
+    """The whole solve; returns (theta, steps, ok flag, loss at theta)."""
+    import optimistix as optx
+
+    if solver_name in LEAST_SQUARES:
+        cls = optx.LevenbergMarquardt if solver_name == "lm" else optx.GaussNewton
+        solver = cls(rtol=rtol, atol=atol)
+        sol = optx.least_squares(
+            lambda th, d: _objective(problem, th, d, True), solver, theta0, args=data,
+            max_steps=max_steps, throw=False,
+        )
+        theta, steps, result = sol.value, sol.stats["num_steps"], sol.result
+        code = jnp.where(result == optx.RESULTS.successful, 0, jnp.where(steps >= max_steps, 1, 2))
+    elif solver_name == "bfgs":
+        solver = optx.BFGS(rtol=rtol, atol=atol)
+        sol = optx.minimise(
+            lambda th, d: _objective(problem, th, d, False), solver, theta0, args=data,
+            max_steps=max_steps, throw=False,
+        )
+        theta, steps, result = sol.value, sol.stats["num_steps"], sol.result
+        code = jnp.where(result == optx.RESULTS.successful, 0, jnp.where(steps >= max_steps, 1, 2))
+    else:
+        import jaxopt
+
+        fun = lambda th, d: _objective(problem, th, d, False)  # noqa: E731
+        if solver_name == "lbfgs":
+            solver = jaxopt.LBFGS(fun=fun, maxiter=max_steps, tol=atol, jit=True)
+            theta, state = solver.run(theta0, data)
+        else:
+            solver = jaxopt.LBFGSB(fun=fun, maxiter=max_steps, tol=atol, jit=True)
+            theta, state = solver.run(theta0, (lo, hi), data)
+        steps = state.iter_num
+        code = jnp.where(state.error <= atol, 0, jnp.where(steps >= max_steps, 1, 2))
+    final = problem.loss(theta, data)
+    return theta, steps, code, final
+
+
+_solve_jit = jax.jit(_solve, static_argnums=(0, 1, 2, 3, 4))
+
+
+def fit(
+    problem: AbstractProblem,
+    data,
+    params: Params,
+    *,
+    solver: str = "lm",
+    max_steps: int = 50,
+    rtol: float = 1e-4,
+    atol: float = 1e-6,
+    progress: bool | Callable[[float], None] = False,
+) -> FitResult:
+    """Fit the free parameters of ``problem`` on ``data`` starting from ``params``.
+
+    Args:
+        problem: a :class:`~abrdf_jax.tuning.SelfCalibration` or
+            :class:`~abrdf_jax.tuning.Population` problem (static choices).
+        data: its data pytree (``problem.make_data(...)``); arrays only.
+        params: starting (and fixed, for the parameters that are not free) :class:`Params`.
+        solver: one of :data:`SOLVERS`.
+        max_steps: iteration budget of the solver.
+        rtol, atol: the solver's tolerances (jaxopt uses ``atol`` on the gradient norm).
+        progress: ``True`` prints the objective at each evaluation batch to stderr; a callable
+            receives every objective value instead.
+
+    Returns:
+        A :class:`FitResult`.
+    """
+    if solver not in SOLVERS:
+        raise InputError(f"solver must be one of {SOLVERS}, got {solver!r}")
+    if not (isinstance(max_steps, int) and max_steps >= 1):
+        raise InputError(f"max_steps must be a positive int, got {max_steps!r}")
+    theta0 = problem.space.init(params)
+    lo, hi = problem.space.bounds(theta0)
+    data = dict(data, base=params)
+    history: list[float] = []
+
+    def sink(v):
+        history.append(v)
+        if callable(progress):
+            progress(v)
+        elif progress:
+            import sys
+
+            print(f"  fit[{solver}] eval {len(history):4d}  loss {v:.6g}", file=sys.stderr, flush=True)
+
+    static = (problem, solver, max_steps, float(rtol), float(atol))
+    t0 = time.perf_counter()
+    compiled = _solve_jit.lower(*static, theta0, data, lo, hi).compile()
+    t_compile = time.perf_counter() - t0
+    _SINK.append(sink)
+    try:
+        t0 = time.perf_counter()
+        theta, steps, code, final = compiled(theta0, data, lo, hi)
+        final = float(jax.block_until_ready(final))
+        seconds = time.perf_counter() - t0
+    finally:
+        _SINK.remove(sink)
+    loss0 = history[0] if history else float(problem.loss(theta0, data))
+    finite = math.isfinite(final) and all(bool(jnp.all(jnp.isfinite(v))) for v in jax.tree_util.tree_leaves(theta))
+    code = int(code)
+    if not finite:
+        status, theta, final = "diverged", theta0, loss0
+    else:
+        status = ("converged", "max_steps", "failed")[code]
+    fitted = problem.space.to_params(theta, params)
+    message = {0: "tolerance reached", 1: f"stopped after max_steps={max_steps}", 2: "the solver reported a failure"}[code]
+    if status == "diverged":
+        message = "non-finite loss or parameters; returned the starting parameters"
+    return FitResult(
+        params=fitted, theta=theta, status=status, loss_initial=loss0, loss_final=final,
+        steps=int(steps), evaluations=len(history), seconds=seconds, compile_seconds=t_compile,
+        solver=solver, message=message, history=history,
+    )
+
+
+def held_out_loss(problem: AbstractProblem, data, params: Params) -> float:
+    """The objective of ``problem`` at ``params`` (jitted once per problem and data shape)."""
+    theta = problem.space.init(params)
+    return float(_loss_jit(problem, theta, dict(data, base=params)))
+
+
+@eqx.filter_jit
+def _loss_jit(problem, theta, data):
+    return problem.loss(theta, data)
