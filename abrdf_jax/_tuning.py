@@ -91,7 +91,8 @@ class ParamSpace(eqx.Module):
             lo, hi = np.deg2rad(self.alpha_bounds_deg)
             u = jnp.clip((params.alpha - lo) / (hi - lo), 1e-6, 1 - 1e-6)
             theta["alpha"] = jnp.log(u) - jnp.log1p(-u)
-        return theta
+        # One dtype for every entry (the parameters'), as jaxopt requires.
+        return {k: jnp.asarray(v, params.alpha.dtype) for k, v in theta.items()}
 
     def to_params(self, theta: dict[str, Array], base: Params) -> Params:
         """The :class:`Params` at ``theta``; fixed entries from ``base``."""
