@@ -112,8 +112,10 @@ def _objective(problem: AbstractProblem, theta, data, least_squares: bool):
 
 
 def _solve(problem, solver_name, max_steps, rtol, atol, theta0, data, lo, hi):
-    """The whole solve; returns (theta, steps, ok flag, loss at theta)."""
+    """The whole solve; returns (theta, steps, status code, loss at theta0, loss at theta)."""
     import optimistix as optx
+
+    initial = problem.loss(theta0, data)
 
     if solver_name in LEAST_SQUARES:
         cls = optx.LevenbergMarquardt if solver_name == "lm" else optx.GaussNewton
@@ -145,7 +147,7 @@ def _solve(problem, solver_name, max_steps, rtol, atol, theta0, data, lo, hi):
         steps = state.iter_num
         code = jnp.where(state.error <= atol, 0, jnp.where(steps >= max_steps, 1, 2))
     final = problem.loss(theta, data)
-    return theta, steps, code, final
+    return theta, steps, code, initial, final
 
 
 _solve_jit = jax.jit(_solve, static_argnums=(0, 1, 2, 3, 4))
@@ -203,12 +205,12 @@ def fit(
     _SINK.append(sink)
     try:
         t0 = time.perf_counter()
-        theta, steps, code, final = compiled(theta0, data, lo, hi)
+        theta, steps, code, loss0, final = compiled(theta0, data, lo, hi)
         final = float(jax.block_until_ready(final))
         seconds = time.perf_counter() - t0
     finally:
         _SINK.remove(sink)
-    loss0 = history[0] if history else float(problem.loss(theta0, data))
+    loss0 = float(loss0)
     finite = math.isfinite(final) and all(bool(jnp.all(jnp.isfinite(v))) for v in jax.tree_util.tree_leaves(theta))
     code = int(code)
     if not finite:
