@@ -83,7 +83,25 @@ def _expand_inputs(inputs: list[str]) -> tuple[list[Path], bool]:
     return files, folder_mode
 
 
-def _params_for(aj, budget: str, alpha_deg: float, preset: str = "recommended"):
+def _params_for(aj, budget: str, alpha_deg: float, preset: str = "recommended", params_file=None):
+    """Config and params: from a fitted parameter file (``--params``) or a preset's defaults.
+
+    A parameter file supplies the configuration, widths and λ; α stays the measurement's own
+    (it says where the samples lie), and the file's budget must match the data's.
+    """
+    if params_file is not None:
+        from abrdf_jax.tuning import load_params
+
+        config, params, _ = load_params(params_file)
+        if config.budget != budget:
+            raise InputError(
+                f"{params_file}: parameters were fitted for {config.budget}, but the measurement is {budget}; "
+                f"fit for {budget} or pass --{'isotropic' if config.budget == 'iso102' else 'anisotropic'}"
+            )
+        import jax.numpy as jnp
+
+        alpha = jnp.asarray(aj.Params.default(config, alpha_deg=alpha_deg).alpha, params.alpha.dtype)
+        return config, aj.Params(alpha, params.widths, params.reg)
     config = aj.Config.recommended(budget) if preset == "recommended" else aj.Config(budget=budget)
     return config, aj.Params.default(config, alpha_deg=alpha_deg)
 
@@ -138,10 +156,11 @@ def cmd_reconstruct(args) -> int:
 
     if not folder_mode:
         budget, alpha = plans[0]
-        config, params = _params_for(aj, budget, alpha, args.preset)
+        config, params = _params_for(aj, budget, alpha, args.preset, args.params)
         table = np.asarray(aj.reconstruct(samples[0], config, params))
+        how = f"parameters from {args.params}" if args.params else f"{args.preset} settings"
         io.write_table(out, table)
-        print(f"{out}: reconstructed from {len(samples[0])} samples ({budget}, alpha {alpha:g} deg, {args.preset} settings)")
+        print(f"{out}: reconstructed from {len(samples[0])} samples ({budget}, alpha {alpha:g} deg, {how})")
         return 0
 
     from tqdm import tqdm
@@ -153,7 +172,7 @@ def cmd_reconstruct(args) -> int:
     with tqdm(total=len(files), desc="reconstruct", unit="file", file=sys.stderr,
               disable=args.quiet, dynamic_ncols=True) as bar:
         for (budget, alpha), members in groups.items():
-            config, params = _params_for(aj, budget, alpha, args.preset)
+            config, params = _params_for(aj, budget, alpha, args.preset, args.params)
             for start in range(0, len(members), _CHUNK):
                 chunk = members[start:start + _CHUNK]
                 tables = np.asarray(aj.reconstruct_batch([samples[k] for k in chunk], config, params))
@@ -298,6 +317,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--preset", choices=("recommended", "paper"), default="recommended",
                    help="recommended: log-value RBF chosen on the MERL train split (default); "
                         "paper: Filip 2012 as published (linear values)")
+    r.add_argument("--params", metavar="PARAMS.json", type=Path,
+                   help="fitted configuration and parameters from 'abrdf-jax fit' (overrides --preset)")
     r.set_defaults(func=cmd_reconstruct)
 
     s = sub.add_parser("sample", parents=[common], help="table or material -> measurement CSV",
@@ -327,6 +348,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     m = sub.add_parser("materials", parents=[common], help="list the built-in materials")
     m.set_defaults(func=cmd_materials)
+
+    from ._cli_fit import register as register_fit
+
+    register_fit(sub)
     return p
 
 

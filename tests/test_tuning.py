@@ -177,10 +177,10 @@ def test_new_data_and_parameters_never_retrace(plastic_meas, clay_meas):
     l_b = tuning.held_out_loss(prob, data_b, other)
     assert l_a != l_b and TRACE_COUNT["residuals"] == n  # new data, new values: no new trace
 
-    r1 = tuning.fit(prob, data_a, params, solver="lbfgs", max_steps=2)
+    r1 = tuning.fit(prob, data_a, params, solver="bfgs", max_steps=2)
     assert r1.ok and r1.loss_final < r1.loss_initial  # self-calibration lowers the held-out error
     n = TRACE_COUNT["residuals"]
-    r2 = tuning.fit(prob, data_b, other, solver="lbfgs", max_steps=2)
+    r2 = tuning.fit(prob, data_b, other, solver="bfgs", max_steps=2)
     assert TRACE_COUNT["residuals"] == n
     assert r2.compile_seconds < max(1.0, 0.2 * r1.compile_seconds)  # served from the cache
     assert r1.loss_final != r2.loss_final
@@ -243,7 +243,7 @@ def test_cli_fit_then_reconstruct_with_params(tmp_path, capsys):
 
     params = tmp_path / "p.json"
     assert main(["fit", "population", "--materials", "ggx-plastic,ward-brushed-steel", "-o", str(params),
-                 "--steps", "2", "--widths", "shared", "--fixed-reg", "--solver", "lbfgs", "-q"]) == 0
+                 "--steps", "2", "--widths", "shared", "--fixed-reg", "--solver", "bfgs", "-q"]) == 0
     d = json.loads(params.read_text())
     assert d["fit"]["mode"] == "population" and d["config"]["budget"] == "iso102"
     assert d["fit"]["materials"] == ["ggx-plastic", "ward-brushed-steel"]
