@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import traceback
 from pathlib import Path
@@ -50,6 +51,8 @@ def _check_output_file(path: Path, extensions: tuple[str, ...], what: str) -> Pa
         raise InputError(f"{path}: output folder {parent} does not exist")
     if path.is_dir():
         raise InputError(f"{path}: is a folder, expected a file name")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{path}: output folder {parent} is not writable")
     return path
 
 
@@ -123,6 +126,40 @@ def _plan(aj, samples, forced_budget: str | None, alpha: float | None, where: Pa
 # --------------------------------------------------------------------------------------------
 
 
+def _read_inputs(aj, files: list[Path], forced: str | None, alpha: float | None):
+    """Read and plan every input; one bad file fails the run before any work, naming them all."""
+    from abrdf_jax import io
+
+    samples, plans, bad = [], [], []
+    for f in files:
+        try:
+            s = io.read_samples_csv(f)
+            plans.append(_plan(aj, s, forced, alpha, f))
+            samples.append(s)
+        except InputError as e:
+            bad.append((f, str(e)))
+    if bad:
+        others = ", ".join(str(f) for f, _ in bad[1:4]) + (", ..." if len(bad) > 4 else "")
+        more = f" (also bad: {others}; nothing was written)" if len(bad) > 1 else ""
+        raise InputError(bad[0][1] + more)
+    for f, s in zip(files, samples):
+        _warn_negative(f, s)
+    return samples, plans
+
+
+def _warn_negative(path: Path, samples) -> None:
+    """Negative values are kept (dark-frame noise); say so, since the output is clamped at 0."""
+    import numpy as np
+
+    rgb = np.asarray(samples.rgb)
+    neg = rgb < 0
+    if neg.any():
+        row = int(np.argmax(neg.any(axis=1)))
+        print(f"{PROG}: warning: {path}: {int(neg.any(axis=1).sum())} of {len(rgb)} samples have negative "
+              f"values (min {rgb.min():.3g}, first in data row {row + 1}); kept as measured, the "
+              f"reconstruction is clamped at 0", file=sys.stderr)
+
+
 def cmd_reconstruct(args) -> int:
     import numpy as np
 
@@ -137,6 +174,9 @@ def cmd_reconstruct(args) -> int:
             raise InputError(f"{out}: several inputs need an output folder, but this is a file")
         if not out.exists() and not out.parent.is_dir():
             raise InputError(f"{out}: parent folder {out.parent} does not exist")
+        where = out if out.exists() else out.parent
+        if not os.access(where, os.W_OK | os.X_OK):
+            raise InputError(f"{out}: folder {where} is not writable")
         stems: dict[str, Path] = {}
         for f in files:
             if f.stem in stems:
@@ -150,9 +190,8 @@ def cmd_reconstruct(args) -> int:
         targets = [out]
 
     # Read and check every input before computing or writing anything.
-    samples = [io.read_samples_csv(f) for f in files]
     forced = "iso102" if args.isotropic else "aniso204" if args.anisotropic else None
-    plans = [_plan(aj, s, forced, args.alpha, f) for s, f in zip(samples, files)]
+    samples, plans = _read_inputs(aj, files, forced, args.alpha)
 
     if not folder_mode:
         budget, alpha = plans[0]
@@ -189,6 +228,8 @@ def _load_source(aj, source: str):
     from abrdf_jax import io
 
     p = Path(source)
+    if p.suffix.lower() == ".binary":  # a MERL BRDF file
+        return io.MERLMaterial(io.read_merl_binary(p)), None
     if p.suffix.lower() in TABLE_EXTENSIONS or p.exists():
         return io.read_table(p), None
     from abrdf_jax import materials
@@ -219,7 +260,8 @@ def cmd_sample(args) -> int:
 
     out = _check_output_file(Path(args.output), (".csv",), "measurement")
     source, name = _load_source(aj, args.source)
-    budget = args.budget or _default_budget(name)
+    merl = Path(args.source).suffix.lower() == ".binary"  # MERL data are isotropic
+    budget = args.budget or ("iso102" if merl else _default_budget(name))
     alpha = 15.0 if args.alpha is None else float(args.alpha)
     config, params = _params_for(aj, budget, alpha)
     samples = aj.sample(source, config, params)
@@ -322,9 +364,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_reconstruct)
 
     s = sub.add_parser("sample", parents=[common], help="table or material -> measurement CSV",
-                       description="Take the protocol's slice samples of a dense table (.npz/.exr) or "
-                       "of a built-in material model.")
-    s.add_argument("source", metavar="SOURCE", help="TABLE.npz, TABLE.exr or a material name")
+                       description="Take the protocol's slice samples of a dense table (.npz/.exr), "
+                       "a MERL BRDF file (.binary, nearest bin) or a built-in material model.")
+    s.add_argument("source", metavar="SOURCE", help="TABLE.npz, TABLE.exr, a MERL FILE.binary or a material name")
     s.add_argument("-o", "--output", required=True, metavar="MEAS.csv")
     s.add_argument("--budget", choices=BUDGETS,
                    help="iso102 (4 diagonal slices) or aniso204 (8 slices); default: iso102 for a "

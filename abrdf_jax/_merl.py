@@ -17,14 +17,15 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._atomic import _check_readable, atomic_write
 from ._errors import InputError, located
 from ._grid import half_diff
-from ._io import _check_readable, atomic_write
 
 #: Bins of a MERL BRDF: (θh, θd, φd).
 MERL_BINS = (90, 90, 180)
@@ -190,3 +191,31 @@ def _lookup(brdf, wi, wv):
     value = brdf[ih, idd, ip]
     above = (wi[..., 2] > 0) & (wv[..., 2] > 0)
     return jnp.where(above[..., None] & (value >= 0), value, jnp.zeros((), brdf.dtype))
+
+
+class MERLMaterial(eqx.Module):
+    """A MERL-binned BRDF as a material: ``material(wi, wv)`` is the ABRDF (BRDF · cos θi).
+
+    Nearest-bin lookup (:func:`merl_lookup`), 0 below the horizon and in bins without data. It
+    can be sampled like the built-in materials (``abrdf_jax.sample(MERLMaterial(brdf), ...)``,
+    ``abrdf-jax sample FILE.binary``).
+
+    Attributes:
+        brdf: shape ``(90, 90, 180, 3)``, physical units, as returned by :func:`read_merl_binary`.
+    """
+
+    brdf: Float[Array, "90 90 180 3"] = eqx.field(converter=jnp.asarray)
+
+    def __check_init__(self):
+        if self.brdf.shape != MERL_SHAPE:
+            raise InputError(
+                f"MERLMaterial: brdf has shape {self.brdf.shape}, expected {MERL_SHAPE}"
+            )
+
+    def __call__(
+        self, wi: Float[Array, "... 3"], wv: Float[Array, "... 3"]
+    ) -> Float[Array, "... 3"]:
+        """ABRDF values ``(..., 3)`` at unit illumination and view vectors (z = surface normal)."""
+        value = merl_lookup(self.brdf, wi, wv)
+        cos_i = jnp.maximum(jnp.asarray(wi)[..., 2], 0.0).astype(value.dtype)
+        return value * cos_i[..., None]

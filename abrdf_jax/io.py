@@ -10,6 +10,7 @@ from ._io import write_samples_csv as write_samples_csv
 from ._io import write_table as write_table
 from ._merl import MERL_SCALE as MERL_SCALE
 from ._merl import MERL_SHAPE as MERL_SHAPE
+from ._merl import MERLMaterial as MERLMaterial
 from ._merl import merl_bin_indices as merl_bin_indices
 from ._merl import merl_lookup as merl_lookup
 from ._merl import read_merl_binary as read_merl_binary

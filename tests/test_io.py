@@ -277,6 +277,26 @@ def test_csv_radians_detected(tmp_path, rng):
     assert len(read_samples_csv(p)) == 5
 
 
+def test_csv_streamed_in_small_blocks(tmp_path, rng, monkeypatch):
+    """Block boundaries (here every ~50 bytes) change nothing: values, BOM, CRLF, blank lines,
+    quoted fields, and the line number of an error deep in the file."""
+    import abrdf_jax._csv as csv_module
+
+    monkeypatch.setattr(csv_module, "BLOCK_BYTES", 50)
+    s = _random_samples(rng, 300)
+    p = tmp_path / "m.csv"
+    write_samples_csv(p, s)
+    lines = p.read_text().splitlines()
+    lines[100] = '"' + lines[100].replace(",", '","') + '"'  # a quoted row: the slow path
+    lines.insert(200, "")
+    p.write_bytes(("\ufeff" + "\r\n".join(lines) + "\r\n").encode("utf-8"))
+    _assert_samples_equal(read_samples_csv(p), s)
+    lines[249] = lines[249].replace(",", ",oops", 1)
+    p.write_text("\n".join(lines) + "\n")
+    with _raises(p, 250, "'oops"):
+        read_samples_csv(p)
+
+
 def test_write_csv_rejects_nonfinite_and_out_of_range(tmp_path, rng):
     s = _random_samples(rng, 4)
     bad = Samples(s.theta_i, s.phi_i, s.theta_v, s.phi_v, np.where(np.eye(4, 3) > 0, np.nan, s.rgb))
