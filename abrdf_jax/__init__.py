@@ -18,6 +18,7 @@ from ._grid import (
     vector_from_onion as vector_from_onion,
 )
 from ._kernels import KERNELS as KERNELS
+from ._operator import ReconstructionOperator as ReconstructionOperator, compile_operator as compile_operator
 from ._params import Config as Config, Params as Params
 from ._pipeline import (
     infer_budget as infer_budget,

@@ -15,7 +15,7 @@ from ._subspace import RULES
 
 BUDGETS = ("iso102", "aniso204")
 PARAMETERIZATIONS = ("onion", "spherical", "halfdiff")
-VALUE_SPACES = ("linear", "log")
+VALUE_SPACES = ("linear", "log", "logsamples")
 
 
 class Config(eqx.Module):
@@ -33,7 +33,10 @@ class Config(eqx.Module):
         interp: 1D slice interpolation (``"linear"`` or ``"cubic"``).
         value_space: ``"linear"`` (the paper) or ``"log"``: the RBF interpolates
             ``ln(x + ε)`` with ``ε = log_eps · mean sample``, which keeps shiny materials'
-            highlights from ringing into the body of the material.
+            highlights from ringing into the body of the material. ``"logsamples"`` takes the
+            log of the *samples* instead (before slice interpolation and the subspace rule) and
+            exponentiates the RBF output: with a linear rule the whole reconstruction is then
+            ``exp(M · ln(y + ε)) − ε`` for one fixed matrix ``M`` (see :func:`compile_operator`).
         pairs: measured elevation pairs ``(θi, θv)`` in degrees. Off the UBO rings the RBF
             centres of a pair take 24 azimuths per direction.
         slice_count: samples per slice when sampling pairs other than PROTOCOL.md's.

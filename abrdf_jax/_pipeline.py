@@ -101,36 +101,76 @@ def subspace_values(meas: Measurements, config: Config, params: Params) -> Float
     return jnp.concatenate(vals)
 
 
+def value_eps(mean_abs, log_eps: float, dtype):
+    """ε of the log value spaces: ``log_eps`` times the mean absolute sample, per channel."""
+    return log_eps * mean_abs + jnp.finfo(dtype).tiny ** 0.5
+
+
 def _value_eps(meas: Measurements, config: Config):
     valid = (jnp.arange(meas.y.shape[1])[None, :] < meas.count[:, None])[..., None]
     mean = jnp.sum(jnp.where(valid, jnp.abs(meas.y), 0.0), axis=(0, 1)) / jnp.maximum(jnp.sum(meas.count), 1)
-    return config.log_eps * mean + jnp.finfo(meas.y.dtype).tiny ** 0.5
+    return value_eps(mean, config.log_eps, meas.y.dtype)
+
+
+def log_values(x, eps):
+    """``ln(max(x, 0) + ε)``: the values the RBF sees in the log value spaces."""
+    return jnp.log(jnp.maximum(x, 0.0) + eps)
+
+
+def log_samples(meas: Measurements, eps) -> Measurements:
+    """The measurement with every valid sample replaced by ``ln(max(y, 0) + ε)`` (padding stays 0)."""
+    valid = (jnp.arange(meas.y.shape[1])[None, :] < meas.count[:, None])[..., None]
+    y = jnp.where(valid, log_values(meas.y, eps), 0.0)
+    return Measurements(meas.t, y, meas.count, meas.pairs, meas.has_axial)
+
+
+def keep_centres(out: Float[Array, "q C"], vals: Float[Array, "n C"], pairs) -> Float[Array, "q C"]:
+    """Put the reconstructed subspaces back at their UBO grid pairs (the paper's step 3 fills
+    only the missing values); a no-op when a pair is off the grid."""
+    idx = _centre_target_index(pairs)
+    return out if idx is None else out.at[idx].set(vals)
+
+
+def rbf_map(fit_vals: Float[Array, "n C"], pairs, config: Config, params: Params, targets=None, keep: bool = True):
+    """RBF fit at the centres of ``pairs`` and evaluation at the targets: linear in ``fit_vals``.
+
+    Args:
+        fit_vals: values at the RBF centres (``centre_layout(pairs)`` order), any number of columns.
+        targets: ``(wi, wv)`` or ``None`` for the 6561 UBO pairs (then ``keep`` puts ``fit_vals``
+            back at the centres' grid pairs).
+
+    Returns:
+        ``(q, C)`` values in the fit space (before any exp).
+    """
+    dtype = fit_vals.dtype
+    wi_c, wv_c = centre_vectors(pairs, dtype)
+    xc = pair_coordinates(wi_c, wv_c, config.parameterization)
+    rbf = fit_rbf(xc, fit_vals, params.widths.astype(dtype), config.kernel, params.reg.astype(dtype), config.degree)
+    wi_t, wv_t = ubo_target_vectors(dtype) if targets is None else targets
+    out = rbf(pair_coordinates(wi_t, wv_t, config.parameterization))
+    if targets is None and keep:
+        out = keep_centres(out, fit_vals, pairs)
+    return out
 
 
 def _reconstruct_core(meas: Measurements, config: Config, params: Params, targets=None):
-    dtype = meas.y.dtype
+    log_space = config.value_space in ("log", "logsamples")
+    eps = _value_eps(meas, config) if log_space else None
+    if config.value_space == "logsamples":
+        # The log is taken of the samples, before slice interpolation and the subspace rule:
+        # everything from ln(y + ε) to the RBF output is then linear (see _operator.py).
+        meas = log_samples(meas, eps)
     vals = subspace_values(meas, config, params)
     if config.value_space == "log":
-        eps = _value_eps(meas, config)
-        fit_vals = jnp.log(jnp.maximum(vals, 0.0) + eps)
+        out = jnp.exp(rbf_map(log_values(vals, eps), meas.pairs, config, params, targets, keep=False)) - eps
+        if targets is None:
+            out = keep_centres(out, vals, meas.pairs)
     else:
-        fit_vals = vals
-    wi_c, wv_c = centre_vectors(meas.pairs, dtype)
-    xc = pair_coordinates(wi_c, wv_c, config.parameterization)
-    rbf = fit_rbf(xc, fit_vals, params.widths.astype(dtype), config.kernel, params.reg.astype(dtype), config.degree)
+        out = rbf_map(vals, meas.pairs, config, params, targets, keep=True)
+        if config.value_space == "logsamples":
+            out = jnp.exp(out) - eps
     if targets is None:
-        wi_t, wv_t = ubo_target_vectors(dtype)
-    else:
-        wi_t, wv_t = targets
-    out = rbf(pair_coordinates(wi_t, wv_t, config.parameterization))
-    if config.value_space == "log":
-        out = jnp.exp(out) - eps
-    if targets is None:
-        idx = _centre_target_index(meas.pairs)
-        if idx is not None:
-            # The paper keeps the reconstructed subspaces where they were measured.
-            out = out.at[idx].set(vals)
-        out = out.reshape(81, 81, 3)
+        out = out.reshape(81, 81, out.shape[-1])
     # An ABRDF is non-negative: negative values are interpolation overshoot.
     return jnp.maximum(out, 0.0)
 
