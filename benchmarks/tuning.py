@@ -22,6 +22,7 @@ Float32, CPU; times include the machine's load (stated in the JSON's machine blo
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 
@@ -35,6 +36,9 @@ from abrdf_jax.materials import dense_table, get_material, is_anisotropic, mater
 from abrdf_jax.tuning import ParamSpace, Population, SelfCalibration, fit, SOLVERS
 
 from ._common import machine, mean_metrics, merl_split, metrics_of, sample_batch, write_json, RESULTS
+
+
+ALL_PARTS = ("population", "solvers", "selfcal", "alpha")
 
 
 def configs(budget):
@@ -164,6 +168,14 @@ def markdown(out) -> str:
         for r in out["solvers"]:
             lines.append(f"| {r['solver']} | {r['loss_final']:.4g} | {r['test_after']['de76']:.2f} | {r['steps']} | "
                          f"{r['evaluations']} | {r['seconds']:.0f} | {r['compile_seconds']:.0f} | {r['status']} |")
+    al = out.get("alpha")
+    if al:
+        f = al["fit"]
+        lines += ["", f"α on the analytic anisotropic models ({len(al['materials'])}, aniso204, recommended, tables "
+                  f"sampled by interpolation): L-BFGS-B moves α 15° → {f['alpha_deg']:.1f}° (loss {f['loss_initial']:.4g} → "
+                  f"{f['loss_final']:.4g}); dense ΔE76 at exact samples {al['dense_alpha15']['de76']:.2f} (15°) → "
+                  f"{al['dense_tuned']['de76']:.2f} (tuned), LogErr {al['dense_alpha15']['logerr']:.3f} → "
+                  f"{al['dense_tuned']['logerr']:.3f}. Loss against α: `tuning_alpha.png`."]
     return "\n".join(lines) + "\n"
 
 
@@ -172,7 +184,8 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="few materials and steps (smoke run)")
     ap.add_argument("--train", type=int, default=None, help="number of train materials (default: all; quick 6)")
     ap.add_argument("--steps", type=int, default=None, help="solver steps (default 20; quick 4)")
-    ap.add_argument("--parts", default="population,solvers,selfcal,alpha", help="comma list of parts to run")
+    ap.add_argument("--parts", default=",".join(ALL_PARTS),
+                    help="comma list of parts to run; a partial run updates those parts of an existing JSON")
     args = ap.parse_args(argv)
     quick = args.quick
     steps = args.steps or (4 if quick else 20)
@@ -187,27 +200,39 @@ def main(argv=None):
     idx_te = np.arange(nte)
     train = subset(models_tr, ref_tr, idx_tr)
     test = subset(models_te, ref_te, idx_te)
+    json_name = "tuning_quick.json" if quick else "tuning.json"
     out = {"machine": machine(), "quick": quick, "steps": steps, "train_materials": [names_tr[i] for i in idx_tr],
            "test_materials": [names_te[i] for i in idx_te], "population": [], "solvers": [], "selfcal": []}
+    previous = RESULTS / json_name
+    if parts != set(ALL_PARTS) and previous.exists():  # a partial run updates only its parts
+        old = json.loads(previous.read_text())
+        if old.get("steps") == steps and old.get("train_materials") == out["train_materials"]:
+            out = {**old, **{k: v for k, v in out.items() if k not in ALL_PARTS}}
+            log(f"updating parts {sorted(parts)} of {previous}")
     t0 = time.time()
     if "population" in parts:
+        out["population"] = []
         for budget in ("iso102", "aniso204"):
             for name, cfg in configs(budget).items():
                 row, _ = population(train, test, budget, name, cfg, steps, log=log)
                 out["population"].append(row)
+        write_json(json_name, out)  # each part is saved as soon as it is done
     if "solvers" in parts:
+        out["solvers"] = []
         cfg = aj.Config.recommended("iso102")
         for solver in (SOLVERS if not quick else ("lm", "lbfgsb")):
             row, _ = population(train, test, "iso102", "recommended", cfg, steps, solver=solver, log=log)
             out["solvers"].append(row)
+        write_json(json_name, out)
     if "selfcal" in parts:
         out["selfcal"] = self_calibration(*test, [names_te[i] for i in idx_te], aj.Config.recommended("iso102"),
                                           steps=max(steps // 2, 3), log=log)
+        write_json(json_name, out)
     if "alpha" in parts:
         out["alpha"] = alpha_study(steps, quick, log=log)
         plot_alpha(out["alpha"], RESULTS / ("tuning_alpha_quick.png" if quick else "tuning_alpha.png"))
     out["seconds"] = time.time() - t0
-    write_json("tuning_quick.json" if quick else "tuning.json", out)
+    write_json(json_name, out)
     md = markdown(out)
     if not quick:
         (RESULTS / "tuning.md").write_text(md)
