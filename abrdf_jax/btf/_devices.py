@@ -1,0 +1,122 @@
+"""Texel-axis sharding over the devices of a host, and ``jax.distributed`` across hosts.
+
+On one host, a chunk of texels is split over the local devices along its texel axis: a 1-D
+``jax.sharding.Mesh`` named ``"texels"``, the input and the output sharded as
+``NamedSharding(mesh, P("texels"))``, the chunk map's constants (grouping matrix, operator,
+parameters) replicated, one ``jax.jit`` with those in/out shardings. Texels are independent, so
+the partitioned program needs no communication; XLA runs each device's share of the batch.
+
+Across hosts, :func:`init_distributed` starts ``jax.distributed`` (only when asked). Each process
+then owns the chunks ``k`` with ``k % process_count == process_index`` and shards them over its
+own devices; the store folder must be on a file system all hosts share. Chunks are files of their
+own, so processes never write the same file, and a resumed run (with any number of processes)
+skips every finished chunk. Processes do not exchange data: a slow or failed host delays only its
+own chunks, which a rerun picks up.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import equinox as eqx
+import jax
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from .._errors import InputError
+
+AXIS = "texels"
+
+
+def init_distributed(coordinator_address: str | None = None, num_processes: int | None = None,
+                     process_id: int | None = None, **kwargs) -> tuple[int, int]:
+    """Start ``jax.distributed`` for a multi-host run; returns ``(process_index, process_count)``.
+
+    Call it once per process, before any other JAX call. With no arguments JAX detects the
+    cluster (SLURM, Open MPI, Kubernetes, cloud TPU); otherwise give all three, e.g. on two hosts::
+
+        # host 0                                    # host 1
+        init_distributed("10.0.0.1:1234", 2, 0)     init_distributed("10.0.0.1:1234", 2, 1)
+
+    or from the command line ``abrdf-jax btf reconstruct ... --coordinator 10.0.0.1:1234
+    --num-processes 2 --process-id K``.
+
+    Raises:
+        InputError: only some of the three arguments given.
+    """
+    given = [a is not None for a in (coordinator_address, num_processes, process_id)]
+    if any(given) and not all(given):
+        raise InputError("init_distributed: give coordinator_address, num_processes and process_id together, or none")
+    jax.distributed.initialize(coordinator_address, num_processes, process_id, **kwargs)
+    return jax.process_index(), jax.process_count()
+
+
+def resolve_devices(devices=None) -> list:
+    """The devices to shard over: ``None`` → all local devices; an int ``n`` → the first ``n``."""
+    local = jax.local_devices()
+    if devices is None:
+        return list(local)
+    if isinstance(devices, (int, np.integer)):
+        if not 1 <= devices <= len(local):
+            raise InputError(f"devices must be in 1..{len(local)} (local devices), got {devices}")
+        return list(local[:devices])
+    out = list(devices)
+    if not out:
+        raise InputError("devices: empty list")
+    return out
+
+
+def _run(static, arrays, y, out_dtype):
+    return eqx.combine(arrays, static)(y).astype(out_dtype)
+
+
+# One jitted function per (devices, dtype): the chunk map's structure is a static argument, so a
+# new ChunkFunction of the same configuration (new parameter values, a new run) reuses the
+# compiled program instead of compiling again.
+_JITS: dict = {}
+
+
+def _sharded_jit(devices: tuple, out_dtype: str):
+    key = (devices, out_dtype)
+    if key not in _JITS:
+        mesh = Mesh(np.asarray(devices), (AXIS,))
+        data = NamedSharding(mesh, PartitionSpec(AXIS))
+        replicated = NamedSharding(mesh, PartitionSpec())
+        fn = jax.jit(partial(_run, out_dtype=np.dtype(out_dtype)), static_argnums=0,
+                     in_shardings=(replicated, data), out_shardings=data)
+        _JITS[key] = (fn, data, replicated)
+    return _JITS[key]
+
+
+class ShardedRunner:
+    """``runner(y) -> tables``: a chunk map jitted with its texel axis sharded over ``devices``.
+
+    The input ``y`` and the output are ``NamedSharding(Mesh(devices, ("texels",)),
+    P("texels"))``; the chunk map's arrays are replicated. Compiled once per chunk-map structure,
+    device set, dtype and batch shape.
+
+    Args:
+        chunk_fn: the pure chunk map (an ``eqx.Module``; its non-array fields must be hashable).
+        devices: list of devices (see :func:`resolve_devices`).
+        out_dtype: dtype of the returned tables (the cast happens on the devices).
+    """
+
+    def __init__(self, chunk_fn, devices, out_dtype):
+        self.devices = list(devices)
+        arrays, self._static = eqx.partition(chunk_fn, eqx.is_array)
+        self._run, self.data, replicated = _sharded_jit(tuple(self.devices), np.dtype(out_dtype).name)
+        self._arrays = jax.device_put(arrays, replicated)
+
+    @property
+    def n_devices(self) -> int:
+        return len(self.devices)
+
+    def batch_size(self, chunk: int) -> int:
+        """The padded batch of a chunk: the next multiple of the device count."""
+        return -(-chunk // self.n_devices) * self.n_devices
+
+    def __call__(self, y: np.ndarray):
+        """Dispatch one padded batch ``(B, n, 3)``; returns a (still computing) JAX array."""
+        if y.shape[0] % self.n_devices:
+            raise ValueError(f"batch of {y.shape[0]} texels is not a multiple of {self.n_devices} devices")
+        return self._run(self._static, self._arrays, jax.device_put(y, self.data))
