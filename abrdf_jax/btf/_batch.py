@@ -27,7 +27,7 @@ import numpy as np
 from .._errors import InputError
 from .._params import Config, Params
 from ._chunkfn import BACKENDS, N_PAIRS, make_chunk_fn
-from ._devices import ShardedRunner, resolve_devices
+from ._devices import DEFAULT_BLOCK, ShardedRunner, resolve_devices
 from ._store import ChunkedStore
 
 #: Texels per chunk when none is given (about 40 MB of float16 output per chunk).
@@ -91,6 +91,7 @@ def reconstruct_btf(
     progress: bool = True,
     dtype: str = "float16",
     devices=None,
+    block: int = DEFAULT_BLOCK,
     backend: str = "auto",
     compute_dtype: str = "float32",
     overwrite: bool = False,
@@ -108,6 +109,9 @@ def reconstruct_btf(
         progress: show a tqdm progress bar on stderr.
         dtype: ``"float16"`` (half the disk, ~3 significant digits) or ``"float32"``.
         devices: ``None`` (all local devices), a count, or a list of devices to shard over.
+        block: texels per matrix product on a device (:mod:`._devices`): results are
+            bit-identical on ``d`` devices and on one when ``chunk`` is a multiple of
+            ``d · block`` (the default 1024 and 128: for 1, 2, 4 or 8 devices).
         backend: ``"auto"``, ``"operator"`` or ``"pipeline"`` (:func:`make_chunk_fn`).
         compute_dtype: ``"float32"`` (fast) or ``"float64"`` (needs ``jax_enable_x64``; the
             float32 pipeline's ill-conditioned RBF solve makes results depend on the batch size
@@ -167,7 +171,7 @@ def reconstruct_btf(
                 first_chunk_seconds=0.0, batch=None)
     if todo:  # build (or reuse) the chunk map only when there is work
         chunk_fn = _chunk_fn(config, params, geometry, backend, work)
-        runner = ShardedRunner(chunk_fn, devices, np.dtype(dtype))
+        runner = ShardedRunner(chunk_fn, devices, np.dtype(dtype), block)
         batch = runner.batch_size(chunk)
         info.update(backend=chunk_fn.backend, batch=batch)
 
