@@ -93,6 +93,11 @@ def cmd_reconstruct(args) -> int:
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
+    import jax
+
+    if args.exr_dir and jax.process_count() > 1:
+        raise InputError("--exr-dir with several processes: export once all have finished, "
+                         "with 'abrdf-jax btf export'")
     config, params = _config_params(args, meas)
     stats: dict = {}
     store = btf.reconstruct_btf(meas, out, config, params, chunk=args.chunk, progress=not args.quiet,
@@ -103,13 +108,8 @@ def cmd_reconstruct(args) -> int:
           f"already done) in {stats['seconds']:.1f} s ({rate:.0f} texels/s; {stats['backend'] or 'no'} backend, "
           f"{stats['devices']} device(s), {args.dtype})")
     if args.exr_dir:
-        import jax
-
         if jax.process_index() == 0:
             t0 = time.perf_counter()
-            if jax.process_count() > 1:
-                raise InputError("--exr-dir with several processes: export once all have finished, "
-                                 "with 'abrdf-jax btf export'")
             count = btf.write_exr_pairs(store, args.exr_dir, progress=not args.quiet)
             print(f"{args.exr_dir}: {count} EXR images in {time.perf_counter() - t0:.1f} s")
     return 0

@@ -252,6 +252,31 @@ def test_resume_after_crash_equals_uninterrupted(generated, reconstructed, tmp_p
         btf.reconstruct_btf(paths["measurements"], out, aj.Config(budget="aniso204"), chunk=CHUNK, progress=False)
 
 
+def test_two_processes_share_the_chunks(generated, reconstructed, tmp_path, monkeypatch):
+    """Several hosts (jax.distributed) on one shared folder: process p of P computes the chunks
+    k with k % P == p; together they give the one-process result. Simulated in this process."""
+    _, paths = generated
+    full, _ = reconstructed
+    out = tmp_path / "rec"
+    monkeypatch.setattr(jax, "process_count", lambda: 2)
+    for pid in (1, 0):
+        monkeypatch.setattr(jax, "process_index", lambda pid=pid: pid)
+        stats = {}
+        btf.reconstruct_btf(paths["measurements"], out, chunk=CHUNK, progress=False, stats=stats)
+        assert stats["chunks_done"] == 1 and stats["chunks_skipped"] == 0
+        assert btf.ChunkedStore.open(out).done_chunks() == ([1] if pid == 1 else [0, 1])
+    np.testing.assert_array_equal(btf.ChunkedStore.open(out).read(), full.read())
+    # a second host creating the same store while the first is half-way (chunks/ and a temporary
+    # manifest there, no manifest yet) is not refused as "a folder that holds something else"
+    other = tmp_path / "race"
+    (other / "chunks").mkdir(parents=True)
+    (other / ".manifest.json.x1.tmp").write_text("{")
+    s = btf.ChunkedStore.create(other, kind="abrdf", texel_shape=(1, 1), item_shape=(1, 3))
+    assert s.done_chunks() == []
+    with pytest.raises(InputError, match="together"):
+        btf.init_distributed("localhost:1234")
+
+
 def test_sharded_over_8_devices_equals_one_device(generated, reconstructed, tmp_path):
     """XLA_FLAGS must be set before JAX starts: a subprocess with 8 simulated CPU devices. In
     float32 (the default), 8, 2 and 1 devices give the same bits: every device multiplies blocks
@@ -343,3 +368,8 @@ def test_cli_generate_reconstruct_evaluate(generated, reconstructed, tmp_path, c
     assert main(["btf", "reconstruct", str(root / "reference"), "-o", str(tmp_path / "o3"), "-q"]) == 2
     assert "expected measurements" in capsys.readouterr().err
     assert main(["btf", "generate", "-o", str(tmp_path / "g"), "--size", "0"]) == 2
+    capsys.readouterr()
+    assert main(["btf", "reconstruct", str(root), "-o", str(tmp_path / "o4"), "--coordinator", "h:1", "-q"]) == 2
+    assert "together" in capsys.readouterr().err
+    assert main(["btf", "reconstruct", str(root), "-o", str(root / "maps.npz"), "-q"]) == 2
+    assert "not a folder" in capsys.readouterr().err

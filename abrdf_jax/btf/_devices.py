@@ -49,12 +49,16 @@ def init_distributed(coordinator_address: str | None = None, num_processes: int 
     --num-processes 2 --process-id K``.
 
     Raises:
-        InputError: only some of the three arguments given.
+        InputError: only some of the three arguments given; ``jax.distributed`` refused to start
+            (already started, JAX already in use, or no cluster detected without arguments).
     """
     given = [a is not None for a in (coordinator_address, num_processes, process_id)]
     if any(given) and not all(given):
         raise InputError("init_distributed: give coordinator_address, num_processes and process_id together, or none")
-    jax.distributed.initialize(coordinator_address, num_processes, process_id, **kwargs)
+    try:
+        jax.distributed.initialize(coordinator_address, num_processes, process_id, **kwargs)
+    except (RuntimeError, ValueError) as e:  # called twice, after JAX started, or no cluster found
+        raise InputError(f"jax.distributed could not start: {e}") from e
     return jax.process_index(), jax.process_count()
 
 

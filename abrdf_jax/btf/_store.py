@@ -42,6 +42,12 @@ MANIFEST = "manifest.json"
 CHUNKS = "chunks"
 
 
+def _ours(name: str) -> bool:
+    """What another process creating the same store may have put there before its manifest
+    (several hosts start one job on one shared folder)."""
+    return name == CHUNKS or (name.startswith(f".{MANIFEST}.") and name.endswith(".tmp"))
+
+
 def _chunk_name(k: int) -> str:
     return f"c{k:06d}"
 
@@ -173,7 +179,7 @@ class ChunkedStore:
                     "choose another folder or overwrite it"
                 )
             old.remove_chunks()
-        elif path.exists() and any(path.iterdir()):
+        elif path.exists() and any(not _ours(p.name) for p in path.iterdir()):
             raise InputError(f"{path}: folder is not empty and holds no store ({MANIFEST} missing)")
         path.mkdir(exist_ok=True)
         (path / CHUNKS).mkdir(exist_ok=True)
