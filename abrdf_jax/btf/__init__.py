@@ -10,7 +10,7 @@
 - :func:`reconstruct_btf`: measurement store → ABRDF store, streamed in bounded memory with a
   progress bar, resumable, the texel axis sharded over all devices (:func:`init_distributed`
   for several hosts).
-- :func:`texel_metrics`, :func:`save_error_map`: per-texel accuracy maps.
+- :func:`texel_metrics`, :func:`texel_metrics_many`, :func:`save_error_map`: per-texel accuracy maps.
 
 See ``docs/btf.md`` for the store layout, the resume semantics, sharding and measured numbers.
 """
@@ -27,6 +27,7 @@ from ._devices import init_distributed as init_distributed
 from ._evaluate import mean_fill as mean_fill
 from ._evaluate import save_error_map as save_error_map
 from ._evaluate import texel_metrics as texel_metrics
+from ._evaluate import texel_metrics_many as texel_metrics_many
 from ._exr import pair_filename as pair_filename
 from ._exr import parse_pair_filename as parse_pair_filename
 from ._exr import read_exr_pairs as read_exr_pairs
@@ -44,5 +45,5 @@ __all__ = [
     "default_config", "dense_texel_table", "generate_btf", "init_distributed", "make_chunk_fn",
     "mean_fill", "measurement_geometry", "measurement_store_of", "pair_filename", "parse_pair_filename",
     "procedural_btf", "read_exr_pairs", "reconstruct_btf", "save_error_map", "texel_chunk",
-    "texel_metrics", "write_exr_pairs",
+    "texel_metrics", "texel_metrics_many", "write_exr_pairs",
 ]

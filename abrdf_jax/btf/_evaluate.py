@@ -9,22 +9,105 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from .._metrics import delta_e76, log_error
+from .._metrics import _de76_pairs, _log_error_from_y, _mean_over_pairs, expose, srgb_to_lab, tonemap
 from ._store import ChunkedStore
 
-_METRICS = {"de76": delta_e76, "logerr": log_error}
+METRICS = ("de76", "logerr")
+
+
+def _one_texel(recs, ref, names):
+    """PROTOCOL ΔE76 / LogErr of several reconstructions of one texel against its reference.
+
+    The same formulas as :func:`abrdf_jax.metrics.delta_e76` and ``log_error`` (their private
+    parts), with the reference's exposure (a median over 6561 pairs) and CIELAB computed once
+    for all reconstructions instead of once per metric and reconstruction: 2.5× less work for
+    a reconstruction and a baseline.
+    """
+    e = expose(ref)
+    y_ref = ref * e
+    lab_ref = srgb_to_lab(tonemap(y_ref)) if "de76" in names else None
+    out = []
+    for rec in recs:
+        y, same = rec * e, rec == ref
+        res = {}
+        if "de76" in names:
+            res["de76"] = _mean_over_pairs(_de76_pairs(srgb_to_lab(tonemap(y)), lab_ref), same)
+        if "logerr" in names:
+            res["logerr"] = _log_error_from_y(y, y_ref, same)
+        out.append(res)
+    return out
 
 
 @partial(jax.jit, static_argnames="names")
-def _chunk_metrics(rec, ref, names):
-    return {n: jax.vmap(_METRICS[n])(rec, ref) for n in names}
+def _chunk_metrics(recs, ref, names):
+    return jax.vmap(lambda r, f: _one_texel(r, f, names))(recs, ref)
 
 
 def _open(store) -> ChunkedStore:
     return store if isinstance(store, ChunkedStore) else ChunkedStore.open(store)
 
 
-def texel_metrics(rec, ref, metrics=("de76",), batch: int = 256) -> dict[str, np.ndarray]:
+def _reader(x):
+    """``(n_texels, texel_shape or None, read(a, b))`` of an array or a store."""
+    if isinstance(x, np.ndarray):
+        return len(x), None, lambda a, b: x[a:b]
+    s = _open(x)
+    return s.n_texels, s.texel_shape, lambda a, b: s.read(a, b)
+
+
+def texel_metrics_many(recs: dict, ref, metrics=METRICS, batch: int = 256) -> dict[str, dict[str, np.ndarray]]:
+    """PROTOCOL metrics of every texel of several reconstructions (e.g. ours and a baseline).
+
+    Each texel is one material: exposed by its own reference (PROTOCOL.md), compared over its 6561
+    direction pairs. The reference's exposure and colours are computed once per texel for all.
+
+    Args:
+        recs: ``{name: reconstruction}``, each an ``"abrdf"`` store, its folder, or an array
+            ``(T, 6561, 3)``.
+        ref: the dense reference, same layout (a store gives the maps their shape).
+        metrics: names among ``"de76"``, ``"logerr"``.
+        batch: texels evaluated per call (one compilation for any size).
+
+    Returns:
+        ``{name: {metric: (rows, columns) float64 map}}`` (``(1, T)`` when no input is a store).
+
+    Raises:
+        InputError: an unknown metric, no reconstruction, or texel counts that differ.
+    """
+    names = tuple(metrics)
+    unknown = [n for n in names if n not in METRICS]
+    if unknown or not names:
+        raise InputError(f"unknown metric(s) {unknown or names}; choose from {METRICS}")
+    if not recs:
+        raise InputError("texel_metrics_many: no reconstruction given")
+    n, shape, read_ref = _reader(ref)
+    readers = {}
+    for key, rec in recs.items():
+        m, sh, read = _reader(rec)
+        if m != n:
+            raise InputError(f"reconstruction {key!r} has {m} texels, the reference {n}")
+        shape = shape or sh
+        readers[key] = read
+    shape = shape or (1, n)
+    batch = max(1, min(batch, n))
+    out = {key: {k: np.empty(n) for k in names} for key in recs}
+
+    def padded(x, b, a):
+        x = np.asarray(x, np.float32)
+        return x if b - a == batch else np.concatenate([x, np.repeat(x[-1:], batch - (b - a), 0)])
+
+    for a in range(0, n, batch):
+        b = min(a + batch, n)
+        y = padded(read_ref(a, b), b, a)  # repeat the last texel: one shape, one compilation
+        xs = [padded(read(a, b), b, a) for read in readers.values()]
+        vals = _chunk_metrics([jnp.asarray(x) for x in xs], jnp.asarray(y), names)
+        for key, v in zip(readers, vals):
+            for k in names:
+                out[key][k][a:b] = np.asarray(v[k])[: b - a]
+    return {key: {k: v.reshape(shape) for k, v in d.items()} for key, d in out.items()}
+
+
+def texel_metrics(rec, ref, metrics=METRICS[:1], batch: int = 256) -> dict[str, np.ndarray]:
     """PROTOCOL metrics of every texel, as ``(rows, columns)`` maps.
 
     Each texel is one material: exposed by its own reference (PROTOCOL.md), compared over its 6561
@@ -39,34 +122,7 @@ def texel_metrics(rec, ref, metrics=("de76",), batch: int = 256) -> dict[str, np
     Returns:
         ``{name: (rows, columns) float64 map}`` (``(1, T)`` when neither input is a store).
     """
-    names = tuple(metrics)
-    unknown = [n for n in names if n not in _METRICS]
-    if unknown:
-        raise InputError(f"unknown metric(s) {unknown}; choose from {tuple(_METRICS)}")
-
-    def reader(x):
-        if isinstance(x, np.ndarray):
-            return len(x), None, lambda a, b: x[a:b]
-        s = _open(x)
-        return s.n_texels, s.texel_shape, lambda a, b: s.read(a, b)
-
-    n, shape_a, read_rec = reader(rec)
-    n_ref, shape_b, read_ref = reader(ref)
-    if n != n_ref:
-        raise InputError(f"reconstruction has {n} texels, reference {n_ref}")
-    shape = shape_a or shape_b or (1, n)
-    batch = max(1, min(batch, n))
-    out = {k: np.empty(n) for k in names}
-    for a in range(0, n, batch):
-        b = min(a + batch, n)
-        x, y = read_rec(a, b), read_ref(a, b)
-        if b - a < batch:  # repeat the last texel: one shape, one compilation
-            x = np.concatenate([x, np.repeat(x[-1:], batch - (b - a), 0)])
-            y = np.concatenate([y, np.repeat(y[-1:], batch - (b - a), 0)])
-        vals = _chunk_metrics(jnp.asarray(x, jnp.float32), jnp.asarray(y, jnp.float32), names)
-        for k in names:
-            out[k][a:b] = np.asarray(vals[k])[: b - a]
-    return {k: v.reshape(shape) for k, v in out.items()}
+    return texel_metrics_many({"rec": rec}, ref, metrics, batch)["rec"]
 
 
 def mean_fill(meas, start: int = 0, stop: int | None = None) -> np.ndarray:
