@@ -215,6 +215,7 @@ def _scaling_chart(path: Path, sizes, size_times, devices, device_times, title: 
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullLocator
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
     texels = [s * s for s in sizes]
@@ -224,14 +225,14 @@ def _scaling_chart(path: Path, sizes, size_times, devices, device_times, title: 
     a.set_yscale("log")
     a.set_xlabel("texels")
     a.set_ylabel("seconds (reconstruct_btf, float16 store)")
-    a.minorticks_off()  # else the log axis labels its minor ticks over the sizes
+    a.xaxis.set_minor_locator(NullLocator())  # else the log axis labels its minor ticks over the sizes
     a.set_xticks(texels)
     a.set_xticklabels([f"{s}²" for s in sizes])
     a.legend()
     a.set_title("time against texel count")
     b.plot(devices, device_times, "o-")
     b.set_xscale("log", base=2)
-    b.minorticks_off()
+    b.xaxis.set_minor_locator(NullLocator())
     b.set_xticks(devices)
     b.set_xticklabels([str(d) for d in devices])
     b.set_xlabel("simulated CPU devices (XLA_FLAGS), same 2 cores")
@@ -421,7 +422,7 @@ def main(argv=None) -> int:
                        device_counts, [dev[d]["warm"]["seconds"] for d in device_counts],
                        f"reconstruct_btf, {out['headline']['backend']} backend, chunks of {CHUNK}; "
                        f"{out['machine']['cpu_count']} CPU cores, load average {out['load_average_start'][0]:.1f}"
-                       + (f"; {args.note}" if args.note else ""))
+                       + (f"\n{args.note}" if args.note else ""))
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
