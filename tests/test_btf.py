@@ -287,24 +287,52 @@ def test_two_processes_share_the_chunks(generated, reconstructed, tmp_path, monk
 def test_sharded_over_8_devices_equals_one_device(generated, reconstructed, tmp_path):
     """XLA_FLAGS must be set before JAX starts: a subprocess with 8 simulated CPU devices. In
     float32 (the default), 8, 2 and 1 devices give the same bits: every device multiplies blocks
-    of the same shape."""
+    of the same shape. The same subprocess then dies by SIGKILL half-way through writing a chunk
+    (a real crash: no cleanup runs), and this process resumes what it left."""
     _, paths = generated
     script = textwrap.dedent(f"""
+        import os, signal
         import jax, numpy as np
         from abrdf_jax import btf
+        from abrdf_jax.btf import _store
         assert len(jax.devices()) == 8, jax.devices()
         m = {str(paths['measurements'])!r}
         kw = dict(chunk={CHUNK}, block=4, progress=False, dtype="float32")
         for d in (8, 2, 1):
             s = {{}}
             btf.reconstruct_btf(m, {str(tmp_path)!r} + f"/r{{d}}", devices=d, stats=s, **kw)
-            print("RUN", d, s["devices"], s["backend"], s["batch"], s["chunks_done"])
+            print("RUN", d, s["devices"], s["backend"], s["batch"], s["chunks_done"], flush=True)
+        real = _store.atomic_write
+
+        class Dying:
+            def __init__(self, cm):
+                self.cm = cm
+
+            def __enter__(self):
+                self.f = self.cm.__enter__()
+                return self
+
+            def write(self, data):
+                self.f.write(bytes(data)[: len(data) // 2])
+                self.f.flush()
+                os.kill(os.getpid(), signal.SIGKILL)
+
+            def __exit__(self, *exc):
+                return self.cm.__exit__(*exc)
+
+        def killing(path, mode="wb", **kw):
+            cm = real(path, mode, **kw)
+            return Dying(cm) if str(path).endswith("c000001.npy") else cm
+
+        _store.atomic_write = killing
+        btf.reconstruct_btf(m, {str(tmp_path)!r} + "/crash", devices=1, **kw)
+        print("SURVIVED", flush=True)
     """)
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=8", JAX_PLATFORMS="cpu")
     env.pop("JAX_ENABLE_X64", None)
     res = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600,
                          cwd=REPO)
-    assert res.returncode == 0, res.stderr[-3000:]
+    assert res.returncode == -9 and "SURVIVED" not in res.stdout, (res.returncode, res.stderr[-3000:])
     runs = [ln.split()[1:] for ln in res.stdout.splitlines() if ln.startswith("RUN")]
     assert runs == [[str(d), str(d), "operator", str(CHUNK), "2"] for d in (8, 2, 1)], runs
     one = btf.ChunkedStore.open(tmp_path / "r1").read()
@@ -315,6 +343,23 @@ def test_sharded_over_8_devices_equals_one_device(generated, reconstructed, tmp_
     here = reconstructed[0].read().astype(np.float32)
     scale = here.reshape(len(here), -1).max(axis=1)[:, None, None]
     assert np.max(np.abs(one - here) / scale) < 5e-3
+
+    # What the kill left: chunk 0 valid; of chunk 1 only a half-written temporary file.
+    crash = btf.ChunkedStore.open(tmp_path / "crash")
+    left = sorted(p.name for p in (tmp_path / "crash" / "chunks").iterdir())
+    assert [n for n in left if not n.startswith(".")] == ["c000000.json", "c000000.npy"], left
+    assert any(n.startswith(".c000001.npy.") for n in left), left
+    assert crash.done_chunks() == [0] and crash.chunk_status(1) == "missing"
+    stats = {}
+    btf.reconstruct_btf(paths["measurements"], tmp_path / "crash", chunk=CHUNK, progress=False, dtype="float32",
+                        stats=stats)
+    assert stats["chunks_skipped"] == 1 and stats["chunks_done"] == 1
+    assert not any(p.name.startswith(".") for p in (tmp_path / "crash" / "chunks").iterdir())
+    resumed = btf.ChunkedStore.open(tmp_path / "crash")
+    assert resumed.verify() == {}
+    np.testing.assert_array_equal(resumed.read(0, CHUNK), one[:CHUNK])  # kept, not recomputed
+    # chunk 1 recomputed here, by the operator built in float64 (there: float32)
+    assert np.max(np.abs(resumed.read(CHUNK) - one[CHUNK:]) / scale[CHUNK:]) < 5e-3
 
 
 # ------------------------------------------------------------------------------------ EXR layout
