@@ -103,10 +103,13 @@ def cmd_reconstruct(args) -> int:
     store = btf.reconstruct_btf(meas, out, config, params, chunk=args.chunk, progress=not args.quiet,
                                 dtype=args.dtype, devices=args.devices, backend=args.backend,
                                 overwrite=args.overwrite, stats=stats)
-    rate = store.n_texels / max(stats["seconds"], 1e-9)
-    print(f"{out}: {store.n_texels} texels ({stats['chunks_done']} chunks computed, {stats['chunks_skipped']} "
-          f"already done) in {stats['seconds']:.1f} s ({rate:.0f} texels/s; {stats['backend'] or 'no'} backend, "
-          f"{stats['devices']} device(s), {args.dtype})")
+    head = (f"{out}: {store.n_texels} texels ({stats['chunks_done']} chunks computed, {stats['chunks_skipped']} "
+            f"already done) in {stats['seconds']:.1f} s")
+    if stats["chunks_done"]:
+        computed = store.n_texels * stats["chunks_done"] / store.n_chunks
+        head += (f" (about {computed / max(stats['seconds'], 1e-9):.0f} texels/s; {stats['backend']} backend, "
+                 f"{stats['devices']} device(s), {args.dtype})")
+    print(head)
     if args.exr_dir:
         if jax.process_index() == 0:
             t0 = time.perf_counter()
