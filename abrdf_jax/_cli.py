@@ -394,6 +394,9 @@ def build_parser() -> argparse.ArgumentParser:
     from ._cli_fit import register as register_fit
 
     register_fit(sub)
+    from ._cli_btf import register as register_btf
+
+    register_btf(sub)
     return p
 
 

@@ -1,0 +1,368 @@
+"""A chunked array store for per-texel data: a folder, a JSON manifest, one ``.npy`` per chunk.
+
+Layout of a store folder::
+
+    manifest.json          what the store holds (see below); written once, atomically
+    chunks/c000000.npy     texels [0, chunk) of the array, a plain NumPy file
+    chunks/c000000.json    the chunk's completion marker: range, shape, dtype, byte count, CRC-32
+    chunks/c000001.npy ...
+
+The array has shape ``(n_texels, *item_shape)``, texels numbered row-major over the texture
+(``texel_shape = (rows, columns)``): measurements ``(n, n_samples, 3)`` with the sample geometry
+(angles per sample) in the manifest, reconstructions ``(n, 6561, 3)`` on the UBO2003 pairs
+(``table[i, v]`` flattened ``i * 81 + v``).
+
+Crash safety: a chunk is written to a temporary file beside it, flushed, ``fsync``-ed and renamed
+onto its name; only then is its marker written the same way. A chunk counts as done only when
+its marker exists, agrees with the manifest (range, shape, dtype) and with the file (byte count,
+and with ``verify`` its CRC-32). A crash at any point leaves either no file, a stray temporary
+file, or a chunk without marker: none of them looks valid, and a rerun rewrites the chunk.
+Before a chunk is rewritten its old marker is removed first.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from .._errors import InputError
+from ..io import atomic_write
+
+FORMAT = "abrdf_jax.btf-store"
+VERSION = 1
+KINDS = ("measurements", "abrdf")
+DTYPES = ("float16", "float32")
+MANIFEST = "manifest.json"
+CHUNKS = "chunks"
+
+
+def _ours(name: str) -> bool:
+    """What another process creating the same store may have put there before its manifest
+    (several hosts start one job on one shared folder)."""
+    return name == CHUNKS or (name.startswith(f".{MANIFEST}.") and name.endswith(".tmp"))
+
+
+def _chunk_name(k: int) -> str:
+    return f"c{k:06d}"
+
+
+class ChunkedStore:
+    """A chunked per-texel array on disk (see the module docstring for the layout).
+
+    Open one with :meth:`open` or make one with :meth:`create`; read with :meth:`read_chunk`,
+    :meth:`read` or iterate :meth:`chunk_ranges`; write with :meth:`write_chunk`.
+    """
+
+    def __init__(self, path: Path, manifest: dict):
+        self.path = Path(path)
+        self.manifest = manifest
+
+    # ---------------------------------------------------------------- manifest facts
+
+    @property
+    def kind(self) -> str:
+        return self.manifest["kind"]
+
+    @property
+    def texel_shape(self) -> tuple[int, int]:
+        return tuple(self.manifest["texel_shape"])
+
+    @property
+    def n_texels(self) -> int:
+        h, w = self.texel_shape
+        return h * w
+
+    @property
+    def item_shape(self) -> tuple[int, ...]:
+        return tuple(self.manifest["item_shape"])
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return (self.n_texels, *self.item_shape)
+
+    @property
+    def dtype(self) -> np.dtype:
+        return np.dtype(self.manifest["dtype"])
+
+    @property
+    def chunk(self) -> int:
+        return int(self.manifest["chunk"])
+
+    @property
+    def n_chunks(self) -> int:
+        return -(-self.n_texels // self.chunk)
+
+    @property
+    def geometry(self) -> dict:
+        return self.manifest.get("geometry", {})
+
+    @property
+    def attrs(self) -> dict:
+        return self.manifest.get("attrs", {})
+
+    def chunk_range(self, k: int) -> tuple[int, int]:
+        """Texel range ``[start, stop)`` of chunk ``k``."""
+        if not 0 <= k < self.n_chunks:
+            raise IndexError(f"{self.path}: chunk {k} out of range 0..{self.n_chunks - 1}")
+        return k * self.chunk, min((k + 1) * self.chunk, self.n_texels)
+
+    def chunk_ranges(self) -> list[tuple[int, int]]:
+        return [self.chunk_range(k) for k in range(self.n_chunks)]
+
+    def _files(self, k: int) -> tuple[Path, Path]:
+        base = self.path / CHUNKS / _chunk_name(k)
+        return base.with_suffix(".npy"), base.with_suffix(".json")
+
+    def __repr__(self) -> str:
+        return (f"ChunkedStore({str(self.path)!r}, kind={self.kind!r}, shape={self.shape}, "
+                f"dtype={self.dtype.name}, chunk={self.chunk})")
+
+    # ---------------------------------------------------------------- create / open
+
+    @classmethod
+    def create(cls, path, *, kind: str, texel_shape, item_shape, dtype="float32", chunk: int = 1024,
+               geometry: dict | None = None, attrs: dict | None = None, overwrite: bool = False) -> "ChunkedStore":
+        """Make a store, or reopen the same one (for a resumed run).
+
+        If ``path`` already holds a store with the same manifest it is reopened as it is (its
+        finished chunks stay). A store with a different manifest is an error unless
+        ``overwrite``, which removes its chunks first.
+
+        Args:
+            path: the folder (created; its parent must exist).
+            kind: ``"measurements"`` or ``"abrdf"``.
+            texel_shape: ``(rows, columns)`` of the texture.
+            item_shape: shape per texel, e.g. ``(204, 3)`` or ``(6561, 3)``.
+            dtype: ``"float16"`` or ``"float32"``.
+            chunk: texels per chunk.
+            geometry: the sample directions (measurements) or the grid (reconstructions).
+            attrs: anything else JSON-serialisable (provenance, the settings of the run).
+            overwrite: replace a different store found at ``path``.
+
+        Raises:
+            InputError: bad arguments, a parent folder that does not exist, a non-store folder
+                that is not empty, or a different store without ``overwrite``.
+        """
+        path = Path(path)
+        if kind not in KINDS:
+            raise InputError(f"store kind must be one of {KINDS}, got {kind!r}")
+        dtype = np.dtype(dtype).name
+        if dtype not in DTYPES:
+            raise InputError(f"store dtype must be one of {DTYPES}, got {dtype!r}")
+        texel_shape = [int(x) for x in texel_shape]
+        if len(texel_shape) != 2 or min(texel_shape) < 1:
+            raise InputError(f"texel_shape must be (rows, columns) >= 1, got {texel_shape}")
+        if not isinstance(chunk, (int, np.integer)) or chunk < 1:
+            raise InputError(f"chunk must be a positive integer, got {chunk!r}")
+        manifest = dict(format=FORMAT, version=VERSION, kind=kind, texel_shape=texel_shape,
+                        item_shape=[int(x) for x in item_shape], dtype=dtype, chunk=int(chunk),
+                        geometry=geometry or {}, attrs=attrs or {})
+        manifest = json.loads(json.dumps(manifest))  # normalise (tuples -> lists, numpy -> float)
+        if not path.parent.is_dir():
+            raise InputError(f"{path}: parent folder {path.parent} does not exist")
+        if path.exists() and not path.is_dir():
+            raise InputError(f"{path}: exists and is not a folder")
+        if (path / MANIFEST).exists():
+            old = cls.open(path)
+            if old.manifest == manifest:
+                (path / CHUNKS).mkdir(exist_ok=True)
+                return old
+            if not overwrite:
+                raise InputError(
+                    f"{path}: holds a different {old.kind} store (other data or settings); "
+                    "choose another folder or overwrite it"
+                )
+            old.remove_chunks()
+        elif path.exists() and any(not _ours(p.name) for p in path.iterdir()):
+            raise InputError(f"{path}: folder is not empty and holds no store ({MANIFEST} missing)")
+        path.mkdir(exist_ok=True)
+        (path / CHUNKS).mkdir(exist_ok=True)
+        with atomic_write(path / MANIFEST, "w") as f:
+            json.dump(manifest, f, indent=1)
+        return cls(path, manifest)
+
+    @classmethod
+    def open(cls, path) -> "ChunkedStore":
+        """Open an existing store.
+
+        Raises:
+            InputError: no store at ``path`` or an unreadable or foreign manifest.
+        """
+        path = Path(path)
+        mf = path / MANIFEST
+        if not mf.is_file():
+            raise InputError(f"{path}: not a chunked store ({MANIFEST} not found)")
+        try:
+            manifest = json.loads(mf.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as e:
+            raise InputError(f"{mf}: cannot read the manifest: {e}") from e
+        if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+            raise InputError(f"{mf}: not an {FORMAT} manifest")
+        if manifest.get("version") != VERSION:
+            raise InputError(f"{mf}: store version {manifest.get('version')!r}; this reader knows {VERSION}")
+        missing = [k for k in ("kind", "texel_shape", "item_shape", "dtype", "chunk") if k not in manifest]
+        if missing:
+            raise InputError(f"{mf}: manifest lacks {', '.join(missing)}")
+        return cls(path, manifest)
+
+    def remove_chunks(self) -> None:
+        """Delete every chunk, marker and stray temporary file (markers first)."""
+        folder = self.path / CHUNKS
+        if not folder.is_dir():
+            return
+        names = sorted(os.listdir(folder), key=lambda n: not n.endswith(".json"))
+        for name in names:
+            if name.startswith(("c", ".c")) and name.endswith((".npy", ".json", ".tmp")):
+                with contextlib.suppress(FileNotFoundError):
+                    (folder / name).unlink()
+
+    def remove_temporary(self) -> int:
+        """Delete stray temporary files of interrupted writes; returns how many.
+
+        Only safe when no other process writes to this store at the same time.
+        """
+        folder = self.path / CHUNKS
+        n = 0
+        if folder.is_dir():
+            for name in os.listdir(folder):
+                if name.startswith(".c") and name.endswith(".tmp"):
+                    with contextlib.suppress(FileNotFoundError):
+                        (folder / name).unlink()
+                        n += 1
+        return n
+
+    # ---------------------------------------------------------------- chunks
+
+    def _expected_marker(self, k: int) -> dict:
+        start, stop = self.chunk_range(k)
+        return dict(index=k, start=start, stop=stop, shape=[stop - start, *self.item_shape],
+                    dtype=self.dtype.name)
+
+    def _marker(self, k: int) -> dict | None:
+        _, marker = self._files(k)
+        try:
+            m = json.loads(marker.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        return m if isinstance(m, dict) else None
+
+    def chunk_status(self, k: int, verify: bool = True) -> str:
+        """``"done"``, ``"missing"`` (never finished) or why the chunk is not valid."""
+        data, _ = self._files(k)
+        m = self._marker(k)
+        if m is None:
+            return "missing"
+        exp = self._expected_marker(k)
+        if any(m.get(key) != val for key, val in exp.items()):
+            return "marker disagrees with the manifest"
+        try:
+            size = data.stat().st_size
+        except OSError:
+            return "data file missing"
+        if size != m.get("bytes"):
+            return f"data file has {size} bytes, marker says {m.get('bytes')}"
+        if verify:
+            crc = zlib.crc32(data.read_bytes())
+            if crc != m.get("crc32"):
+                return "checksum mismatch (corrupt data)"
+        return "done"
+
+    def is_done(self, k: int, verify: bool = True) -> bool:
+        return self.chunk_status(k, verify) == "done"
+
+    def done_chunks(self, verify: bool = True) -> list[int]:
+        """Indices of the valid chunks (``verify`` also checks every CRC-32)."""
+        return [k for k in range(self.n_chunks) if self.is_done(k, verify)]
+
+    @property
+    def complete(self) -> bool:
+        return all(self.is_done(k, verify=False) for k in range(self.n_chunks))
+
+    def verify(self) -> dict[int, str]:
+        """``{chunk: problem}`` for every chunk that is not done (empty when all are valid)."""
+        out = {}
+        for k in range(self.n_chunks):
+            s = self.chunk_status(k, verify=True)
+            if s != "done":
+                out[k] = s
+        return out
+
+    def write_chunk(self, k: int, values) -> None:
+        """Write chunk ``k`` atomically, then its marker.
+
+        Args:
+            k: chunk index.
+            values: ``(stop - start, *item_shape)``; cast to the store dtype.
+
+        Raises:
+            ValueError: wrong shape, or values that are NaN or infinite (also after the cast,
+                e.g. a float16 overflow): a store never holds them.
+        """
+        start, stop = self.chunk_range(k)
+        arr = np.asarray(values)
+        want = (stop - start, *self.item_shape)
+        if arr.shape != want:
+            raise ValueError(f"{self.path}: chunk {k} has shape {arr.shape}, expected {want}")
+        with np.errstate(over="ignore", invalid="ignore"):  # reported below, with the texel
+            arr = np.ascontiguousarray(arr, dtype=self.dtype)
+        finite = np.isfinite(arr)
+        if not finite.all():
+            bad = int(np.argwhere(~finite)[0][0]) + start
+            raise ValueError(
+                f"{self.path}: chunk {k} holds NaN or infinite values (first at texel {bad}); "
+                + ("float16 overflows above 65504, use float32" if self.dtype == np.float16 else "")
+            )
+        buf = io.BytesIO()
+        np.lib.format.write_array(buf, arr, allow_pickle=False)
+        payload = buf.getbuffer()
+        data, marker = self._files(k)
+        with contextlib.suppress(FileNotFoundError):
+            marker.unlink()  # the chunk is invalid from now until the new marker lands
+        with atomic_write(data, "wb") as f:
+            f.write(payload)
+        meta = self._expected_marker(k)
+        meta.update(bytes=len(payload), crc32=zlib.crc32(payload))
+        with atomic_write(marker, "w") as f:
+            json.dump(meta, f)
+
+    def read_chunk(self, k: int, verify: bool = True) -> np.ndarray:
+        """Chunk ``k`` as an array ``(stop - start, *item_shape)``.
+
+        Raises:
+            InputError: the chunk is missing or invalid (the message says why).
+        """
+        data, _ = self._files(k)
+        status = self.chunk_status(k, verify=False)
+        if status != "done":
+            raise InputError(f"{data}: chunk {k} of {self.path} is not valid: {status}")
+        raw = data.read_bytes()
+        if verify and zlib.crc32(raw) != self._marker(k).get("crc32"):
+            raise InputError(f"{data}: chunk {k} of {self.path} is not valid: checksum mismatch (corrupt data)")
+        try:
+            arr = np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
+        except Exception as e:  # noqa: BLE001 - numpy raises several types on a bad header
+            raise InputError(f"{data}: cannot read chunk {k}: {e}") from e
+        start, stop = self.chunk_range(k)
+        if arr.shape != (stop - start, *self.item_shape) or arr.dtype != self.dtype:
+            raise InputError(f"{data}: chunk {k} holds {arr.dtype}{arr.shape}, manifest says otherwise")
+        return arr
+
+    def read(self, start: int = 0, stop: int | None = None, verify: bool = True) -> np.ndarray:
+        """Texels ``[start, stop)`` (across chunks) as one array."""
+        stop = self.n_texels if stop is None else stop
+        if not 0 <= start <= stop <= self.n_texels:
+            raise InputError(f"{self.path}: texel range {start}:{stop} outside 0:{self.n_texels}")
+        parts = []
+        for k in range(start // self.chunk, -(-stop // self.chunk)):
+            a, b = self.chunk_range(k)
+            arr = self.read_chunk(k, verify)
+            parts.append(arr[max(start, a) - a:min(stop, b) - a])
+        if not parts:
+            return np.zeros((0, *self.item_shape), self.dtype)
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)

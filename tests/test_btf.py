@@ -1,0 +1,427 @@
+"""Whole BTFs (abrdf_jax.btf): generator, chunked store, EXR layout, streamed/resumed/sharded
+reconstruction, command line.
+
+One 8 x 8-texel BTF is generated and reconstructed once per module (chunks of 32 texels, one
+shape, so each program compiles once); the other tests reuse it.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import abrdf_jax as aj
+from abrdf_jax import btf
+from abrdf_jax._cli import main
+from abrdf_jax._errors import InputError
+from abrdf_jax._grid import ubo_grid
+from abrdf_jax.metrics import delta_e76, log_error
+from abrdf_jax.btf import _store
+
+SIZE, CHUNK = 8, 32
+SEED = int(os.environ.get("ABRDF_TEST_SEED", "0"))  # as conftest.py
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory):
+    root = tmp_path_factory.mktemp("btf") / "gen"
+    paths = btf.generate_btf(root, SIZE, seed=SEED, chunk=CHUNK)
+    return root, paths
+
+
+@pytest.fixture(scope="module")
+def reconstructed(generated, tmp_path_factory):
+    root, paths = generated
+    out = tmp_path_factory.mktemp("rec") / "rec"
+    stats = {}
+    store = btf.reconstruct_btf(paths["measurements"], out, chunk=CHUNK, progress=False, stats=stats)
+    return store, stats
+
+
+def _tables(store) -> np.ndarray:
+    return store.read().astype(np.float64).reshape(-1, 81, 81, 3)
+
+
+# ------------------------------------------------------------------------------------ generator
+
+
+def test_generator_is_deterministic_and_chunk_independent(generated):
+    _, paths = generated
+    meas = btf.ChunkedStore.open(paths["measurements"])
+    ref = btf.ChunkedStore.open(paths["reference"])
+    # maps=True: the program generate_btf compiled (one compilation for the module)
+    again = btf.texel_chunk(btf.procedural_btf(SIZE, SEED), 0, CHUNK, maps=True, pad_to=CHUNK)
+    np.testing.assert_array_equal(again["measurements"], meas.read(0, CHUNK))
+    np.testing.assert_array_equal(again["reference"].astype(np.float16), ref.read(0, CHUNK))
+    # the second chunk on its own (other padding) equals the stored one bit for bit
+    part = btf.texel_chunk(btf.procedural_btf(SIZE, SEED), CHUNK + 3, 2 * CHUNK, maps=True, pad_to=CHUNK)
+    np.testing.assert_array_equal(part["measurements"], meas.read(CHUNK + 3, 2 * CHUNK))
+    other = btf.texel_chunk(btf.procedural_btf(SIZE, SEED + 1), 0, CHUNK, maps=True, pad_to=CHUNK)
+    assert np.abs(other["measurements"] - again["measurements"]).mean() > 1e-3
+    assert np.all(np.isfinite(again["reference"])) and again["reference"].min() >= 0
+    with pytest.raises(InputError, match="size"):
+        btf.procedural_btf(1, 0)
+
+
+def _reciprocity_error(t):
+    """Mean |f(i, v) - f(v, i)| / mean f, with f = ABRDF / cos θi (a BRDF)."""
+    cos = np.cos(np.deg2rad(ubo_grid()[0]))
+    f = t / cos[:, None, None]
+    return np.abs(f - f.transpose(1, 0, 2)).mean() / f.mean()
+
+
+def _rotation_error(t):
+    """Mean |f(Ri, Rv) - f(i, v)| / mean f for a 90° rotation of both azimuths (on the rings
+    whose azimuth counts are divisible by 4)."""
+    theta, phi = ubo_grid()
+    keep = np.isin(theta, (0.0, 30.0, 60.0, 75.0))
+    idx = np.nonzero(keep)[0]
+    rot = np.array([np.nonzero(np.isclose(theta, theta[i]) & np.isclose(phi, (phi[i] + 90) % 360 if theta[i] else 0))[0][0]
+                    for i in idx])
+    sub = t[np.ix_(idx, idx)]
+    turned = t[np.ix_(rot, rot)]
+    return np.abs(turned - sub).mean() / sub.mean()
+
+
+def test_texels_are_anisotropic_and_nonreciprocal(generated):
+    _, paths = generated
+    tables = _tables(btf.ChunkedStore.open(paths["reference"]))
+    # Controls: flat texels with an open horizon are what their materials are: reciprocal, and a
+    # Lambertian one is isotropic. The measures below are therefore the generator's doing.
+    flat = dict(normal=jnp.array([0.0, 0.0, 1.0]), albedo=jnp.array([0.5, 0.4, 0.3]),
+                metal=jnp.array([0.6, 0.6, 0.6]), roughness=jnp.asarray(0.2), angle=jnp.asarray(0.3),
+                fill=jnp.asarray(0.3), horizon=jnp.zeros(32))
+    controls = [btf.TexelModel(weights=jnp.array(w), aniso=jnp.asarray(a), **flat)
+                for w, a in (([0.2, 0.4, 0.4], 3.0), ([1.0, 0.0, 0.0], 1.0))]
+    stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *controls)
+    ctl = np.asarray(jax.jit(jax.vmap(btf.dense_texel_table))(stacked), np.float64).reshape(-1, 81, 81, 3)
+    assert _reciprocity_error(ctl[0]) < 1e-5
+    assert _rotation_error(ctl[1]) < 1e-5
+    assert _rotation_error(ctl[0]) > 0.05  # the anisotropic lobes alone
+    recip = np.array([_reciprocity_error(t) for t in tables])
+    aniso = np.array([_rotation_error(t) for t in tables])
+    assert np.median(recip) > 0.05 and np.mean(recip > 0.02) > 0.8, recip
+    assert np.median(aniso) > 0.05 and np.mean(aniso > 0.02) > 0.8, aniso
+
+
+# ------------------------------------------------------------------------------------ store
+
+
+def test_store_round_trip_and_corruption(tmp_path):
+    rng = np.random.default_rng(SEED)
+    data = rng.uniform(0, 10, (10, 5, 3)).astype(np.float32)
+    for dtype in ("float32", "float16"):
+        s = btf.ChunkedStore.create(tmp_path / dtype, kind="measurements", texel_shape=(2, 5), item_shape=(5, 3),
+                                    dtype=dtype, chunk=4, geometry={"note": "test"})
+        assert s.n_chunks == 3 and s.done_chunks() == []
+        for k, (a, b) in enumerate(s.chunk_ranges()):
+            s.write_chunk(k, data[a:b])
+        again = btf.ChunkedStore.open(tmp_path / dtype)
+        assert again.complete and again.verify() == {}
+        np.testing.assert_array_equal(again.read(), data.astype(dtype))
+        np.testing.assert_array_equal(again.read(3, 9), data[3:9].astype(dtype))
+    s = btf.ChunkedStore.open(tmp_path / "float32")
+    npy, marker = s._files(1)
+    raw = bytearray(npy.read_bytes())
+    raw[-7] ^= 0x40  # one flipped bit in the data
+    npy.write_bytes(bytes(raw))
+    assert not s.is_done(1) and s.is_done(1, verify=False)  # same size: only the checksum sees it
+    assert "checksum" in s.verify()[1]
+    with pytest.raises(InputError, match="checksum"):
+        s.read_chunk(1)
+    npy.write_bytes(bytes(raw[:-20]))  # truncated
+    assert "bytes" in s.chunk_status(1, verify=False)
+    marker.unlink()
+    assert s.chunk_status(1) == "missing"
+    npy2, _ = s._files(2)
+    npy2.unlink()
+    assert "missing" in s.verify()[2]
+    with pytest.raises(InputError, match="not valid"):
+        s.read(0, 10)
+    # a different store in the same folder is refused unless overwritten
+    with pytest.raises(InputError, match="different"):
+        btf.ChunkedStore.create(tmp_path / "float32", kind="measurements", texel_shape=(2, 5), item_shape=(5, 3),
+                                dtype="float32", chunk=5)
+    s2 = btf.ChunkedStore.create(tmp_path / "float32", kind="measurements", texel_shape=(2, 5), item_shape=(5, 3),
+                                 dtype="float32", chunk=5, overwrite=True)
+    assert s2.done_chunks() == [] and not any((tmp_path / "float32" / "chunks").iterdir())
+    with pytest.raises(ValueError, match="NaN"):
+        s2.write_chunk(0, np.full((5, 5, 3), np.nan))
+    half = btf.ChunkedStore.open(tmp_path / "float16")
+    with pytest.raises(ValueError, match="float16"):
+        half.write_chunk(0, np.full((4, 5, 3), 1e6))
+    with pytest.raises(ValueError, match="shape"):
+        half.write_chunk(0, np.zeros((3, 5, 3)))
+    with pytest.raises(InputError, match="not a chunked store"):
+        btf.ChunkedStore.open(tmp_path)
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "x.txt").write_text("x")
+    with pytest.raises(InputError, match="not empty"):
+        btf.ChunkedStore.create(tmp_path / "junk", kind="abrdf", texel_shape=(1, 1), item_shape=(1, 3))
+
+
+# ------------------------------------------------------------------------------------ batch path
+
+
+def test_grouping_matches_group_slices(generated):
+    """The chunk map puts flat samples into slices exactly as group_slices does for a CSV."""
+    _, paths = generated
+    meas = btf.ChunkedStore.open(paths["measurements"])
+    y = meas.read(0, 3)
+    cfg = btf.default_config()
+    fn = btf.make_chunk_fn(cfg, aj.Params.default(cfg), meas.geometry, backend="pipeline", dtype=jnp.float64)
+    got = fn.measurements(jnp.asarray(y, jnp.float64))
+    g = meas.geometry
+    for k in range(3):
+        s = aj.Samples(*(np.asarray(g[c]) for c in ("theta_i", "phi_i", "theta_v", "phi_v")), y[k])
+        want, _ = aj.group_slices(s, g["alpha_deg"], dtype=np.float64)
+        np.testing.assert_array_equal(np.asarray(got.y[k]), np.asarray(want.y))
+        np.testing.assert_allclose(np.asarray(got.t[k]), np.asarray(want.t), atol=1e-6)
+        np.testing.assert_array_equal(np.asarray(got.count[k]), np.asarray(want.count))
+
+
+def test_accuracy_beats_mean_fill(generated, reconstructed):
+    _, paths = generated
+    rec, stats = reconstructed
+    assert stats["chunks_done"] == 2 and stats["chunks_skipped"] == 0
+    both = btf.texel_metrics_many(dict(ours=rec, base=btf.mean_fill(paths["measurements"])), paths["reference"],
+                                  metrics=("de76", "logerr"))
+    ours, base = both["ours"], both["base"]
+    # the per-texel maps are the package's protocol metrics of each texel
+    ref = btf.ChunkedStore.open(paths["reference"]).read(0, 3).astype(np.float32)
+    for t, x in enumerate(rec.read(0, 3).astype(np.float32)):
+        np.testing.assert_allclose(ours["de76"].ravel()[t], float(delta_e76(x, ref[t])), rtol=1e-5)
+        np.testing.assert_allclose(ours["logerr"].ravel()[t], float(log_error(x, ref[t])), rtol=1e-5)
+    assert ours["de76"].shape == (SIZE, SIZE)
+    assert ours["de76"].mean() < 0.85 * base["de76"].mean(), (ours["de76"].mean(), base["de76"].mean())
+    assert ours["logerr"].mean() < 0.85 * base["logerr"].mean()
+    assert np.mean(ours["de76"] < base["de76"]) > 0.75
+
+
+def test_resume_after_crash_equals_uninterrupted(generated, reconstructed, tmp_path, monkeypatch):
+    _, paths = generated
+    full, _ = reconstructed
+    out = tmp_path / "rec"
+    real = _store.atomic_write
+    state = {"writes": 0}
+
+    class Crash(RuntimeError):
+        pass
+
+    def crashing(path, mode="wb", **kw):
+        cm = real(path, mode, **kw)
+        if not str(path).endswith("c000001.npy"):
+            return cm
+
+        class Half:
+            def __enter__(self):
+                self.f = cm.__enter__()
+                return self
+
+            def write(self, data):
+                self.f.write(bytes(data)[: len(data) // 2])  # half the chunk is on disk ...
+                state["writes"] += 1
+                raise Crash("simulated crash in the middle of a chunk")  # ... then the process dies
+
+            def __exit__(self, *exc):
+                return cm.__exit__(*exc)
+
+        return Half()
+
+    monkeypatch.setattr(_store, "atomic_write", crashing)
+    with pytest.raises(Crash):
+        btf.reconstruct_btf(paths["measurements"], out, chunk=CHUNK, progress=False)
+    monkeypatch.setattr(_store, "atomic_write", real)
+    assert state["writes"] == 1
+    store = btf.ChunkedStore.open(out)
+    assert store.done_chunks() == [0]
+    assert not (out / "chunks" / "c000001.npy").exists()  # the half-written temporary file is gone
+    # What a hard kill can leave behind (no cleanup ran): a stray temporary file and a truncated
+    # chunk without marker. Neither looks valid.
+    (out / "chunks" / ".c000001.npy.dead.tmp").write_bytes(b"\x93NUMPY partial")
+    (out / "chunks" / "c000001.npy").write_bytes((full.path / "chunks" / "c000001.npy").read_bytes()[:1000])
+    assert store.chunk_status(1) == "missing"
+    stats = {}
+    btf.reconstruct_btf(paths["measurements"], out, chunk=CHUNK, progress=False, stats=stats)
+    assert stats["chunks_skipped"] == 1 and stats["chunks_done"] == 1
+    assert not (out / "chunks" / ".c000001.npy.dead.tmp").exists()
+    np.testing.assert_array_equal(btf.ChunkedStore.open(out).read(), full.read())
+    # another configuration on the same folder is refused, before any work
+    with pytest.raises(InputError, match="different"):
+        btf.reconstruct_btf(paths["measurements"], out, aj.Config(budget="aniso204"), chunk=CHUNK, progress=False)
+
+
+def test_two_processes_share_the_chunks(generated, reconstructed, tmp_path, monkeypatch):
+    """Several hosts (jax.distributed) on one shared folder: process p of P computes the chunks
+    k with k % P == p; together they give the one-process result. Simulated in this process."""
+    _, paths = generated
+    full, _ = reconstructed
+    out = tmp_path / "rec"
+    monkeypatch.setattr(jax, "process_count", lambda: 2)
+    for pid in (1, 0):
+        monkeypatch.setattr(jax, "process_index", lambda pid=pid: pid)
+        stats = {}
+        btf.reconstruct_btf(paths["measurements"], out, chunk=CHUNK, progress=False, stats=stats)
+        assert stats["chunks_done"] == 1 and stats["chunks_skipped"] == 0
+        assert btf.ChunkedStore.open(out).done_chunks() == ([1] if pid == 1 else [0, 1])
+    np.testing.assert_array_equal(btf.ChunkedStore.open(out).read(), full.read())
+    # a second host creating the same store while the first is half-way (chunks/ and a temporary
+    # manifest there, no manifest yet) is not refused as "a folder that holds something else"
+    other = tmp_path / "race"
+    (other / "chunks").mkdir(parents=True)
+    (other / ".manifest.json.x1.tmp").write_text("{")
+    s = btf.ChunkedStore.create(other, kind="abrdf", texel_shape=(1, 1), item_shape=(1, 3))
+    assert s.done_chunks() == []
+    with pytest.raises(InputError, match="together"):
+        btf.init_distributed("localhost:1234")
+
+
+def test_sharded_over_8_devices_equals_one_device(generated, reconstructed, tmp_path):
+    """XLA_FLAGS must be set before JAX starts: a subprocess with 8 simulated CPU devices. In
+    float32 (the default), 8, 2 and 1 devices give the same bits: every device multiplies blocks
+    of the same shape. The same subprocess then dies by SIGKILL half-way through writing a chunk
+    (a real crash: no cleanup runs), and this process resumes what it left."""
+    _, paths = generated
+    script = textwrap.dedent(f"""
+        import os, signal
+        import jax, numpy as np
+        from abrdf_jax import btf
+        from abrdf_jax.btf import _store
+        assert len(jax.devices()) == 8, jax.devices()
+        m = {str(paths['measurements'])!r}
+        kw = dict(chunk={CHUNK}, block=4, progress=False, dtype="float32")
+        for d in (8, 2, 1):
+            s = {{}}
+            btf.reconstruct_btf(m, {str(tmp_path)!r} + f"/r{{d}}", devices=d, stats=s, **kw)
+            print("RUN", d, s["devices"], s["backend"], s["batch"], s["chunks_done"], flush=True)
+        real = _store.atomic_write
+
+        class Dying:
+            def __init__(self, cm):
+                self.cm = cm
+
+            def __enter__(self):
+                self.f = self.cm.__enter__()
+                return self
+
+            def write(self, data):
+                self.f.write(bytes(data)[: len(data) // 2])
+                self.f.flush()
+                os.kill(os.getpid(), signal.SIGKILL)
+
+            def __exit__(self, *exc):
+                return self.cm.__exit__(*exc)
+
+        def killing(path, mode="wb", **kw):
+            cm = real(path, mode, **kw)
+            return Dying(cm) if str(path).endswith("c000001.npy") else cm
+
+        _store.atomic_write = killing
+        btf.reconstruct_btf(m, {str(tmp_path)!r} + "/crash", devices=1, **kw)
+        print("SURVIVED", flush=True)
+    """)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=8", JAX_PLATFORMS="cpu")
+    env.pop("JAX_ENABLE_X64", None)
+    res = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600,
+                         cwd=REPO)
+    assert res.returncode == -9 and "SURVIVED" not in res.stdout, (res.returncode, res.stderr[-3000:])
+    runs = [ln.split()[1:] for ln in res.stdout.splitlines() if ln.startswith("RUN")]
+    assert runs == [[str(d), str(d), "operator", str(CHUNK), "2"] for d in (8, 2, 1)], runs
+    one = btf.ChunkedStore.open(tmp_path / "r1").read()
+    assert one.shape == (SIZE * SIZE, 6561, 3) and np.all(np.isfinite(one)) and one.max() > 0
+    for d in (8, 2):
+        np.testing.assert_array_equal(btf.ChunkedStore.open(tmp_path / f"r{d}").read(), one)
+    # the same tables as this process's run (float16 store, operator built in float64 here)
+    here = reconstructed[0].read().astype(np.float32)
+    scale = here.reshape(len(here), -1).max(axis=1)[:, None, None]
+    assert np.max(np.abs(one - here) / scale) < 5e-3
+
+    # What the kill left: chunk 0 valid; of chunk 1 only a half-written temporary file.
+    crash = btf.ChunkedStore.open(tmp_path / "crash")
+    left = sorted(p.name for p in (tmp_path / "crash" / "chunks").iterdir())
+    assert [n for n in left if not n.startswith(".")] == ["c000000.json", "c000000.npy"], left
+    assert any(n.startswith(".c000001.npy.") for n in left), left
+    assert crash.done_chunks() == [0] and crash.chunk_status(1) == "missing"
+    stats = {}
+    btf.reconstruct_btf(paths["measurements"], tmp_path / "crash", chunk=CHUNK, progress=False, dtype="float32",
+                        stats=stats)
+    assert stats["chunks_skipped"] == 1 and stats["chunks_done"] == 1
+    assert not any(p.name.startswith(".") for p in (tmp_path / "crash" / "chunks").iterdir())
+    resumed = btf.ChunkedStore.open(tmp_path / "crash")
+    assert resumed.verify() == {}
+    np.testing.assert_array_equal(resumed.read(0, CHUNK), one[:CHUNK])  # kept, not recomputed
+    # chunk 1 recomputed here, by the operator built in float64 (there: float32)
+    assert np.max(np.abs(resumed.read(CHUNK) - one[CHUNK:]) / scale[CHUNK:]) < 5e-3
+
+
+# ------------------------------------------------------------------------------------ EXR layout
+
+
+def test_exr_per_pair_round_trip(generated, tmp_path):
+    _, paths = generated
+    meas = btf.ChunkedStore.open(paths["measurements"])
+    n = btf.write_exr_pairs(meas, tmp_path / "exr", half=False)
+    files = sorted(p.name for p in (tmp_path / "exr").glob("*.exr"))
+    assert n == 204 == len(files)
+    assert btf.pair_filename(75, 15, 30, 120) == "tl075_pl015_tv030_pv120.exr"
+    assert btf.parse_pair_filename("tl030_pl014.400_tv030_pv359.400.exr") == (30.0, 14.4, 30.0, 359.4)
+    back = btf.read_exr_pairs(tmp_path / "exr", tmp_path / "store", chunk=CHUNK)
+    assert back.kind == "measurements" and back.texel_shape == (SIZE, SIZE)
+    np.testing.assert_array_equal(back.read(), meas.read())
+    for key in ("theta_i", "phi_i", "theta_v", "phi_v", "alpha_deg", "budget"):
+        assert back.geometry[key] == meas.geometry[key]
+    # without the index the names alone give the angles (to 0.001°) and the same images
+    (tmp_path / "exr" / "pairs.json").unlink()
+    named = btf.read_exr_pairs(tmp_path / "exr", tmp_path / "store2", chunk=CHUNK)
+    order = np.lexsort(np.array([meas.geometry[k] for k in ("phi_v", "theta_v", "phi_i", "theta_i")]))
+    np.testing.assert_allclose(np.array(named.geometry["phi_v"]), np.array(meas.geometry["phi_v"])[order], atol=1e-3)
+    np.testing.assert_array_equal(named.read(), meas.read()[:, order])
+    assert named.geometry["budget"] == "aniso204" and abs(named.geometry["alpha_deg"] - 15.0) < 0.01
+    (tmp_path / "exr" / files[0]).write_bytes(b"not an exr")
+    with pytest.raises(InputError, match="OpenEXR"):
+        btf.read_exr_pairs(tmp_path / "exr", tmp_path / "store3", chunk=CHUNK)
+
+
+# ------------------------------------------------------------------------------------ command line
+
+
+def test_cli_generate_reconstruct_evaluate(generated, reconstructed, tmp_path, capsys):
+    _, paths = generated
+    full, _ = reconstructed
+    root = tmp_path / "cli"
+    assert main(["btf", "generate", "-o", str(root), "--size", str(SIZE), "--seed", str(SEED),
+                 "--chunk", str(CHUNK), "-q"]) == 0
+    np.testing.assert_array_equal(btf.ChunkedStore.open(root / "measurements").read(),
+                                  btf.ChunkedStore.open(paths["measurements"]).read())
+    maps = np.load(root / "maps.npz")
+    assert maps["height"].shape == (SIZE, SIZE) and maps["normal"].shape == (SIZE, SIZE, 3)
+    out = tmp_path / "out"
+    assert main(["btf", "reconstruct", str(root), "-o", str(out), "--chunk", str(CHUNK), "-q"]) == 0
+    np.testing.assert_array_equal(btf.ChunkedStore.open(out).read(), full.read())
+    capsys.readouterr()
+    assert main(["btf", "reconstruct", str(root / "measurements"), "-o", str(out), "--chunk", str(CHUNK), "-q"]) == 0
+    assert "0 chunks computed, 2 already done" in capsys.readouterr().out  # resumed: nothing to do
+    png = tmp_path / "map.png"
+    assert main(["btf", "evaluate", str(out), str(root / "reference"), "--json", "--png", str(png)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    want = btf.texel_metrics(full, paths["reference"], metrics=("de76", "logerr"))["de76"].mean()
+    assert abs(doc["de76"]["mean"] - want) < 1e-6 * max(1.0, want) and png.stat().st_size > 1000
+    # bad input: one line, exit status 2
+    assert main(["btf", "reconstruct", str(tmp_path / "nothing"), "-o", str(tmp_path / "o2")]) == 2
+    assert "not found" in capsys.readouterr().err
+    assert main(["btf", "reconstruct", str(root / "reference"), "-o", str(tmp_path / "o3"), "-q"]) == 2
+    assert "expected measurements" in capsys.readouterr().err
+    assert main(["btf", "generate", "-o", str(tmp_path / "g"), "--size", "0"]) == 2
+    capsys.readouterr()
+    assert main(["btf", "reconstruct", str(root), "-o", str(tmp_path / "o4"), "--coordinator", "h:1", "-q"]) == 2
+    assert "together" in capsys.readouterr().err
+    assert main(["btf", "reconstruct", str(root), "-o", str(root / "maps.npz"), "-q"]) == 2
+    assert "not a folder" in capsys.readouterr().err
