@@ -36,6 +36,6 @@ from ._slices import (
 )
 from ._subspace import RULES as RULES, subspace as subspace
 
-from . import io as io, materials as materials, metrics as metrics, render as render, tuning as tuning
+from . import io as io, materials as materials, metrics as metrics, render as render, select as select, tuning as tuning
 
 __version__ = "0.1.0"

@@ -189,37 +189,44 @@ def cmd_reconstruct(args) -> int:
             raise InputError(f"{out}: extension disagrees with --format {args.format}")
         targets = [out]
 
+    from ._cli_select import check_arguments, choose_all, describe, model_json_path, save, summary
+
+    check_arguments(args)
     # Read and check every input before computing or writing anything.
     forced = "iso102" if args.isotropic else "aniso204" if args.anisotropic else None
     samples, plans = _read_inputs(aj, files, forced, args.alpha)
+    choices = choose_all(aj, samples, plans, files, args, forced, quiet=args.quiet)  # --model (auto: select)
 
     if not folder_mode:
         budget, alpha = plans[0]
-        config, params = _params_for(aj, budget, alpha, args.preset, args.params)
+        config, params = choices[0]["config"], choices[0]["params"]
         table = np.asarray(aj.reconstruct(samples[0], config, params))
-        how = f"parameters from {args.params}" if args.params else f"{args.preset} settings"
         io.write_table(out, table)
-        print(f"{out}: reconstructed from {len(samples[0])} samples ({budget}, alpha {alpha:g} deg, {how})")
+        how = f"parameters from {args.params}" if args.params else f"model {choices[0]['name']}"
+        print(f"{out}: reconstructed from {len(samples[0])} samples ({config.budget}, alpha {alpha:g} deg, {how})")
+        print("\n".join(describe(choices[0])))
+        print(f"model record: {save(model_json_path(out, False), choices, False)}")
         return 0
 
     from tqdm import tqdm
 
     out.mkdir(exist_ok=True)
-    groups: dict[tuple[str, float], list[int]] = {}
+    groups: dict[tuple, list[int]] = {}
     for k, plan in enumerate(plans):
-        groups.setdefault(plan, []).append(k)
+        groups.setdefault((*plan, choices[k]["config"]), []).append(k)
     with tqdm(total=len(files), desc="reconstruct", unit="file", file=sys.stderr,
               disable=args.quiet, dynamic_ncols=True) as bar:
-        for (budget, alpha), members in groups.items():
-            config, params = _params_for(aj, budget, alpha, args.preset, args.params)
+        for (budget, alpha, config), members in groups.items():
+            params = choices[members[0]]["params"]
             for start in range(0, len(members), _CHUNK):
                 chunk = members[start:start + _CHUNK]
                 tables = np.asarray(aj.reconstruct_batch([samples[k] for k in chunk], config, params))
                 for k, table in zip(chunk, tables):
                     io.write_table(targets[k], table)
                 bar.update(len(chunk))
-    budgets = sorted({b for b, _ in plans})
-    print(f"{out}: wrote {len(files)} tables ({', '.join(budgets)})")
+    budgets = sorted({c["config"].budget for c in choices})
+    print(f"{out}: wrote {len(files)} tables ({', '.join(budgets)}; models {summary(choices)})")
+    print(f"model record: {save(model_json_path(out, True), choices, True)}")
     return 0
 
 
@@ -361,6 +368,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "paper: Filip 2012 as published (linear values)")
     r.add_argument("--params", metavar="PARAMS.json", type=Path,
                    help="fitted configuration and parameters from 'abrdf-jax fit' (overrides --preset)")
+    from ._cli_select import add_arguments as add_model_arguments
+
+    add_model_arguments(r)  # --model auto|NAME, --tol, --noise
     r.set_defaults(func=cmd_reconstruct)
 
     s = sub.add_parser("sample", parents=[common], help="table or material -> measurement CSV",

@@ -1,0 +1,398 @@
+"""Automatic model selection: the simplest reconstruction model that the measurements support.
+
+Two stages, both on the material's own measurements (no ground truth):
+
+1. **Isotropy** (:func:`abrdf_jax._isotropy.isotropy_test`): a noise-aware test on the axial
+   slices. An isotropic material keeps the diagonal-only model (eq. 5, ``iso102``) and the
+   anisotropic candidates are not even evaluated.
+2. **Complexity** by held-out (cross-validated) error with a tolerance rule: every candidate
+   configuration reconstructs the material from all samples but every ``k``-th of each slice
+   (``k`` folds, each sample held out once) and predicts the held-out samples; the error is the
+   RMS of ``ln(pred + ε) − ln(y + ε)`` over the held-out samples and channels (``ε`` = 1 % of the
+   mean sample, as in :class:`~abrdf_jax.tuning.SelfCalibration` with ``folds="samples"``, whose
+   loss this reproduces exactly; ``tests/test_select.py`` checks it). Among the candidates whose
+   error is within ``tol`` (relative) of the best, the one of lowest complexity rank wins
+   (the "one standard error rule" of Breiman et al., *Classification and Regression Trees*,
+   1984, with a relative tolerance in place of the standard error).
+
+**Cost.** The RBF system depends on the centres, the kernel and its parameters, never on the
+values: every fold and every candidate that shares a kernel (all the subspace rules, both
+budgets) is solved with *one* factorisation, the folds and candidates stacked as right-hand
+sides. One compilation per kernel family and measurement shape, cached across materials
+(``SelfCalibration`` would compile one reconstruction per fold and candidate).
+
+**Complexity ranks** (:data:`CANDIDATES`): ordered first by how much of the measurement the
+model uses (4 diagonal slices < 8 slices), then by the number of kernel shape parameters (the
+thin-plate spline is scale free; a Gaussian has a width), then by the subspace rule (linear
+``average`` < ``crossing``, which also reads the slices' crossing < the nonlinear ``log`` <
+``filip2012`` with its min–max stretch); ties are broken toward the settings that won on the
+MERL train split (log values before linear ones).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._errors import InputError
+from ._isotropy import LEVEL, MIN_EFFECT, IsotropyReport, isotropy_test
+from ._params import Config, Params
+from ._pipeline import _value_eps, centre_vectors, pair_coordinates, prepare, subspace_values
+from ._rbf import fit_rbf
+from ._samples import Samples
+from ._slices import Measurements
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """A named model: its configuration (budget ``iso102``/``aniso204`` and settings) and rank."""
+
+    name: str
+    settings: dict
+    rank: int
+    description: str
+
+    def config(self, **overrides) -> Config:
+        """The :class:`Config` of this candidate (``overrides``: e.g. ``pairs``)."""
+        return Config(**{**self.settings, **overrides})
+
+
+def _rec(budget, **kw):
+    from ._params import RECOMMENDED
+
+    return dict(budget=budget, **{**RECOMMENDED, **kw})
+
+
+#: The named models, in complexity order (rank = position; see the module docstring).
+CANDIDATES: dict[str, Candidate] = {
+    c.name: c
+    for c in (
+        Candidate("iso", _rec("iso102"), 0, "diagonal slices only (eq. 5); thin-plate spline on log values (recommended)"),
+        Candidate("iso-linear", _rec("iso102", value_space="linear"), 1, "diagonal slices only; thin-plate spline on linear values"),
+        Candidate("iso-gaussian", _rec("iso102", kernel="gaussian", degree=0), 2, "diagonal slices only; Gaussian kernel (a width) on log values"),
+        Candidate("paper", dict(budget="iso102"), 3, "Filip 2012 as published, isotropic: Gaussian kernel on linear values"),
+        Candidate("aniso-average", _rec("aniso204", rule="average"), 4, "all 8 slices, mean of the two slices (linear rule)"),
+        Candidate("aniso-crossing", _rec("aniso204", rule="crossing"), 5, "all 8 slices, sum less the crossing value (reproduces both slices)"),
+        Candidate("aniso-log", _rec("aniso204", rule="log"), 6, "all 8 slices, multiplicative rule (product over the crossing)"),
+        Candidate("aniso", _rec("aniso204"), 7, "all 8 slices, eq. (2-4) min-max stretch (filip2012); the recommended anisotropic model"),
+        Candidate("paper-aniso", dict(budget="aniso204"), 8, "Filip 2012 as published, anisotropic: eq. (2-4), Gaussian on linear values"),
+    )
+}
+#: Candidates tried by default: the budget and the subspace rule (one RBF factorisation).
+DEFAULT_ISO = ("iso",)
+DEFAULT_ANISO = ("iso", "aniso-average", "aniso-crossing", "aniso-log", "aniso")
+#: Optional kernel-family candidates (each family is one more compilation).
+KERNEL_FAMILY = ("iso", "iso-linear", "iso-gaussian")
+TOL = 0.05
+
+
+def candidate(name: str) -> Candidate:
+    """A named candidate; :class:`InputError` listing the names otherwise."""
+    if name not in CANDIDATES:
+        raise InputError(f"unknown model {name!r}; choose auto or one of: {', '.join(CANDIDATES)}")
+    return CANDIDATES[name]
+
+
+# ------------------------------------------------------------------------------------------------
+# Held-out error of several configurations at once
+
+
+def _group_key(config: Config):
+    """Configurations with equal keys share the RBF system (and the default parameters)."""
+    return (config.kernel, config.degree, config.value_space, config.parameterization, config.log_eps)
+
+
+def fold_data(meas: Measurements, alpha, k: int = 4) -> dict:
+    """The held-out data of ``k`` sample folds (fold ``j`` holds out samples ``j, j+k, …``).
+
+    Args:
+        meas: the grouped measurement.
+        alpha: the slice offset α (radians) that places the held-out samples.
+        k: number of folds (every slice keeps at least 3 samples in each fold).
+
+    Returns:
+        A pytree of arrays: ``train`` (:class:`Measurements` with a leading fold axis),
+        ``test_wi``/``test_wv`` ``(k, q, 3)``, ``test_y`` ``(k, q, 3)``, ``test_mask`` ``(k, q)``
+        and ``res_eps`` ``(3,)`` (the ε of the log residual, from the whole measurement).
+    """
+    from ._tuning import _sample_folds, _slice_vectors
+
+    if not (isinstance(k, int) and k >= 2):
+        raise InputError(f"k (folds) must be an int >= 2, got {k!r}")
+    train, tt, ty, tm = _sample_folds(meas, k)
+    S = meas.t.shape[0]
+    wis, wvs = [], []
+    for j in range(k):
+        wi, wv = zip(*(_slice_vectors(tt[j, s], s % 2, meas.pairs[s // 2], jnp.asarray(alpha, meas.y.dtype)) for s in range(S)))
+        wis.append(jnp.concatenate(wi)), wvs.append(jnp.concatenate(wv))
+    res_eps = _value_eps(meas, Config())  # log_eps 0.01 of the mean sample, as SelfCalibration
+    return {
+        "train": train,
+        "test_wi": jnp.stack(wis).astype(meas.y.dtype),
+        "test_wv": jnp.stack(wvs).astype(meas.y.dtype),
+        "test_y": ty.reshape(k, -1, 3),
+        "test_mask": tm.reshape(k, -1),
+        "res_eps": res_eps,
+    }
+
+
+def _cv_core(data: dict, configs: tuple, params: Params):
+    """RMS held-out log error of every configuration of one kernel group, shape ``(G,)``."""
+    train = data["train"]
+    cfg0 = configs[0]
+    dtype = train.y.dtype
+    vals = jnp.stack([jax.vmap(lambda m, c=c: subspace_values(m, c, params))(train) for c in configs])
+    if cfg0.value_space == "log":
+        eps = jax.vmap(lambda m: _value_eps(m, cfg0))(train)  # (k, 3): each fold's own, as reconstruct
+        fit_vals = jnp.log(jnp.maximum(vals, 0.0) + eps[None, :, None, :])
+    else:
+        fit_vals = vals
+    G, k, n, C = fit_vals.shape
+    # Every fold and configuration as right-hand sides of one system (it ignores the values).
+    rhs = jnp.moveaxis(fit_vals, 2, 0).reshape(n, G * k * C)
+    wi_c, wv_c = centre_vectors(train.pairs, dtype)
+    xc = pair_coordinates(wi_c, wv_c, cfg0.parameterization)
+    rbf = fit_rbf(xc, rhs, params.widths.astype(dtype), cfg0.kernel, params.reg.astype(dtype), cfg0.degree)
+    q = data["test_wi"].shape[1]
+    xq = pair_coordinates(data["test_wi"].reshape(-1, 3), data["test_wv"].reshape(-1, 3), cfg0.parameterization)
+    out = rbf(xq).reshape(k, q, G, k, C)
+    fold = jnp.arange(k)
+    out = out[fold, :, :, fold, :]  # fold j's own prediction at fold j's held-out samples: (k, q, G, C)
+    if cfg0.value_space == "log":
+        out = jnp.exp(out) - eps[:, None, None, :]
+    pred = jnp.maximum(out, 0.0)
+    e = data["res_eps"]
+    r = jnp.log(pred + e) - jnp.log(jnp.maximum(data["test_y"], 0.0) + e)[:, :, None, :]
+    mask = data["test_mask"][:, :, None, None]
+    ss = jnp.sum(jnp.where(mask, r * r, 0.0), axis=(0, 1, 3))
+    return jnp.sqrt(ss / (C * jnp.maximum(jnp.sum(data["test_mask"]), 1)))
+
+
+_cv_jit = eqx.filter_jit(_cv_core)
+
+
+@eqx.filter_jit
+def _cv_batch_jit(data, configs, params):
+    return jax.vmap(lambda d: _cv_core(d, configs, params))(data)
+
+
+def group_configs(configs: dict[str, Config]) -> list[tuple[tuple[str, ...], tuple[Config, ...]]]:
+    """Split named configurations into groups that share one RBF system."""
+    groups: dict = {}
+    for name, cfg in configs.items():
+        groups.setdefault(_group_key(cfg), []).append((name, cfg))
+    return [(tuple(n for n, _ in g), tuple(c for _, c in g)) for g in groups.values()]
+
+
+def held_out_errors(
+    samples: Samples | Measurements,
+    configs: dict[str, Config],
+    *,
+    alpha_deg: float | None = None,
+    k: int = 4,
+    dtype=None,
+) -> dict[str, float]:
+    """Held-out RMS log error of each named configuration on one material's own samples.
+
+    Args:
+        samples: the measurement (:class:`Samples` are grouped, α estimated unless given).
+        configs: ``{name: Config}``; every one must fit the measurement (``aniso204`` needs axial
+            slices). Each uses :meth:`Params.default` with the measurement's α.
+        alpha_deg: slice offset for :class:`Samples`; for :class:`Measurements` default 15°.
+        k: number of sample folds.
+
+    Returns:
+        ``{name: error}`` (log units, scale free; lower is better).
+    """
+    meas, alpha = _grouped(samples, alpha_deg, dtype)
+    out = {}
+    data = fold_data(meas, np.deg2rad(alpha), k)
+    for names, cfgs in group_configs(configs):
+        for c in cfgs:
+            if c.budget == "aniso204" and not meas.has_axial:
+                raise InputError(f"model {c} needs axial slices, but the measurement has none")
+        params = Params.default(cfgs[0], alpha_deg=alpha, dtype=meas.y.dtype)
+        errs = np.asarray(_cv_jit(data, cfgs, params))
+        out.update({n: float(e) for n, e in zip(names, errs)})
+    return out
+
+
+def _grouped(samples, alpha_deg, dtype=None) -> tuple[Measurements, float]:
+    if isinstance(samples, Measurements):
+        return samples, (15.0 if alpha_deg is None else float(alpha_deg))
+    if not isinstance(samples, Samples):
+        raise InputError(f"samples must be Samples or Measurements, got {type(samples).__name__}")
+    params = None if alpha_deg is None else Params.default(Config(), alpha_deg=alpha_deg)
+    meas, _, p = prepare(samples, None, params, dtype=dtype)
+    return meas, p.alpha_deg
+
+
+# ------------------------------------------------------------------------------------------------
+# The tolerance rule and the selection
+
+
+def tolerance_choice(errors: dict[str, float], ranks: dict[str, int], tol: float = TOL) -> tuple[str, str]:
+    """The simplest candidate whose error is within ``tol`` (relative) of the best.
+
+    Args:
+        errors: ``{name: held-out error}`` (non-finite errors never win).
+        ranks: ``{name: complexity rank}`` (lower is simpler; ties go to the lower error).
+        tol: relative tolerance, e.g. 0.05 for 5 %.
+
+    Returns:
+        ``(name, reason)``.
+
+    Raises:
+        InputError: no finite error, or a negative tolerance.
+    """
+    if not (tol >= 0 and math.isfinite(tol)):
+        raise InputError(f"tol must be a finite fraction >= 0, got {tol!r}")
+    finite = {n: e for n, e in errors.items() if math.isfinite(e)}
+    if not finite:
+        raise InputError(f"no candidate has a finite held-out error: {errors}")
+    best = min(finite, key=lambda n: (finite[n], ranks[n]))
+    bound = finite[best] * (1.0 + tol)
+    within = [n for n in finite if finite[n] <= bound]
+    pick = min(within, key=lambda n: (ranks[n], finite[n]))
+    if pick == best:
+        reason = f"{pick} has the lowest held-out error ({finite[pick]:.4g})"
+        simpler = [n for n in finite if ranks[n] < ranks[pick]]
+        if simpler:
+            s = min(simpler, key=lambda n: finite[n])
+            reason += f"; the best simpler model, {s}, is {100 * (finite[s] / finite[pick] - 1):.1f}% worse (> {100 * tol:g}%)"
+    else:
+        reason = (f"{pick} is the simplest model within {100 * tol:g}% of the best held-out error "
+                  f"({finite[pick]:.4g} vs {finite[best]:.4g} of {best})")
+    return pick, reason
+
+
+@dataclasses.dataclass(frozen=True)
+class Selection:
+    """What :func:`select_model` decided, and the evidence.
+
+    Attributes:
+        name: the chosen candidate's name (see :data:`CANDIDATES`).
+        config: its :class:`Config`; params: its :class:`Params` (α of the measurement).
+        errors: ``{name: held-out RMS log error}`` of the candidates tried.
+        ranks: ``{name: complexity rank}`` of those candidates.
+        isotropy: the :class:`IsotropyReport` (``None`` if the budget was forced).
+        reason: why this model (one or two sentences).
+        tol: the tolerance used; k: the number of folds; seconds: wall time of the selection.
+    """
+
+    name: str
+    config: Config
+    params: Params
+    errors: dict
+    ranks: dict
+    isotropy: IsotropyReport | None
+    reason: str
+    tol: float
+    k: int
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (what ``abrdf-jax reconstruct`` saves as ``OUT.model.json``)."""
+        from ._paramfile import params_to_dict
+
+        p = params_to_dict(self.config, self.params)
+        return {
+            "format": "abrdf_jax.model/1",
+            "model": self.name,
+            "config": p["config"],
+            "params": p["params"],
+            "reason": self.reason,
+            "tol": self.tol,
+            "folds": self.k,
+            "candidates": [
+                {"name": n, "held_out_log_rms": _finite(self.errors[n]), "rank": self.ranks[n],
+                 "description": CANDIDATES[n].description if n in CANDIDATES else ""}
+                for n in sorted(self.errors, key=lambda n: self.ranks[n])
+            ],
+            "isotropy": None if self.isotropy is None else self.isotropy.to_dict(),
+            "seconds": self.seconds,
+        }
+
+
+def _finite(x):
+    return float(x) if math.isfinite(x) else None
+
+
+def select_model(
+    samples: Samples | Measurements,
+    *,
+    candidates: tuple[str, ...] | str = "auto",
+    budget: str | None = None,
+    tol: float = TOL,
+    k: int = 4,
+    noise: float | None = None,
+    level: float = LEVEL,
+    min_effect: float = MIN_EFFECT,
+    alpha_deg: float | None = None,
+    dtype=None,
+) -> Selection:
+    """Choose the simplest reconstruction model the measurements support.
+
+    Args:
+        samples: one material's measurement.
+        candidates: ``"auto"`` (the isotropy test, then :data:`DEFAULT_ANISO` when the
+            material is anisotropic), ``"kernels"`` (also the kernel families of
+            :data:`KERNEL_FAMILY`: one compilation each), or a tuple of candidate names.
+        budget: force ``"iso102"`` or ``"aniso204"`` (no isotropy decision; candidates of other
+            budgets are dropped).
+        tol: relative tolerance of the rule (module docstring).
+        k: number of sample folds.
+        noise: relative noise of one sample, if known (else estimated; see the isotropy test).
+        level, min_effect: thresholds of the isotropy test.
+        alpha_deg: slice offset (default: estimated from :class:`Samples`, 15° for
+            :class:`Measurements`).
+
+    Returns:
+        A :class:`Selection`.
+    """
+    t0 = time.perf_counter()
+    if budget not in (None, "iso102", "aniso204"):
+        raise InputError(f"budget must be 'iso102', 'aniso204' or None, got {budget!r}")
+    meas, alpha = _grouped(samples, alpha_deg, dtype)
+    if budget == "aniso204" and not meas.has_axial:
+        raise InputError("budget 'aniso204' needs axial slices, but the measurement has none")
+    report = None
+    if budget is None:
+        report = isotropy_test(meas, noise=noise, level=level, min_effect=min_effect)
+        aniso_ok = not report.isotropic
+    else:
+        aniso_ok = budget == "aniso204"
+    if candidates in ("auto", "kernels"):
+        names = list(DEFAULT_ANISO if aniso_ok else DEFAULT_ISO)
+        if candidates == "kernels":
+            names += [n for n in KERNEL_FAMILY if n not in names]
+    else:
+        names = [candidate(n).name for n in candidates]
+        if not names:
+            raise InputError("candidates: give at least one model name")
+    if budget == "aniso204":
+        names = [n for n in names if CANDIDATES[n].settings["budget"] == "aniso204"] or ["aniso"]
+    elif budget == "iso102" or not aniso_ok:
+        names = [n for n in names if CANDIDATES[n].settings["budget"] == "iso102"] or ["iso"]
+    configs = {n: CANDIDATES[n].config(pairs=meas.pairs) for n in names}
+    ranks = {n: CANDIDATES[n].rank for n in names}
+    if len(names) == 1:
+        errors = {names[0]: float("nan")}
+        pick = names[0]
+        reason = f"{pick}: the only candidate left"
+    else:
+        errors = held_out_errors(meas, configs, alpha_deg=alpha, k=k)
+        pick, reason = tolerance_choice(errors, ranks, tol)
+    if report is not None:
+        reason = f"{report.reason}. {reason}"
+    elif budget is not None:
+        reason = f"budget forced to {budget}. {reason}"
+    config = configs[pick]
+    params = Params.default(config, alpha_deg=alpha, dtype=meas.y.dtype)
+    return Selection(pick, config, params, errors, ranks, report, reason, tol, k, time.perf_counter() - t0)
