@@ -102,7 +102,7 @@ def cmd_reconstruct(args) -> int:
     stats: dict = {}
     store = btf.reconstruct_btf(meas, out, config, params, chunk=args.chunk, progress=not args.quiet,
                                 dtype=args.dtype, devices=args.devices, backend=args.backend,
-                                overwrite=args.overwrite, stats=stats)
+                                overwrite=args.overwrite, stats=stats, model=args.model)
     head = (f"{out}: {store.n_texels} texels ({stats['chunks_done']} chunks computed, {stats['chunks_skipped']} "
             f"already done) in {stats['seconds']:.1f} s")
     if stats["chunks_done"]:
@@ -110,6 +110,10 @@ def cmd_reconstruct(args) -> int:
         head += (f" (about {computed / max(stats['seconds'], 1e-9):.0f} texels/s; {stats['backend']} backend, "
                  f"{stats['devices']} device(s), {args.dtype})")
     print(head)
+    if args.model == "auto":
+        m = btf.isotropy_map(meas, chunk=args.chunk)
+        print(f"model per texel (isotropy test of the axial slices): {100 * m['fraction_isotropic']:.1f}% "
+              f"isotropic (diagonal-only model), {100 * (1 - m['fraction_isotropic']):.1f}% anisotropic")
     if args.exr_dir:
         if jax.process_index() == 0:
             t0 = time.perf_counter()
@@ -205,6 +209,9 @@ def register(sub) -> None:
     r.add_argument("--params", metavar="PARAMS.json", type=Path, help="fitted parameters ('abrdf-jax fit')")
     r.add_argument("--isotropic", action="store_true", help="use only the diagonal slices (iso102)")
     r.add_argument("--backend", choices=("auto", "operator", "pipeline"), default="auto")
+    r.add_argument("--model", choices=("fixed", "auto"), default="fixed",
+                   help="auto: per texel, the isotropy test picks the diagonal-only or the anisotropic model "
+                        "(two matrix products per chunk); fixed: one model for every texel (default)")
     r.add_argument("--devices", type=_positive("--devices"), metavar="N", help="shard over the first N local devices")
     r.add_argument("--overwrite", action="store_true", help="replace an output store of other settings")
     d = r.add_argument_group("several hosts (jax.distributed; the stores on a shared file system)")

@@ -425,3 +425,45 @@ def test_cli_generate_reconstruct_evaluate(generated, reconstructed, tmp_path, c
     assert "together" in capsys.readouterr().err
     assert main(["btf", "reconstruct", str(root), "-o", str(root / "maps.npz"), "-q"]) == 2
     assert "not a folder" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------- per-texel model choice
+
+
+def test_per_texel_model_choice(tmp_path):
+    """model='auto': each texel gets the model its own isotropy test picks (the test of
+    abrdf_jax.select, batched), and the store holds exactly that texel's reconstruction."""
+    from abrdf_jax._isotropy import isotropy_test
+    from abrdf_jax.btf import _batch
+    from abrdf_jax.materials import get_material
+
+    names = ("ggx-plastic", "ward-brushed-steel", "lambert-clay", "ggx-aniso-metal")
+    samples = [aj.sample(get_material(n), aj.Config(budget="aniso204")) for n in names]
+    s0 = samples[0]
+    geometry = dict(theta_i=s0.theta_i.tolist(), phi_i=s0.phi_i.tolist(), theta_v=s0.theta_v.tolist(),
+                    phi_v=s0.phi_v.tolist(), alpha_deg=15.0, budget="aniso204")
+    meas = btf.ChunkedStore.create(tmp_path / "meas", kind="measurements", texel_shape=(2, 2),
+                                   item_shape=(len(s0), 3), chunk=4, geometry=geometry)
+    y = np.stack([np.asarray(s.rgb, np.float32) for s in samples])
+    meas.write_chunk(0, y)
+    out = btf.reconstruct_btf(meas, tmp_path / "rec", chunk=4, progress=False, dtype="float32", model="auto")
+
+    decided = btf.isotropy_map(meas, chunk=4)
+    truth = [isotropy_test(s, alpha_deg=15.0).isotropic for s in samples]
+    assert decided["isotropic"].ravel().tolist() == truth == [True, False, True, False]
+    assert decided["fraction_isotropic"] == 0.5
+
+    config = btf.default_config()
+    fn = _batch._chunk_fn(config, aj.Params.default(config, alpha_deg=15.0, dtype=jnp.float32), meas.geometry,
+                          "auto", jnp.float32, "auto")  # the map reconstruct_btf built (cached)
+    assert isinstance(fn, btf.ModelChoiceChunkFunction) and fn.backend == "operator+choice"
+    iso, aniso = np.asarray(fn.iso(jnp.asarray(y))), np.asarray(fn.aniso(jnp.asarray(y)))
+    expected = np.where(np.asarray(truth)[:, None, None], iso, aniso)
+    np.testing.assert_allclose(out.read(), expected, rtol=1e-6, atol=1e-7)
+    assert np.abs(iso[1] - aniso[1]).max() > 1e-2  # the two models differ on the anisotropic texel
+
+    with pytest.raises(InputError, match="model='auto'"):
+        btf.reconstruct_btf(meas, tmp_path / "rec2", aj.Config.recommended("iso102"), chunk=4, progress=False,
+                            model="auto")
+    with pytest.raises(InputError, match="model must be"):
+        btf.reconstruct_btf(meas, tmp_path / "rec3", chunk=4, progress=False, model="best")

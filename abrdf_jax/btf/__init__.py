@@ -9,7 +9,8 @@
   layout of the UBO2003 and UTIA BTF databases.
 - :func:`reconstruct_btf`: measurement store → ABRDF store, streamed in bounded memory with a
   progress bar, resumable, the texel axis sharded over all devices (:func:`init_distributed`
-  for several hosts).
+  for several hosts); ``model="auto"`` chooses the isotropic or the anisotropic model per texel
+  (:func:`isotropy_map`: the decisions).
 - :func:`texel_metrics`, :func:`texel_metrics_many`, :func:`save_error_map`: per-texel accuracy maps.
 
 See ``docs/btf.md`` for the store layout, the resume semantics, sharding and measured numbers.
@@ -17,9 +18,12 @@ See ``docs/btf.md`` for the store layout, the resume semantics, sharding and mea
 
 from ._batch import DEFAULT_CHUNK as DEFAULT_CHUNK
 from ._batch import default_config as default_config
+from ._batch import isotropy_map as isotropy_map
 from ._batch import reconstruct_btf as reconstruct_btf
 from ._chunkfn import ChunkFunction as ChunkFunction
+from ._chunkfn import ModelChoiceChunkFunction as ModelChoiceChunkFunction
 from ._chunkfn import make_chunk_fn as make_chunk_fn
+from ._chunkfn import make_model_choice_fn as make_model_choice_fn
 from ._dataset import generate_btf as generate_btf
 from ._dataset import measurement_store_of as measurement_store_of
 from ._devices import ShardedRunner as ShardedRunner
@@ -41,8 +45,8 @@ from ._store import ChunkedStore as ChunkedStore
 from ._texel import TexelModel as TexelModel
 
 __all__ = [
-    "ChunkFunction", "ChunkedStore", "DEFAULT_CHUNK", "ProceduralBTF", "ShardedRunner", "TexelModel",
-    "default_config", "dense_texel_table", "generate_btf", "init_distributed", "make_chunk_fn",
+    "ChunkFunction", "ChunkedStore", "ModelChoiceChunkFunction", "DEFAULT_CHUNK", "ProceduralBTF", "ShardedRunner", "TexelModel",
+    "default_config", "dense_texel_table", "generate_btf", "init_distributed", "isotropy_map", "make_chunk_fn", "make_model_choice_fn",
     "mean_fill", "measurement_geometry", "measurement_store_of", "pair_filename", "parse_pair_filename",
     "procedural_btf", "read_exr_pairs", "reconstruct_btf", "save_error_map", "texel_chunk",
     "texel_metrics", "texel_metrics_many", "write_exr_pairs",

@@ -20,13 +20,14 @@ import sys
 import time
 from pathlib import Path
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
 from .._params import Config, Params
-from ._chunkfn import BACKENDS, N_PAIRS, make_chunk_fn
+from ._chunkfn import BACKENDS, N_PAIRS, make_chunk_fn, make_model_choice_fn
 from ._devices import DEFAULT_BLOCK, ShardedRunner, resolve_devices
 from ._store import ChunkedStore
 
@@ -65,15 +66,17 @@ def store_identity(store: ChunkedStore) -> str:
 _CHUNK_FNS: dict = {}
 
 
-def _chunk_fn(config, params, geometry, backend, dtype):
-    """:func:`make_chunk_fn`, remembered for the last few settings (building an operator costs a
-    factorisation and a pass of the pipeline; a resumed or repeated run reuses it)."""
+def _chunk_fn(config, params, geometry, backend, dtype, model="fixed"):
+    """:func:`make_chunk_fn` (``model="auto"``: :func:`make_model_choice_fn`), remembered for the
+    last few settings (building an operator costs a factorisation and a pass of the pipeline; a
+    resumed or repeated run reuses it)."""
     key = (repr(config), json.dumps(_params_doc(params)), json.dumps(geometry, sort_keys=True), backend,
-           jnp.dtype(dtype).name)
+           jnp.dtype(dtype).name, model)
     if key not in _CHUNK_FNS:
         while len(_CHUNK_FNS) >= 4:
             _CHUNK_FNS.pop(next(iter(_CHUNK_FNS)))
-        _CHUNK_FNS[key] = make_chunk_fn(config, params, geometry, backend=backend, dtype=dtype)
+        make = make_model_choice_fn if model == "auto" else make_chunk_fn
+        _CHUNK_FNS[key] = make(config, params, geometry, backend=backend, dtype=dtype)
     return _CHUNK_FNS[key]
 
 
@@ -97,6 +100,7 @@ def reconstruct_btf(
     compute_dtype: str = "float32",
     overwrite: bool = False,
     stats: dict | None = None,
+    model: str = "fixed",
 ) -> ChunkedStore:
     """Reconstruct every texel of a measured BTF into a chunked ABRDF store.
 
@@ -118,6 +122,10 @@ def reconstruct_btf(
             float32 pipeline's ill-conditioned RBF solve makes results depend on the batch size
             at the 1e-2 relative level, float64 does not).
         overwrite: replace an output store of a different job.
+        model: ``"fixed"`` (``config`` for every texel) or ``"auto"``: per texel, the isotropy
+            test of :mod:`abrdf_jax.select` on its axial slices picks the diagonal-only model
+            (``default_config("iso102")``, default parameters) or ``config`` (which must be
+            ``aniso204``); see :func:`isotropy_map` for the decisions.
         stats: if given, filled with ``chunks_done``, ``chunks_skipped``, ``seconds``,
             ``first_chunk_seconds`` (compilation included), ``backend``, ``devices``, ``batch``.
 
@@ -152,9 +160,14 @@ def reconstruct_btf(
         params = Params.default(config, alpha_deg=alpha_deg, dtype=work)
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if model not in ("fixed", "auto"):
+        raise InputError(f"model must be 'fixed' or 'auto', got {model!r}")
+    if model == "auto" and (config.budget != "aniso204" or geometry.get("budget", "aniso204") != "aniso204"):
+        raise InputError("model='auto' chooses between iso102 and aniso204 per texel: it needs an aniso204 "
+                         f"configuration and measurement (got {config.budget!r}); use model='fixed'")
     # The job is what the results depend on; "auto" resolves the same way every time.
     job = dict(input=store_identity(meas), config=repr(config), params=_params_doc(params),
-               backend=backend, compute_dtype=compute_dtype)
+               backend=backend, compute_dtype=compute_dtype, model=model)
     out = ChunkedStore.create(
         out_store, kind="abrdf", texel_shape=meas.texel_shape, item_shape=(N_PAIRS, 3), dtype=dtype,
         chunk=chunk, geometry=dict(grid="UBO2003-81", order="i*81+v", value="BRDF*cos(theta_i), linear RGB"),
@@ -171,7 +184,7 @@ def reconstruct_btf(
     info = dict(chunks_done=0, chunks_skipped=len(done), backend=None, devices=len(devices),
                 first_chunk_seconds=0.0, batch=None)
     if todo:  # build (or reuse) the chunk map only when there is work
-        chunk_fn = _chunk_fn(config, params, geometry, backend, work)
+        chunk_fn = _chunk_fn(config, params, geometry, backend, work, model)
         runner = ShardedRunner(chunk_fn, devices, np.dtype(dtype), block)
         batch = runner.batch_size(chunk)
         info.update(backend=chunk_fn.backend, batch=batch)
@@ -214,3 +227,44 @@ def reconstruct_btf(
     if stats is not None:
         stats.update(info)
     return out
+
+
+@eqx.filter_jit
+def _isotropic_fn(fn, y):
+    return fn.isotropic(y)
+
+
+def isotropy_map(meas_store, *, chunk: int = DEFAULT_CHUNK, config: Config | None = None,
+                 compute_dtype: str = "float32") -> dict:
+    """The per-texel isotropy decisions that ``reconstruct_btf(..., model="auto")`` makes.
+
+    Args:
+        meas_store: a measurement :class:`ChunkedStore` or its folder (aniso204 geometry).
+        chunk: texels per step (memory only; the decisions do not depend on it).
+        config: the anisotropic configuration (default :func:`default_config`).
+        compute_dtype: ``"float32"`` (what the reconstruction uses) or ``"float64"``.
+
+    Returns:
+        ``{"isotropic": bool (rows, cols), "statistic": (rows, cols), "effect": (rows, cols),
+        "fraction_isotropic": float}`` (statistic: χ²/dof; effect: RMS log variation of the axial
+        slices, see :func:`abrdf_jax.select.isotropy_test`).
+    """
+    meas = _as_store(meas_store)
+    if meas.kind != "measurements":
+        raise InputError(f"{meas.path}: is a {meas.kind} store, expected measurements")
+    work = jnp.dtype(compute_dtype)
+    geometry = meas.geometry
+    config = default_config(geometry.get("budget", "aniso204")) if config is None else config
+    params = Params.default(config, alpha_deg=float(geometry.get("alpha_deg", 15.0)), dtype=work)
+    fn = _chunk_fn(config, params, geometry, "auto", work, "auto")
+    parts = [[], [], []]
+    for a in range(0, meas.n_texels, chunk):
+        b = min(a + chunk, meas.n_texels)
+        y = meas.read(a, b).astype(work)
+        if y.shape[0] < chunk and meas.n_texels > chunk:  # one shape, one compilation
+            y = np.concatenate([y, np.repeat(y[-1:], chunk - y.shape[0], axis=0)])
+        for part, v in zip(parts, _isotropic_fn(fn, y)):
+            part.append(np.asarray(v)[: b - a])
+    shape = tuple(meas.texel_shape)
+    iso, stat, eff = (np.concatenate(p).reshape(shape) for p in parts)
+    return dict(isotropic=iso, statistic=stat, effect=eff, fraction_isotropic=float(iso.mean()))

@@ -173,3 +173,80 @@ def make_chunk_fn(config: Config, params: Params, geometry: dict, backend: str =
             raise InputError(f"backend='operator': {why}")
     chosen = "operator" if operator is not None else "pipeline"
     return ChunkFunction(chosen, config, params, template, jnp.asarray(group, dtype), operator, source)
+
+
+class ModelChoiceChunkFunction(eqx.Module):
+    """Per-texel model choice: the isotropy test of :mod:`abrdf_jax.select` on every texel.
+
+    Each texel's axial slices are tested (:func:`abrdf_jax._isotropy.isotropy_batch`, the test
+    ``abrdf-jax reconstruct --model auto`` runs on one material, noise estimated per texel); an
+    isotropic texel gets the diagonal-only model (eq. 5), the others the anisotropic one. Both are
+    compiled chunk maps; on a chunk both run and each texel keeps its own (two matrix products
+    per chunk with the operator backend; a branch per texel would serialise the batch).
+
+    Build with :func:`make_model_choice_fn`.
+    """
+
+    aniso: ChunkFunction
+    iso: ChunkFunction
+    t: tuple = eqx.field(static=True)
+    count: tuple = eqx.field(static=True)
+    level: float = eqx.field(static=True)
+    min_effect: float = eqx.field(static=True)
+
+    @property
+    def backend(self) -> str:
+        return f"{self.aniso.backend}+choice"
+
+    @property
+    def n_samples(self) -> int:
+        return self.aniso.n_samples
+
+    def isotropic(self, y: Float[Array, "C n 3"]):
+        """``(isotropic, statistic, effect)`` per texel of flat samples ``y`` (the test's outputs)."""
+        from .._isotropy import isotropy_batch
+
+        meas = self.aniso.measurements(y)
+        return isotropy_batch(meas.y, np.asarray(self.t), np.asarray(self.count), level=self.level,
+                              min_effect=self.min_effect)
+
+    def __call__(self, y: Float[Array, "C n 3"]) -> Float[Array, "C 6561 3"]:
+        iso = self.isotropic(y)[0]
+        return jnp.where(iso[:, None, None], self.iso(y), self.aniso(y))
+
+
+def make_model_choice_fn(config: Config, params: Params, geometry: dict, backend: str = "auto",
+                         dtype=jnp.float32, *, iso_config: Config | None = None,
+                         iso_params: Params | None = None, level: float | None = None,
+                         min_effect: float | None = None) -> ModelChoiceChunkFunction:
+    """Build the per-texel model-choice map (see :class:`ModelChoiceChunkFunction`).
+
+    Args:
+        config, params: the anisotropic model (budget ``aniso204``; the geometry must have axial
+            slices).
+        geometry, backend, dtype: as :func:`make_chunk_fn`.
+        iso_config, iso_params: the isotropic model; default the BTF default for ``iso102``
+            and its default parameters at the geometry's α.
+        level, min_effect: thresholds of the isotropy test (defaults of :mod:`abrdf_jax.select`).
+
+    Raises:
+        InputError: the anisotropic configuration is not ``aniso204`` or the geometry has no
+            axial slice (nothing to test).
+    """
+    from .._isotropy import LEVEL, MIN_EFFECT
+    from ._batch import default_config
+
+    if config.budget != "aniso204":
+        raise InputError(f"model='auto' chooses between iso102 and aniso204 per texel; the configuration's "
+                         f"budget is {config.budget!r} (use model='fixed')")
+    aniso = make_chunk_fn(config, params, geometry, backend, dtype)
+    if iso_config is None:
+        iso_config = default_config("iso102")
+    if iso_params is None:
+        alpha = float(geometry.get("alpha_deg", np.rad2deg(float(params.alpha))))
+        iso_params = Params.default(iso_config, alpha_deg=alpha, dtype=dtype)
+    iso = make_chunk_fn(iso_config, iso_params, geometry, backend, dtype)
+    t = tuple(tuple(float(v) for v in row) for row in np.asarray(aniso.template.t, np.float64))
+    count = tuple(int(c) for c in np.asarray(aniso.template.count))
+    return ModelChoiceChunkFunction(aniso, iso, t, count, LEVEL if level is None else float(level),
+                                    MIN_EFFECT if min_effect is None else float(min_effect))
