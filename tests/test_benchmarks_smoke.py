@@ -1,0 +1,48 @@
+"""Smoke test of the speed/accuracy suite (``python -m benchmarks --smoke``): it runs and writes valid output.
+
+Three configurations (the paper's method, the PCA peer, mean fill) on two MERL test materials; the
+JSON must parse, carry the machine/threads/versions blocks and one complete point per configuration
+with finite figures, and the Pareto flags must agree with the points. Speed is not checked.
+"""
+
+import json
+import math
+
+from benchmarks import suite
+
+POINT_KEYS = {
+    "name", "group", "dataset", "layout", "budget", "n_samples", "dtype", "n_materials", "seconds_per_abrdf",
+    "batch_seconds", "compile_seconds", "setup_seconds", "repeats", "finite", "de76", "logerr", "de2000",
+    "rmse8", "psnr", "per_material", "pareto_de76", "pareto_logerr",
+}
+
+
+def test_suite_smoke_writes_valid_json(data_dir, tmp_path, monkeypatch):
+    monkeypatch.setenv("ABRDF_DATA", str(data_dir))
+    suite.main(["--smoke", "--out", str(tmp_path)], log=lambda *a: None)
+    payload = json.loads((tmp_path / "suite_smoke.json").read_text())
+    assert payload["mode"] == "smoke"
+    for block in ("machine", "threads", "versions", "layouts", "materials", "pareto"):
+        assert payload[block], block
+    assert payload["versions"]["jax"] and payload["threads"]["cpu_count"]
+    names = {e.name for e in suite.REGISTRY.values() if "smoke" in e.modes}
+    points = payload["points"]
+    assert {p["name"] for p in points} == names and len(points) == len(names) == 3
+    for p in points:
+        assert "error" not in p, p.get("error")
+        assert POINT_KEYS <= set(p), POINT_KEYS - set(p)
+        assert p["n_materials"] == 2 and p["dataset"] == "merl-test" and p["finite"]
+        assert len(p["per_material"]["de76"]) == 2
+        for key in ("seconds_per_abrdf", "de76", "logerr", "de2000", "rmse8", "psnr"):
+            assert math.isfinite(p[key]), (p["name"], key)
+        assert p["seconds_per_abrdf"] > 0 and p["de76"] >= 0 and p["logerr"] >= 0
+    # the Pareto front: nobody on it is beaten in both time and error, everybody off it is
+    for metric in ("de76", "logerr"):
+        front = set(payload["pareto"]["merl-test"][metric])
+        assert front == {p["name"] for p in points if p[f"pareto_{metric}"]}
+        for p in points:
+            beaten = any(q is not p and q["seconds_per_abrdf"] <= p["seconds_per_abrdf"] and q[metric] <= p[metric]
+                         for q in points)
+            assert (p["name"] not in front) == beaten, (metric, p["name"])
+    assert (tmp_path / "speed_accuracy_smoke.png").stat().st_size > 10_000
+    assert "| configuration |" in (tmp_path / "suite_smoke.md").read_text()
