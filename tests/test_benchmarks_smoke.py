@@ -1,8 +1,10 @@
 """Smoke test of the speed/accuracy suite (``python -m benchmarks --smoke``): it runs and writes valid output.
 
-Three configurations (the paper's method, the PCA peer, mean fill) on two MERL test materials; the
-JSON must parse, carry the machine/threads/versions blocks and one complete point per configuration
-with finite figures, and the Pareto flags must agree with the points. Speed is not checked.
+Three configurations (the compiled operator of the paper's method, the PCA peer, mean fill) on two
+MERL test materials and the throughput part at batch sizes 1 and 10; the JSON must parse, carry the
+machine/threads/versions/load blocks and one complete point per configuration with finite figures,
+the Pareto flags must agree with the points, and the throughput block's figures must be consistent
+(rates from the times, the roofline fraction from the flops). Speed is not checked.
 """
 
 import json
@@ -28,6 +30,7 @@ def test_suite_smoke_writes_valid_json(data_dir, tmp_path, monkeypatch):
     names = {e.name for e in suite.REGISTRY.values() if "smoke" in e.modes}
     points = payload["points"]
     assert {p["name"] for p in points} == names and len(points) == len(names) == 3
+    assert "operator paper iso102" in names
     for p in points:
         assert "error" not in p, p.get("error")
         assert POINT_KEYS <= set(p), POINT_KEYS - set(p)
@@ -44,5 +47,21 @@ def test_suite_smoke_writes_valid_json(data_dir, tmp_path, monkeypatch):
             beaten = any(q is not p and q["seconds_per_abrdf"] <= p["seconds_per_abrdf"] and q[metric] <= p[metric]
                          for q in points)
             assert (p["name"] not in front) == beaten, (metric, p["name"])
+    assert len(payload["load_average_before"]) == len(payload["load_average_after"]) == 3
+    # the throughput part: every batch size timed, figures derived consistently from the times
+    tp = payload["throughput"]
+    assert tp["batches"] == [1, 10] and tp["gemm_square"]["gflops"] > 0
+    pre = tp["presets"]["paper"]
+    assert pre["matrix_shape"] == [6561, 102] and pre["n_inputs"] == 102
+    for row, b in zip(pre["rows"], tp["batches"]):
+        assert row["batch"] == b and row["seconds"] > 0
+        assert math.isclose(row["abrdfs_per_second"], b / row["seconds"], rel_tol=1e-9)
+        flops = 2.0 * 6561 * 102 * 3 * b
+        assert math.isclose(row["fraction_of_roofline"], flops / row["seconds"] / 1e9 / tp["gemm_square"]["gflops"],
+                            rel_tol=1e-9)
+    assert pre["latency_seconds"] == pre["rows"][0]["seconds"]
+    assert set(tp["targets"]["presets"]) == {"paper"} and tp["targets"]["lines"]
     assert (tmp_path / "speed_accuracy_smoke.png").stat().st_size > 10_000
-    assert "| configuration |" in (tmp_path / "suite_smoke.md").read_text()
+    assert (tmp_path / "throughput_batch_smoke.png").stat().st_size > 10_000
+    md = (tmp_path / "suite_smoke.md").read_text()
+    assert "| configuration |" in md and "| batch |" in md
