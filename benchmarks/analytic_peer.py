@@ -195,14 +195,19 @@ def fit_analytic(meas: Measurements, model: str = "ggx", anisotropic: bool | Non
     if meas.y.ndim != 4:
         raise ValueError(f"meas must be stacked (B, S, nmax, 3), got y of shape {meas.y.shape}")
     aniso = meas.has_axial if anisotropic is None else bool(anisotropic)
+    if jax.config.jax_enable_x64 and meas.y.dtype != jnp.float64:
+        # Under x64, optimistix's Levenberg–Marquardt mixes float64 scalars into a float32 state
+        # (structure mismatch): fit in float64 then; reconstruct_analytic casts the tables back.
+        meas = jax.tree_util.tree_map(lambda a: a.astype(jnp.float64) if jnp.issubdtype(a.dtype, jnp.floating) else a,
+                                      meas)
     theta, loss, steps = _fit_batch(meas, jnp.asarray(np.deg2rad(alpha_deg), meas.y.dtype), model, aniso,
                                     jnp.asarray(eps_rel, meas.y.dtype), int(max_steps))
     return AnalyticFit(theta, loss, steps, model, aniso)
 
 
 def reconstruct_analytic(meas: Measurements, **kwargs) -> Float[Array, "B 81 81 3"]:
-    """Fit (:func:`fit_analytic`) and evaluate on the 81×81 grid in one call."""
-    return fit_analytic(meas, **kwargs).tables()
+    """Fit (:func:`fit_analytic`) and evaluate on the 81×81 grid in one call (in the dtype of ``meas``)."""
+    return fit_analytic(meas, **kwargs).tables().astype(meas.y.dtype)
 
 
 def main(argv=None):

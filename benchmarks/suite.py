@@ -407,8 +407,9 @@ def _operator_build(preset: str, tuned: bool = False, **config_kw):
     """The fixed-parameter map compiled into one matrix (:func:`abrdf_jax.compile_operator`).
 
     The recommended preset (log values) is made linear with ``value_space="logsamples"`` (the log
-    taken before the subspace rule: the same for iso102, where the rule is the diagonal copy); its
-    widths and λ stay those of ``Config.recommended()``. Building the matrix is set-up time; the
+    of the samples, before slice interpolation and the subspace rule, instead of after them: not
+    the same numbers, see the pipeline point ``recommended iso102 logsamples``); its widths and λ
+    stay those of ``Config.recommended()``. Building the matrix is set-up time; the
     timed call is one GEMM per batch (plus the gather, log/exp and clamp).
     """
     def build(ctx, lay, dtype):
@@ -474,11 +475,16 @@ def _register_defaults():
             register(pipeline_entry(f"{preset} {lay} tuned", "tuned", lay, preset=preset, params=params,
                                     modes=fq if lay == "iso102" else ("full",),
                                     note=f"{preset} preset, widths and λ of tuning.json (LM, train split), α 15°"))
+    # the log of the samples (what the operator computes for the recommended preset), through the pipeline
+    register(pipeline_entry("recommended iso102 logsamples", "recommended", "iso102", preset="recommended",
+                            params=lambda cfg, dt: aj.Params.default(aj.Config.recommended(), dtype=dt),
+                            value_space="logsamples", modes=fq,
+                            note="recommended preset, log of the samples before slice interpolation"))
     # the compiled fixed-parameter operator: one matrix product per batch
     register(Entry("operator paper iso102", "operator", "iso102", _operator_build("paper"), modes=fqs,
                    note="compile_operator, paper preset: one (3B, 102)·(102, 6561) GEMM per batch"))
     register(Entry("operator recommended iso102", "operator", "iso102", _operator_build("recommended"), modes=fq,
-                   note="compile_operator, recommended preset with value_space='logsamples' (= log for iso102)"))
+                   note="compile_operator, recommended preset with value_space='logsamples' (log of the samples)"))
     if tuned_params("iso102", "recommended") is not None:
         register(Entry("operator recommended iso102 tuned", "operator", "iso102",
                        _operator_build("recommended", tuned=True), modes=fq,

@@ -8,7 +8,8 @@ What is measured (float32, the package default; CPU threads as the machine gives
 
 - **ABRDFs per second against batch size** ``B`` (1 … 10,000) of :func:`abrdf_jax.compile_operator`
   for iso102 → 81×81×3: the paper preset (linear values) and the recommended preset
-  (``value_space="logsamples"``, which makes the recommended log setting one matrix product).
+  (``value_space="logsamples"``: the log of the samples instead of the log after slice interpolation,
+  which makes the recommended setting one matrix product; the suite measures its accuracy).
   Each call is one GEMM ``(3B, 102) · (102, 6561)`` plus the exp/clamp; time = median of
   repeated calls after a warm-up, ``block_until_ready``.
 - **roofline**: the rate of ``jnp.matmul`` on the same machine in the same run, for the same
@@ -107,13 +108,14 @@ def peak_rss_mb() -> float:
 
 PRESETS = {
     "paper": lambda: aj.Config(),
-    # log before the diagonal rule = log after it for iso102: the recommended setting, made linear
+    # the recommended setting made linear: the log of the samples (before slice interpolation) in place
+    # of the log after it; not the same numbers (the suite measures both), the same widths and λ
     "recommended": lambda: aj.Config.recommended(value_space="logsamples"),
 }
 
 
 def _params(cfg: aj.Config, dtype) -> aj.Params:
-    """``Params.default`` of the setting the operator stands for (``logsamples`` reads as ``log``)."""
+    """``Params.default`` of the setting the operator stands for (``logsamples`` takes ``log``'s widths and λ)."""
     if cfg.value_space == "logsamples":
         cfg = aj.Config(**{**{f: getattr(cfg, f) for f in ("budget", "kernel", "degree")}, "value_space": "log"})
     return aj.Params.default(cfg, dtype=dtype)

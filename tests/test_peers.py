@@ -10,7 +10,7 @@ import pytest
 
 import abrdf_jax as aj
 from abrdf_jax.materials import GGX, dense_table
-from benchmarks.analytic_peer import fit_analytic
+from benchmarks.analytic_peer import fit_analytic, reconstruct_analytic
 from benchmarks.pca_peer import (
     fit_pca_prior,
     flat_samples,
@@ -122,3 +122,8 @@ def test_analytic_fit_recovers_known_ggx():
         have = _canonical(float(got["alpha_x"][k]), float(got["alpha_y"][k]), float(got["rotation"][k]))
         np.testing.assert_allclose(have, want, rtol=1e-4, atol=1e-5)
         np.testing.assert_allclose(tables[k], dense_table(mats[k], np.float64), rtol=1e-4, atol=1e-8)
+    # float32 samples with x64 on (the suite's float32 points): fitted in float64, float32 tables back
+    meas32 = jax.tree_util.tree_map(lambda a: a.astype(jnp.float32) if a.dtype == F64 else a, meas)
+    rec32 = reconstruct_analytic(meas32, model="ggx", eps_rel=1e-3)
+    assert rec32.dtype == jnp.float32
+    np.testing.assert_allclose(np.asarray(rec32), tables, rtol=1e-3, atol=1e-6)
