@@ -611,6 +611,7 @@ def plot(payload: dict, path=None, dataset: str = "merl-test"):
     labelled. Returns the matplotlib figure (saved to ``path`` when given).
     """
     import matplotlib
+    import matplotlib.ticker
 
     if path is not None:
         matplotlib.use("Agg")
@@ -636,12 +637,17 @@ def plot(payload: dict, path=None, dataset: str = "merl-test"):
         ys = [p[metric] for p in front]
         ax.step(xs, ys, where="post", ls="--", c="0.3", lw=1, label="Pareto front")
         ax.scatter(xs, ys, s=120, facecolors="none", edgecolors="0.2", lw=1.2)
-        for p in front:
-            ax.annotate(p["name"], (p["seconds_per_abrdf"], p[metric]), textcoords="offset points", xytext=(5, 4),
-                        fontsize=7)
+        for i, p in enumerate(front):  # staggered labels: front points often sit close together
+            ax.annotate(p["name"], (p["seconds_per_abrdf"], p[metric]), textcoords="offset points",
+                        xytext=(6, 10 - 11 * (i % 3)), fontsize=7)
         ax.set_xscale("log")
+        ax.set_yscale("log")
+        plain = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}")
+        ax.yaxis.set_major_formatter(plain)
+        ax.yaxis.set_minor_formatter(plain)
+        ax.tick_params(axis="y", which="minor", labelsize=7)
         ax.set_xlabel("time per ABRDF, batched, after compilation [s] (log)")
-        ax.set_ylabel(label)
+        ax.set_ylabel(label + " (log)")
         ax.grid(True, which="both", alpha=0.3)
     n = pts[0]["n_materials"] if pts else 0
     m = payload.get("machine", {})
@@ -703,9 +709,16 @@ def main(argv=None, log=None) -> dict:
     ap.add_argument("--no-plot", action="store_true", help="skip the PNG charts")
     ap.add_argument("--no-throughput", action="store_true", help="skip the operator throughput/roofline part")
     ap.add_argument("--list", action="store_true", help="list the registered configurations and exit")
+    ap.add_argument("--replot", action="store_true", help="redraw the charts and table from the stored JSON, no run")
     args = ap.parse_args(argv)
     mode = "smoke" if args.smoke else "quick" if args.quick else "full"
     log = log or (lambda *a: print(*a, file=sys.stderr, flush=True))
+    if args.replot:
+        import json
+
+        payload = json.loads((args.out / f"suite{'' if mode == 'full' else '_' + mode}.json").read_text())
+        write_outputs(payload, args.out, plots=not args.no_plot)
+        return payload
     if args.list:
         for e in REGISTRY.values():
             print(f"{e.name:45s} {e.group:18s} {e.layout:14s} {e.dtype:8s} {','.join(e.modes)}")
@@ -758,27 +771,40 @@ def main(argv=None, log=None) -> dict:
     suffix = "" if mode == "full" else f"_{mode}"
     args.out.mkdir(parents=True, exist_ok=True)
     _write_json(args.out / f"suite{suffix}.json", payload)
-    if not args.no_plot and ok:
-        plot(payload, args.out / f"speed_accuracy{suffix}.png")
-    if not args.no_plot and tp:
-        plot_throughput(payload, args.out / f"throughput_batch{suffix}.png")
+    write_outputs(payload, args.out, plots=not args.no_plot)
+    log(f"suite ({mode}): {len(ok)} points, {len(points) - len(ok)} failed, {payload['seconds']:.0f} s; "
+        f"wrote {args.out / f'suite{suffix}.json'}")
+    return payload
+
+
+def write_outputs(payload: dict, out: Path, plots: bool = True) -> None:
+    """Write the markdown table ``suite{_mode}.md`` and the two charts of a suite payload to ``out``."""
+    mode = payload["mode"]
+    suffix = "" if mode == "full" else f"_{mode}"
+    ok = [p for p in payload["points"] if "error" not in p]
+    tp = payload.get("throughput")
+    if plots and ok:
+        plot(payload, out / f"speed_accuracy{suffix}.png")
+    if plots and tp:
+        plot_throughput(payload, out / f"throughput_batch{suffix}.png")
     command = "python -m benchmarks" + ("" if mode == "full" else f" --{mode}")
     m = payload["machine"]
     text = [f"# Speed against accuracy ({mode} run, `{command}`)", "",
             f"{m['date']}, {m['platform']}, {payload['threads']['cpu_count']} CPUs, JAX {m['jax']} on "
-            f"{', '.join(m['jax_devices'])}; load average (1, 5, 15 min) before {load_before}, after "
-            f"{payload['load_average_after']}; {payload['seconds']:.0f} s in all.", ""]
-    for ds in fronts:
+            f"{', '.join(m['jax_devices'])}; load average (1, 5, 15 min) before {payload['load_average_before']}, "
+            f"after {payload['load_average_after']}; {payload['seconds']:.0f} s in all.", ""]
+    failed = [p for p in payload["points"] if "error" in p]
+    if failed:
+        text += ["Failed configurations: " + "; ".join(f"{p['name']} [{p['dataset']}]: {p['error']}" for p in failed),
+                 ""]
+    for ds in sorted(payload["pareto"], key=lambda d: (d != "merl-test", d)):
         text += [f"## {ds}", "", table(payload, ds), "", *summary(payload, ds), ""]
     if tp:
         from .throughput import table as tp_table
 
         text += ["## Throughput of the compiled operator (iso102 → 81×81×3, float32)", "", tp_table(tp), "",
                  *[f"- {line}" for line in tp["targets"]["lines"]], ""]
-    (args.out / f"suite{suffix}.md").write_text("\n".join(text))
-    log(f"suite ({mode}): {len(ok)} points, {len(points) - len(ok)} failed, {payload['seconds']:.0f} s; "
-        f"wrote {args.out / f'suite{suffix}.json'}")
-    return payload
+    (out / f"suite{suffix}.md").write_text("\n".join(text))
 
 
 def _loadavg():

@@ -224,7 +224,7 @@ def table(tp: dict, scipy_seconds: float | None = None) -> str:
         notes.append(txt + ".")
     if tp.get("scaling"):
         notes.append("Cost against centres/targets (recommended, B=100): " + "; ".join(
-            f"{r['n_samples']} samples × {r['targets']} targets: build {r['build_seconds']:.2f} s, "
+            f"{r['n_samples']} samples × {r['targets']} targets: build (with its compile) {r['build_seconds']:.2f} s, "
             f"{r['abrdfs_per_second']:,.0f}/s" for r in tp["scaling"]) + ".")
     notes.append(f"Peak RSS of the process: {tp['peak_rss_mb']:.0f} MB.")
     return "\n".join(lines) + "\n\n" + "\n".join(f"- {n}" for n in notes)

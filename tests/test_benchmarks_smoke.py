@@ -65,3 +65,7 @@ def test_suite_smoke_writes_valid_json(data_dir, tmp_path, monkeypatch):
     assert (tmp_path / "throughput_batch_smoke.png").stat().st_size > 10_000
     md = (tmp_path / "suite_smoke.md").read_text()
     assert "| configuration |" in md and "| batch |" in md
+    # --replot rebuilds the table from the stored JSON alone
+    (tmp_path / "suite_smoke.md").unlink()
+    suite.main(["--smoke", "--out", str(tmp_path), "--replot", "--no-plot"], log=lambda *a: None)
+    assert (tmp_path / "suite_smoke.md").read_text() == md
