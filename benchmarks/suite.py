@@ -710,9 +710,13 @@ def main(argv=None, log=None) -> dict:
     ap.add_argument("--no-throughput", action="store_true", help="skip the operator throughput/roofline part")
     ap.add_argument("--list", action="store_true", help="list the registered configurations and exit")
     ap.add_argument("--replot", action="store_true", help="redraw the charts and table from the stored JSON, no run")
+    ap.add_argument("--update", action="store_true",
+                    help="with --only: rerun those entries and merge them into the stored JSON (throughput kept)")
     args = ap.parse_args(argv)
     mode = "smoke" if args.smoke else "quick" if args.quick else "full"
     log = log or (lambda *a: print(*a, file=sys.stderr, flush=True))
+    if args.update and not args.only:
+        ap.error("--update needs --only NAME ...")
     if args.replot:
         import json
 
@@ -744,7 +748,16 @@ def main(argv=None, log=None) -> dict:
             log(f"  {p['name']:42s} [{ds}] {p['seconds_per_abrdf'] * 1e3:9.3f} ms/ABRDF  dE76 {p['de76']:6.2f}  "
                 f"LogErr {p['logerr']:.3f}  (compile {p['compile_seconds']:.1f} s, set-up {p['setup_seconds']:.1f} s)")
     tp = None
-    if not args.no_throughput:
+    suffix = "" if mode == "full" else f"_{mode}"
+    stored = None
+    if args.update:  # merge into the stored run: same-named points replaced, its throughput part kept
+        import json
+
+        stored = json.loads((args.out / f"suite{suffix}.json").read_text())
+        new = {(p["name"], p["dataset"]) for p in points}
+        points = [p for p in stored["points"] if (p["name"], p["dataset"]) not in new] + points
+        tp = stored.get("throughput")
+    if not args.no_throughput and not args.update:
         from . import throughput
 
         log(f"suite ({mode}): operator throughput against batch size, roofline")
@@ -768,7 +781,13 @@ def main(argv=None, log=None) -> dict:
         points=points, pareto=fronts, throughput=tp, load_average_before=load_before,
         load_average_after=_loadavg(), seconds=time.time() - t0,
     )
-    suffix = "" if mode == "full" else f"_{mode}"
+    if stored is not None:
+        update = dict(date=payload["machine"]["date"], entries=sorted({e.name for e in selected_entries(mode, args.only)}),
+                      load_average_before=load_before, load_average_after=payload["load_average_after"],
+                      seconds=payload["seconds"])
+        payload.update({k: stored[k] for k in ("machine", "threads", "versions", "load_average_before",
+                                               "load_average_after", "seconds") if k in stored})
+        payload["updates"] = stored.get("updates", []) + [update]
     args.out.mkdir(parents=True, exist_ok=True)
     _write_json(args.out / f"suite{suffix}.json", payload)
     write_outputs(payload, args.out, plots=not args.no_plot)
@@ -793,6 +812,9 @@ def write_outputs(payload: dict, out: Path, plots: bool = True) -> None:
             f"{m['date']}, {m['platform']}, {payload['threads']['cpu_count']} CPUs, JAX {m['jax']} on "
             f"{', '.join(m['jax_devices'])}; load average (1, 5, 15 min) before {payload['load_average_before']}, "
             f"after {payload['load_average_after']}; {payload['seconds']:.0f} s in all.", ""]
+    for u in payload.get("updates", []):
+        text += [f"Updated {u['date']} (load {u['load_average_before']} → {u['load_average_after']}): "
+                 + ", ".join(u["entries"]) + ".", ""]
     failed = [p for p in payload["points"] if "error" in p]
     if failed:
         text += ["Failed configurations: " + "; ".join(f"{p['name']} [{p['dataset']}]: {p['error']}" for p in failed),

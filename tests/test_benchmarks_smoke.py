@@ -69,3 +69,11 @@ def test_suite_smoke_writes_valid_json(data_dir, tmp_path, monkeypatch):
     (tmp_path / "suite_smoke.md").unlink()
     suite.main(["--smoke", "--out", str(tmp_path), "--replot", "--no-plot"], log=lambda *a: None)
     assert (tmp_path / "suite_smoke.md").read_text() == md
+    # --update reruns one entry and merges it: same points (one replaced), the throughput part kept
+    suite.main(["--smoke", "--out", str(tmp_path), "--update", "--only", "mean fill iso102", "--no-plot"],
+               log=lambda *a: None)
+    merged = json.loads((tmp_path / "suite_smoke.json").read_text())
+    assert sorted(p["name"] for p in merged["points"]) == sorted(p["name"] for p in points)
+    assert merged["throughput"] == tp and [u["entries"] for u in merged["updates"]] == [["mean fill iso102"]]
+    fill = [p for p in merged["points"] if p["name"] == "mean fill iso102"]
+    assert fill[0]["de76"] == next(p["de76"] for p in points if p["name"] == "mean fill iso102")
