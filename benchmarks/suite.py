@@ -923,6 +923,8 @@ OTHER_SCRIPTS = """other benchmark scripts:
   python -m benchmarks.tuning [--quick]          gradient tuning of widths, λ and α
   python -m benchmarks.pca_peer [--quick]        the PCA peer: cross-validated choice on train, test figures
   python -m benchmarks.analytic_peer [--quick]   the analytic peer: model and ε chosen on train, test figures
+  python -m benchmarks.btf [--quick]             whole BTFs: throughput, roofline, per-texel error
+  python -m benchmarks.model_selection [--quick] automatic model choice: confusion, error, cost (issue 6)
 """
 
 
