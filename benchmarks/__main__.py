@@ -1,5 +1,5 @@
-"""``python -m benchmarks``: list the benchmark scripts."""
+"""``python -m benchmarks``: the speed/accuracy suite (``benchmarks/suite.py``); ``--help`` lists the other scripts."""
 
-print("benchmarks: python -m benchmarks.merl_accuracy [--quick]   accuracy on the MERL split\n"
-      "            python -m benchmarks.speed [--quick]           speed beside the scipy peer\n"
-      "            python -m benchmarks.model_selection [--quick] automatic model choice: confusion, error, cost")
+from .suite import main
+
+main()

@@ -1,0 +1,79 @@
+"""Smoke test of the speed/accuracy suite (``python -m benchmarks --smoke``): it runs and writes valid output.
+
+Three configurations (the compiled operator of the paper's method, the PCA peer, mean fill) on two
+MERL test materials and the throughput part at batch sizes 1 and 10; the JSON must parse, carry the
+machine/threads/versions/load blocks and one complete point per configuration with finite figures,
+the Pareto flags must agree with the points, and the throughput block's figures must be consistent
+(rates from the times, the roofline fraction from the flops). Speed is not checked.
+"""
+
+import json
+import math
+
+from benchmarks import suite
+
+POINT_KEYS = {
+    "name", "group", "dataset", "layout", "budget", "n_samples", "dtype", "n_materials", "seconds_per_abrdf",
+    "batch_seconds", "compile_seconds", "setup_seconds", "repeats", "finite", "de76", "logerr", "de2000",
+    "rmse8", "psnr", "per_material", "pareto_de76", "pareto_logerr",
+}
+
+
+def test_suite_smoke_writes_valid_json(data_dir, tmp_path, monkeypatch):
+    monkeypatch.setenv("ABRDF_DATA", str(data_dir))
+    suite.main(["--smoke", "--out", str(tmp_path)], log=lambda *a: None)
+    payload = json.loads((tmp_path / "suite_smoke.json").read_text())
+    assert payload["mode"] == "smoke"
+    for block in ("machine", "threads", "versions", "layouts", "materials", "pareto"):
+        assert payload[block], block
+    assert payload["versions"]["jax"] and payload["threads"]["cpu_count"]
+    names = {e.name for e in suite.REGISTRY.values() if "smoke" in e.modes}
+    points = payload["points"]
+    assert {p["name"] for p in points} == names and len(points) == len(names) == 3
+    assert "operator paper iso102" in names
+    for p in points:
+        assert "error" not in p, p.get("error")
+        assert POINT_KEYS <= set(p), POINT_KEYS - set(p)
+        assert p["n_materials"] == 2 and p["dataset"] == "merl-test" and p["finite"]
+        assert len(p["per_material"]["de76"]) == 2
+        for key in ("seconds_per_abrdf", "de76", "logerr", "de2000", "rmse8", "psnr"):
+            assert math.isfinite(p[key]), (p["name"], key)
+        assert p["seconds_per_abrdf"] > 0 and p["de76"] >= 0 and p["logerr"] >= 0
+    # the Pareto front: nobody on it is beaten in both time and error, everybody off it is
+    for metric in ("de76", "logerr"):
+        front = set(payload["pareto"]["merl-test"][metric])
+        assert front == {p["name"] for p in points if p[f"pareto_{metric}"]}
+        for p in points:
+            beaten = any(q is not p and q["seconds_per_abrdf"] <= p["seconds_per_abrdf"] and q[metric] <= p[metric]
+                         for q in points)
+            assert (p["name"] not in front) == beaten, (metric, p["name"])
+    assert len(payload["load_average_before"]) == len(payload["load_average_after"]) == 3
+    # the throughput part: every batch size timed, figures derived consistently from the times
+    tp = payload["throughput"]
+    assert tp["batches"] == [1, 10] and tp["gemm_square"]["gflops"] > 0
+    pre = tp["presets"]["paper"]
+    assert pre["matrix_shape"] == [6561, 102] and pre["n_inputs"] == 102
+    for row, b in zip(pre["rows"], tp["batches"]):
+        assert row["batch"] == b and row["seconds"] > 0
+        assert math.isclose(row["abrdfs_per_second"], b / row["seconds"], rel_tol=1e-9)
+        flops = 2.0 * 6561 * 102 * 3 * b
+        assert math.isclose(row["fraction_of_roofline"], flops / row["seconds"] / 1e9 / tp["gemm_square"]["gflops"],
+                            rel_tol=1e-9)
+    assert pre["latency_seconds"] == pre["rows"][0]["seconds"]
+    assert set(tp["targets"]["presets"]) == {"paper"} and tp["targets"]["lines"]
+    assert (tmp_path / "speed_accuracy_smoke.png").stat().st_size > 10_000
+    assert (tmp_path / "throughput_batch_smoke.png").stat().st_size > 10_000
+    md = (tmp_path / "suite_smoke.md").read_text()
+    assert "| configuration |" in md and "| batch |" in md
+    # --replot rebuilds the table from the stored JSON alone
+    (tmp_path / "suite_smoke.md").unlink()
+    suite.main(["--smoke", "--out", str(tmp_path), "--replot", "--no-plot"], log=lambda *a: None)
+    assert (tmp_path / "suite_smoke.md").read_text() == md
+    # --update reruns one entry and merges it: same points (one replaced), the throughput part kept
+    suite.main(["--smoke", "--out", str(tmp_path), "--update", "--only", "mean fill iso102", "--no-plot"],
+               log=lambda *a: None)
+    merged = json.loads((tmp_path / "suite_smoke.json").read_text())
+    assert sorted(p["name"] for p in merged["points"]) == sorted(p["name"] for p in points)
+    assert merged["throughput"] == tp and [u["entries"] for u in merged["updates"]] == [["mean fill iso102"]]
+    fill = [p for p in merged["points"] if p["name"] == "mean fill iso102"]
+    assert fill[0]["de76"] == next(p["de76"] for p in points if p["name"] == "mean fill iso102")
