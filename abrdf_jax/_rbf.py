@@ -30,8 +30,9 @@ conditionally positive-definite kernels with a polynomial tail ``benchmarks/stab
 measures it. If the raised
 system is still singular to working precision, :class:`SolveInfo` says ``ok = False``. On a
 well-conditioned system nothing changes: the requested ``λ`` is used and the result is the plain
-solve's to rounding. The choice of ``λ`` is made on a stopped-gradient copy of the matrix
-(``lax.cond``: the second factorisation runs only when needed, outside ``vmap`` over values); the
+solve's bit for bit. The choice of ``λ`` is made on a stopped-gradient copy of the matrix (a
+``lax.while_loop`` of at most two attempts: the second factorisation runs only when needed, and
+outside ``vmap`` over values, which never changes the matrix); the
 coefficients are then obtained by ``lax.custom_linear_solve`` with the chosen factor, which
 differentiates implicitly (``dc = -A⁻¹ dA c``), so a failed attempt never leaks NaN into gradients.
 """
