@@ -160,11 +160,31 @@ def _warn_negative(path: Path, samples) -> None:
               f"reconstruction is clamped at 0", file=sys.stderr)
 
 
+def _warn_guard(path: Path, samples, config, params, params_file) -> None:
+    """Say when the RBF system was ill-conditioned and its regularisation raised (docs/stability.md).
+
+    Only parameters from a file can trigger it: the presets' systems are fixed (protocol pairs,
+    tuned widths and λ) and well conditioned in float32 (tests/test_stability.py), so the extra
+    compile is skipped for them.
+    """
+    from abrdf_jax._pipeline import solve_info
+
+    if params_file is None:
+        return
+    info = solve_info(samples, config, params)
+    if int(info.retries) or not bool(info.ok):
+        state = "raised" if bool(info.ok) else "raised, still ill-conditioned"
+        print(f"{PROG}: warning: {path}: the RBF system is singular to working precision at the requested "
+              f"regularisation; regularisation {state} to {float(info.reg):.3g} (condition ~{float(info.cond):.2g})",
+              file=sys.stderr)
+
+
 def cmd_reconstruct(args) -> int:
     import numpy as np
 
     import abrdf_jax as aj
     from abrdf_jax import io
+    from abrdf_jax._pipeline import check_finite
 
     files, folder_mode = _expand_inputs(args.inputs)
     out = Path(args.output)
@@ -200,7 +220,9 @@ def cmd_reconstruct(args) -> int:
     if not folder_mode:
         budget, alpha = plans[0]
         config, params = choices[0]["config"], choices[0]["params"]
+        _warn_guard(files[0], samples[0], config, params, args.params)
         table = np.asarray(aj.reconstruct(samples[0], config, params))
+        check_finite(table, str(files[0]))
         io.write_table(out, table)
         how = f"parameters from {args.params}" if args.params else f"model {choices[0]['name']}"
         print(f"{out}: reconstructed from {len(samples[0])} samples ({config.budget}, alpha {alpha:g} deg, {how})")
@@ -214,19 +236,32 @@ def cmd_reconstruct(args) -> int:
     groups: dict[tuple, list[int]] = {}
     for k, plan in enumerate(plans):
         groups.setdefault((*plan, choices[k]["config"]), []).append(k)
+    failed: list[str] = []
     with tqdm(total=len(files), desc="reconstruct", unit="file", file=sys.stderr,
               disable=args.quiet, dynamic_ncols=True) as bar:
         for (budget, alpha, config), members in groups.items():
             params = choices[members[0]]["params"]
+            _warn_guard(files[members[0]], samples[members[0]], config, params, args.params)
             for start in range(0, len(members), _CHUNK):
                 chunk = members[start:start + _CHUNK]
                 tables = np.asarray(aj.reconstruct_batch([samples[k] for k in chunk], config, params))
                 for k, table in zip(chunk, tables):
+                    try:
+                        check_finite(table, str(files[k]))
+                    except InputError as e:  # never write it; the other materials are still written
+                        failed.append(str(e))
+                        continue
                     io.write_table(targets[k], table)
                 bar.update(len(chunk))
     budgets = sorted({c["config"].budget for c in choices})
-    print(f"{out}: wrote {len(files)} tables ({', '.join(budgets)}; models {summary(choices)})")
+    print(f"{out}: wrote {len(files) - len(failed)} tables ({', '.join(budgets)}; models {summary(choices)})")
     print(f"model record: {save(model_json_path(out, True), choices, True)}")
+    if failed:
+        for msg in failed:
+            print(f"{PROG}: error: {msg}", file=sys.stderr)
+        print(f"{PROG}: error: {len(failed)} of {len(files)} reconstructions were not finite; no table was written for them",
+              file=sys.stderr)
+        return 2
     return 0
 
 

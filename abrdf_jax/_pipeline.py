@@ -18,7 +18,7 @@ from jaxtyping import Array, Float
 from ._errors import InputError
 from ._grid import UBO_COUNTS, UBO_THETAS_DEG, half_diff, onion_from_vector, pair_grid, to_vector, ubo_grid
 from ._params import Config, Params
-from ._rbf import fit_rbf
+from ._rbf import SolveInfo, fit_rbf, fit_rbf_info
 from ._samples import Samples
 from ._slices import Measurements, group_slices, stack_measurements
 from ._subspace import subspace
@@ -271,6 +271,48 @@ def reconstruct_batch(
             raise InputError("a batch mixes isotropic (102) and anisotropic (204) measurements; split it")
         meas = stack_measurements(meas_list)
     return _reconstruct_batch_jit(meas, config, params, targets)
+
+
+def solve_info(samples: Samples | Measurements, config: Config | None = None, params: Params | None = None) -> SolveInfo:
+    """How the RBF system of a reconstruction is solved: the guard's diagnostics.
+
+    The system depends on the measured elevation pairs, the configuration and the parameters,
+    never on the sample values, so one call covers every material reconstructed with them.
+
+    Args:
+        samples, config, params: as for :func:`reconstruct`.
+
+    Returns:
+        A :class:`SolveInfo` (``reg`` used, estimated condition number, ``ok``, ``retries``:
+        1 when the requested regularisation was raised, see :mod:`abrdf_jax._rbf`).
+    """
+    meas, config, params = prepare(samples, config, params)
+    return _solve_info_jit(meas.pairs, meas.y.dtype, config, params)
+
+
+@eqx.filter_jit
+def _solve_info_jit(pairs, dtype, config, params):
+    xc = pair_coordinates(*centre_vectors(pairs, dtype), config.parameterization)
+    zeros = jnp.zeros((xc.shape[0], 1), dtype)
+    return fit_rbf_info(xc, zeros, params.widths.astype(dtype), config.kernel, params.reg.astype(dtype), config.degree)[1]
+
+
+def check_finite(table, where: str = "reconstruction") -> None:
+    """Raise :class:`InputError` if ``table`` holds NaN or inf (never write such a table).
+
+    Args:
+        table: a reconstructed table (any shape, last axis RGB).
+        where: what to name in the message (the input file).
+    """
+    arr = np.asarray(table)
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise InputError(
+            f"{where}: the reconstruction holds {int(bad.sum())} NaN or infinite value(s) (first at "
+            f"index {first}): the sample values are too large for {arr.dtype} arithmetic or the RBF solve failed; "
+            "nothing was written for it (rescale the values, e.g. to a maximum near 1)"
+        )
 
 
 def sample(source, config: Config | None = None, params: Params | None = None, *, as_measurements: bool = False):

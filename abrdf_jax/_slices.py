@@ -225,7 +225,8 @@ def group_slices(
 
     Returns:
         ``(measurements, report)`` where ``report`` has ``alpha_deg``, ``n_used``,
-        ``n_off_slice``, ``counts``.
+        ``n_off_slice``, ``counts`` and ``dropped_pairs``: elevation pairs without any sample,
+        left out of the measurement (its ``pairs`` are the others).
 
     Raises:
         InputError: when no sample lies on any diagonal slice.
@@ -240,6 +241,7 @@ def group_slices(
         return np.abs(d) <= tol_deg
 
     groups = []
+    all_pairs = list(pairs)
     used = np.zeros(len(ti), bool)
     for a_t, v_t in pairs:
         on_pair = (np.abs(ti - a_t) <= tol_deg) & (np.abs(tv - v_t) <= tol_deg)
@@ -259,9 +261,17 @@ def group_slices(
             f"no sample lies on a diagonal slice (phi_i + phi_v = alpha = {alpha_deg:g} deg mod 360 "
             f"at elevation pairs {pairs}); cannot reconstruct"
         )
+    # An elevation pair without a single sample would feed zeros into the RBF at a quarter of its
+    # centres (silently dark); it is left out instead, and the RBF fills it from the other pairs
+    # (docs/stability.md, "Numerical edges").
+    empty = [k for k in range(len(pairs)) if counts[2 * k] + counts[2 * k + 1] == 0]
+    if empty:
+        pairs = [p for k, p in enumerate(pairs) if k not in empty]
+        merged = [m for k, m in enumerate(merged) if k // 2 not in empty]
+        counts = [len(a) for a, _ in merged]
     nmax = nmax or int(8 * np.ceil(max(counts) / 8))
-    t = np.zeros((len(groups), nmax))
-    y = np.zeros((len(groups), nmax, 3))
+    t = np.zeros((len(merged), nmax))
+    y = np.zeros((len(merged), nmax, 3))
     for k, (a, v) in enumerate(merged):
         t[k, : len(a)] = np.deg2rad(a)
         y[k, : len(a)] = v
@@ -270,7 +280,7 @@ def group_slices(
         tuple(tuple(float(x) for x in p) for p in pairs), any(c > 0 for c in counts[0::2]),
     )
     report = dict(alpha_deg=float(alpha_deg), n_used=int(used.sum()), n_off_slice=int((~used).sum()),
-                  counts=counts)
+                  counts=counts, dropped_pairs=[tuple(float(x) for x in p) for k, p in enumerate(all_pairs) if k in empty])
     return meas, report
 
 

@@ -84,14 +84,28 @@ def subspace(
     """
     if rule not in RULES:
         raise ValueError(f"rule must be one of {RULES}, got {rule!r}")
+    # A slice that was not measured (count 0, e.g. an axial slice with too few samples of its
+    # own): the rules would read padding. The pair then falls back to the slice it has, eq. (5)
+    # when only the diagonal one is there (docs/stability.md). Counts of at least 1 keep every
+    # branch finite, so the unused one cannot put NaN into gradients.
+    has_axial, has_diag = jnp.asarray(n_axial) > 0, jnp.asarray(n_diag) > 0
+    n_axial, n_diag = jnp.maximum(n_axial, 1), jnp.maximum(n_diag, 1)
+    out, a, b = _rule(t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, rule, interp, log_eps)
+    if rule == "diagonal":
+        return out
+    return jnp.where(has_axial, jnp.where(has_diag, out, a), b)
+
+
+def _rule(t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, rule, interp, log_eps):
+    """The rule's value and the two slices read at the queries, ``(out, a, b)``."""
     s = phi_i + phi_v
     d = phi_i - phi_v
     b = _slice_at(t_diag, y_diag, n_diag, (TWO_PI + alpha - d) / 2, interp)
     if rule == "diagonal":
-        return b
+        return b, b, b
     a = _slice_at(t_axial, y_axial, n_axial, (s + alpha) / 2, interp)
     if rule == "average":
-        return 0.5 * (a + b)
+        return 0.5 * (a + b), a, b
     if rule == "filip2012":
         amin, amax = _masked_extreme(y_axial, n_axial, jnp.min), _masked_extreme(y_axial, n_axial, jnp.max)
         dmin, dmax = _masked_extreme(y_diag, n_diag, jnp.min), _masked_extreme(y_diag, n_diag, jnp.max)
@@ -100,7 +114,7 @@ def subspace(
         span = hi - lo
         ok = span > 0
         u = jnp.where(ok, (a + b - lo) / jnp.where(ok, span, 1.0), 0.0)
-        return m + u * (big_m - m)
+        return m + u * (big_m - m), a, b
     # The crossings (α, 0) and (α + π, π), read from both slices.
     tc = jnp.stack([alpha, alpha + jnp.pi])
     c = 0.25 * (
@@ -108,7 +122,7 @@ def subspace(
         + jnp.sum(periodic_interp(t_diag, y_diag, n_diag, jnp.stack([0.0 * alpha, 0.0 * alpha + jnp.pi]), interp), axis=0)
     )
     if rule == "crossing":
-        return a + b - c
+        return a + b - c, a, b
     # "log": multiplicative.
     valid_a = (jnp.arange(y_axial.shape[0]) < n_axial)[:, None]
     valid_d = (jnp.arange(y_diag.shape[0]) < n_diag)[:, None]
@@ -118,4 +132,4 @@ def subspace(
     def lg(x):
         return jnp.log(jnp.maximum(x, 0.0) + eps)
 
-    return jnp.exp(lg(a) + lg(b) - lg(c)) - eps
+    return jnp.exp(lg(a) + lg(b) - lg(c)) - eps, a, b
