@@ -151,20 +151,25 @@ def _log_luminance(meas: Measurements, log_eps: float):
     return np.log(np.maximum(lum, 0.0) + eps), cnt
 
 
-def _interp_residuals(t: np.ndarray, l: np.ndarray) -> np.ndarray:
-    """Residual of each sample of a periodic slice against its neighbours' linear interpolation.
-
-    Normalised to unit variance for unit independent noise: ``r / sqrt(1 + wl² + wr²)``.
-    """
-    n = len(t)
-    if n < 3:
-        return np.zeros(0)
+def _interp_weights(t: np.ndarray) -> np.ndarray:
+    """Weight ``wr`` of the right neighbour when each sample of a periodic slice (parameters
+    ``t``, sorted) is linearly interpolated from its two neighbours (``wl = 1 − wr``)."""
     tl = np.roll(t, 1).copy()
     tl[0] -= 2 * np.pi
     tr = np.roll(t, -1).copy()
     tr[-1] += 2 * np.pi
     span = np.where(tr - tl > 0, tr - tl, 1.0)
-    wr = (t - tl) / span
+    return (t - tl) / span
+
+
+def _interp_residuals(t: np.ndarray, l: np.ndarray) -> np.ndarray:
+    """Residual of each sample of a periodic slice against its neighbours' linear interpolation.
+
+    Normalised to unit variance for unit independent noise: ``r / sqrt(1 + wl² + wr²)``.
+    """
+    if len(t) < 3:
+        return np.zeros(0)
+    wr = _interp_weights(t)
     wl = 1.0 - wr
     r = l - (wl * np.roll(l, 1) + wr * np.roll(l, -1))
     return r / np.sqrt(1.0 + wl**2 + wr**2)
@@ -332,13 +337,7 @@ def isotropy_batch(
     rows, ks, lefts, rights, wls, wrs = [], [], [], [], [], []
     for s in axial:
         n = int(count[s])
-        ts = t[s, :n]
-        tl = np.roll(ts, 1).copy()
-        tl[0] -= 2 * np.pi
-        tr = np.roll(ts, -1).copy()
-        tr[-1] += 2 * np.pi
-        span = np.where(tr - tl > 0, tr - tl, 1.0)
-        wr = (ts - tl) / span
+        wr = _interp_weights(t[s, :n])
         rows.append(np.full(n, s)), ks.append(np.arange(n))
         lefts.append(np.roll(np.arange(n), 1)), rights.append(np.roll(np.arange(n), -1))
         wls.append(1.0 - wr), wrs.append(wr)

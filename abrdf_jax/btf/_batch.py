@@ -20,14 +20,13 @@ import sys
 import time
 from pathlib import Path
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
 from .._params import Config, Params
-from ._chunkfn import BACKENDS, N_PAIRS, make_chunk_fn, make_model_choice_fn
+from ._chunkfn import BACKENDS, N_PAIRS, grouping, make_chunk_fn, make_model_choice_fn, texel_isotropy
 from ._devices import DEFAULT_BLOCK, ShardedRunner, resolve_devices
 from ._store import ChunkedStore
 
@@ -229,11 +228,6 @@ def reconstruct_btf(
     return out
 
 
-@eqx.filter_jit
-def _isotropic_fn(fn, y):
-    return fn.isotropic(y)
-
-
 def isotropy_map(meas_store, *, chunk: int = DEFAULT_CHUNK, config: Config | None = None,
                  compute_dtype: str = "float32") -> dict:
     """The per-texel isotropy decisions that ``reconstruct_btf(..., model="auto")`` makes.
@@ -249,21 +243,26 @@ def isotropy_map(meas_store, *, chunk: int = DEFAULT_CHUNK, config: Config | Non
         "fraction_isotropic": float}`` (statistic: χ²/dof; effect: RMS log variation of the axial
         slices, see :func:`abrdf_jax.select.isotropy_test`).
     """
+    from .._isotropy import LEVEL, MIN_EFFECT
+
     meas = _as_store(meas_store)
     if meas.kind != "measurements":
         raise InputError(f"{meas.path}: is a {meas.kind} store, expected measurements")
     work = jnp.dtype(compute_dtype)
     geometry = meas.geometry
     config = default_config(geometry.get("budget", "aniso204")) if config is None else config
-    params = Params.default(config, alpha_deg=float(geometry.get("alpha_deg", 15.0)), dtype=work)
-    fn = _chunk_fn(config, params, geometry, "auto", work, "auto")
+    # Only the slice layout is needed (no operator): the same grouping the chunk map uses.
+    template, group = grouping(geometry, config.pairs, float(geometry.get("alpha_deg", 15.0)))
+    t, count = np.asarray(template.t, np.float64), np.asarray(template.count)
+    g = jnp.asarray(group, work)
+    test = jax.jit(lambda g, y: texel_isotropy(g, t, count, y, level=LEVEL, min_effect=MIN_EFFECT))
     parts = [[], [], []]
     for a in range(0, meas.n_texels, chunk):
         b = min(a + chunk, meas.n_texels)
         y = meas.read(a, b).astype(work)
         if y.shape[0] < chunk and meas.n_texels > chunk:  # one shape, one compilation
             y = np.concatenate([y, np.repeat(y[-1:], chunk - y.shape[0], axis=0)])
-        for part, v in zip(parts, _isotropic_fn(fn, y)):
+        for part, v in zip(parts, test(g, y)):
             part.append(np.asarray(v)[: b - a])
     shape = tuple(meas.texel_shape)
     iso, stat, eff = (np.concatenate(p).reshape(shape) for p in parts)

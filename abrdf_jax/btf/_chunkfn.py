@@ -175,6 +175,17 @@ def make_chunk_fn(config: Config, params: Params, geometry: dict, backend: str =
     return ChunkFunction(chosen, config, params, template, jnp.asarray(group, dtype), operator, source)
 
 
+def texel_isotropy(group, t, count, y, *, level: float, min_effect: float):
+    """The isotropy test of every texel: flat samples ``y`` ``(C, n, 3)`` put into the slice layout
+    ``(t, count)`` by the grouping matrix ``group`` (:func:`grouping`), then
+    :func:`abrdf_jax._isotropy.isotropy_batch`. Returns ``(isotropic, statistic, effect)``."""
+    from .._isotropy import isotropy_batch
+
+    s, nmax = t.shape
+    ys = jnp.einsum("pn,cnk->cpk", group.astype(y.dtype), y).reshape(y.shape[0], s, nmax, 3)
+    return isotropy_batch(ys, t, count, level=level, min_effect=min_effect)
+
+
 class ModelChoiceChunkFunction(eqx.Module):
     """Per-texel model choice: the isotropy test of :mod:`abrdf_jax.select` on every texel.
 
@@ -204,11 +215,8 @@ class ModelChoiceChunkFunction(eqx.Module):
 
     def isotropic(self, y: Float[Array, "C n 3"]):
         """``(isotropic, statistic, effect)`` per texel of flat samples ``y`` (the test's outputs)."""
-        from .._isotropy import isotropy_batch
-
-        meas = self.aniso.measurements(y)
-        return isotropy_batch(meas.y, np.asarray(self.t), np.asarray(self.count), level=self.level,
-                              min_effect=self.min_effect)
+        return texel_isotropy(self.aniso.group, np.asarray(self.t), np.asarray(self.count), y,
+                              level=self.level, min_effect=self.min_effect)
 
     def __call__(self, y: Float[Array, "C n 3"]) -> Float[Array, "C 6561 3"]:
         iso = self.isotropic(y)[0]
