@@ -1,41 +1,56 @@
 """abrdf_jax: restore a material's full ABRDF from sparse slice measurements, in JAX.
 
 The method is J. Filip, "Restoring Illumination and View Dependent Data from Sparse Samples",
-ICPR 2012. Data flow, module by module: measurements (``_samples``, ``io``) → slices
-(``_slices``) → toroidal subspaces (``_subspace``) → RBF in onion coordinates (``_grid``,
-``_kernels``, ``_rbf``) → ABRDF table (``_pipeline``).
+ICPR 2012. Data flow, module by module (docs/notes.md has the map): measurements
+(``_measurements``, ``io``) → slices (``_slices``) → toroidal subspaces (``_subspace``) → value
+space (``_values``) → RBF in pair coordinates (``_coords``, ``_kernels``, ``_rbf``) → ABRDF table
+(``_pipeline``, or one matrix: ``_operator``).
+
+The names below are loaded on first use (PEP 562), so ``import abrdf_jax`` and the command line's
+``--help`` do not import JAX; ``abrdf_jax.reconstruct`` and friends import it when first touched.
 """
 
-from ._errors import InputError as InputError
-from ._grid import (
-    half_diff as half_diff,
-    onion as onion,
-    onion_from_vector as onion_from_vector,
-    pair_grid as pair_grid,
-    to_vector as to_vector,
-    from_vector as from_vector,
-    ubo_grid as ubo_grid,
-    vector_from_onion as vector_from_onion,
-)
-from ._kernels import KERNELS as KERNELS
-from ._operator import ReconstructionOperator as ReconstructionOperator, compile_operator as compile_operator
-from ._params import Config as Config, Params as Params
-from ._pipeline import (
-    infer_budget as infer_budget,
-    reconstruct as reconstruct,
-    reconstruct_batch as reconstruct_batch,
-    sample as sample,
-)
-from ._rbf import RBFInterpolant as RBFInterpolant, fit_rbf as fit_rbf, rbf_interpolate as rbf_interpolate
-from ._samples import Samples as Samples
-from ._slices import (
-    Measurements as Measurements,
-    estimate_alpha as estimate_alpha,
-    group_slices as group_slices,
-    stack_measurements as stack_measurements,
-)
-from ._subspace import RULES as RULES, subspace as subspace
+from __future__ import annotations
 
-from . import io as io, materials as materials, metrics as metrics, render as render, select as select, tuning as tuning
+import importlib
+
+from ._errors import InputError as InputError
 
 __version__ = "0.1.0"
+
+# public name -> private module that defines it (the one place the public API is listed)
+_EXPORTS = {
+    "_grid": ("half_diff", "onion", "onion_from_vector", "pair_grid", "to_vector", "from_vector", "ubo_grid",
+              "vector_from_onion"),
+    "_kernels": ("KERNELS",),
+    "_coords": ("PARAMETERIZATIONS", "pair_coordinates"),
+    "_measurements": ("Samples", "Measurements", "estimate_alpha", "group_slices", "stack_measurements"),
+    "_slices": ("PROTOCOL_ALPHA_DEG", "PROTOCOL_COUNTS", "PROTOCOL_PAIRS", "protocol_counts", "slice_angles",
+                "slice_directions"),
+    "_sampling": ("sample", "sample_model", "sample_table"),
+    "_subspace": ("RULES", "subspace"),
+    "_rbf": ("RBFInterpolant", "SolveInfo", "fit_rbf", "fit_rbf_info", "rbf_interpolate"),
+    "_params": ("Config", "Params", "PRESETS", "preset"),
+    "_pipeline": ("check_finite", "infer_budget", "reconstruct", "reconstruct_batch", "solve_info"),
+    "_operator": ("ReconstructionOperator", "compile_operator"),
+}
+_SUBPACKAGES = ("btf", "cli", "io", "materials", "metrics", "render", "select", "tuning")
+_WHERE = {name: mod for mod, names in _EXPORTS.items() for name in names}
+
+__all__ = ["InputError", "__version__", *sorted(_WHERE), *_SUBPACKAGES]
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+    elif name in _SUBPACKAGES:
+        value = importlib.import_module(f".{name}", __name__)
+    else:
+        raise AttributeError(f"module 'abrdf_jax' has no attribute {name!r}")
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+

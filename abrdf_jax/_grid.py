@@ -12,6 +12,10 @@ Parameterizations of one direction:
   azimuth seam and the normal maps to ``(0, 0)``.
 
 Of a pair of directions: Rusinkiewicz (1998) half/difference angles ``(θh, φh, θd, φd)``.
+
+The RBF centres of a reconstruction are every (φi, φv) pair of the two UBO rings of each measured
+elevation pair (:func:`centre_layout`); its targets are the 6561 UBO pairs
+(:func:`ubo_target_vectors`), where the reconstructed subspaces are put back (:func:`keep_centres`).
 """
 
 from __future__ import annotations
@@ -148,3 +152,60 @@ def wrap_deg(x):
 def wrap_pi(x):
     """Angles in radians wrapped to ``(-π, π]``."""
     return jnp.pi - jnp.mod(jnp.pi - x, 2 * jnp.pi)
+
+
+# ------------------------------------------------------------------------------------------------
+# RBF centres and targets of a reconstruction
+
+
+def ring_azimuths_deg(theta_deg: float) -> np.ndarray:
+    """Azimuths of the UBO ring at ``theta_deg``; 24 uniform azimuths off the grid's rings."""
+    for t, n in zip(UBO_THETAS_DEG, UBO_COUNTS):
+        if np.isclose(t, theta_deg):
+            return np.arange(n) * 360.0 / n
+    return np.arange(24) * 15.0
+
+
+def centre_layout(pairs) -> list[tuple[np.ndarray, np.ndarray]]:
+    """RBF centres: per elevation pair, every (φi, φv) of the two rings (degrees), flattened."""
+    out = []
+    for ti, tv in pairs:
+        ai, av = ring_azimuths_deg(ti), ring_azimuths_deg(tv)
+        out.append((np.repeat(ai, len(av)), np.tile(av, len(ai))))
+    return out
+
+
+def centre_vectors(pairs, dtype):
+    wi, wv = [], []
+    for (ti, tv), (pi_, pv) in zip(pairs, centre_layout(pairs)):
+        wi.append(to_vector(np.full(len(pi_), np.deg2rad(ti)), np.deg2rad(pi_)))
+        wv.append(to_vector(np.full(len(pv), np.deg2rad(tv)), np.deg2rad(pv)))
+    return jnp.concatenate(wi).astype(dtype), jnp.concatenate(wv).astype(dtype)
+
+
+def ubo_target_vectors(dtype):
+    ti, pi_, tv, pv = pair_grid()
+    wi = to_vector(np.deg2rad(ti), np.deg2rad(pi_))
+    wv = to_vector(np.deg2rad(tv), np.deg2rad(pv))
+    return jnp.asarray(wi, dtype), jnp.asarray(wv, dtype)
+
+
+def _centre_target_index(pairs) -> np.ndarray | None:
+    """Flat UBO pair index (i*81 + v) of every centre, or None if a pair is off the grid."""
+    theta, phi = ubo_grid()
+    idx = []
+    for (ti, tv), (pi_, pv) in zip(pairs, centre_layout(pairs)):
+        for a, b in zip(pi_, pv):
+            ii = np.nonzero(np.isclose(theta, ti) & np.isclose(phi, a))[0]
+            vv = np.nonzero(np.isclose(theta, tv) & np.isclose(phi, b))[0]
+            if len(ii) != 1 or len(vv) != 1:
+                return None
+            idx.append(ii[0] * 81 + vv[0])
+    return np.asarray(idx)
+
+
+def keep_centres(out: Float[Array, "q C"], vals: Float[Array, "n C"], pairs) -> Float[Array, "q C"]:
+    """Put the reconstructed subspaces back at their UBO grid pairs (the paper's step 3 fills
+    only the missing values); a no-op when a pair is off the grid."""
+    idx = _centre_target_index(pairs)
+    return out if idx is None else out.at[idx].set(vals)

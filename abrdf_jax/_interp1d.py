@@ -17,8 +17,10 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
+from ._names import INTERP_METHODS
+
 TWO_PI = 2.0 * jnp.pi
-METHODS = ("linear", "cubic")
+METHODS = INTERP_METHODS
 
 
 def _neighbours(t, n, tq):

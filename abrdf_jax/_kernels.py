@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from ._names import check_registry
+
 # kernel -> (function of r², minimum polynomial degree, positive definite)
 _KERNELS = {}
 
@@ -69,6 +71,7 @@ def linear(r2):
 
 
 KERNELS = tuple(_KERNELS)
+check_registry("KERNELS", KERNELS)
 
 
 def kernel_fn(name: str):

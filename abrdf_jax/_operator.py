@@ -40,11 +40,13 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ._errors import InputError
+from ._grid import centre_layout, keep_centres, ubo_target_vectors
+from ._measurements import Measurements
 from ._params import Config, Params
-from ._pipeline import centre_layout, keep_centres, ubo_target_vectors, log_values, rbf_map, subspace_values, value_eps
-from ._slices import Measurements
+from ._pipeline import rbf_map, subspace_values
+from ._subspace import get_rule
+from ._values import log_values, value_eps, value_space
 
-LINEAR_RULES = ("diagonal", "average", "crossing")
 NONLINEAR_MODES = ("raise", "two_stage")
 
 #: How many times the operator's apply function and its builder were traced (tests use this to
@@ -178,30 +180,25 @@ def _matmul_batch(m: Float[Array, "q f"], z: Float[Array, "B f C"]) -> Float[Arr
 def _apply(op: ReconstructionOperator, x, full: bool):
     TRACE_COUNT["apply"] += 1
     cfg = op.config
+    vs = value_space(cfg.value_space)
     x = _to_compact(op, x, full)
     b, n_in, c = x.shape
-    log_space = cfg.value_space in ("log", "logsamples")
-    eps = value_eps(jnp.mean(jnp.abs(x), axis=1), cfg.log_eps, x.dtype)[:, None, :] if log_space else None  # (B,1,C)
+    # ε from the valid samples of each material, as the pipeline's (B, 1, C)
+    eps = value_eps(jnp.mean(jnp.abs(x), axis=1), cfg.log_eps, x.dtype)[:, None, :] if vs.is_log else None
     if op.stage == "single":
-        z = log_values(x, eps) if cfg.value_space == "logsamples" else x
+        z = log_values(x, eps) if vs.log_samples else x  # single stage: never log after the rule
     else:
         s, nmax = op.t.shape
         full_y = jnp.zeros((b, s * nmax, c), x.dtype).at[:, op.index, :].set(x).reshape(b, s, nmax, c)
-        if cfg.value_space == "logsamples":
-            valid = (jnp.arange(nmax)[None, :] < op.count[:, None])[None, ..., None]
-            full_y = jnp.where(valid, log_values(full_y, eps[:, None]), 0.0)
-        p = jax.tree_util.tree_map(lambda a: a.astype(x.dtype), op.params)
+        template = Measurements(op.t.astype(x.dtype), full_y[0], op.count, op.pairs, op.has_axial)
+        p = op.params.astype(x.dtype)
 
-        def features(y):
-            return subspace_values(Measurements(op.t.astype(x.dtype), y, op.count, op.pairs, op.has_axial), cfg, p)
+        def features(y, e):
+            meas = vs.encode_samples(template.replace(y=y), e)
+            return vs.encode_subspace(subspace_values(meas, cfg, p), e)
 
-        z = jax.vmap(features)(full_y)
-        if cfg.value_space == "log":
-            z = log_values(z, eps)
-    out = _matmul_batch(op.matrix, z)
-    if log_space:
-        out = jnp.exp(out) - eps
-    out = jnp.maximum(out, 0.0)
+        z = jax.vmap(features)(full_y, eps)
+    out = vs.decode(_matmul_batch(op.matrix, z), eps)
     if op.grid:
         out = out.reshape(b, 81, 81, c)
     return out
@@ -211,7 +208,7 @@ def _apply(op: ReconstructionOperator, x, full: bool):
 def _build(t, count, index, params: Params, config: Config, pairs, has_axial, targets, grid_wi, grid_wv,
            stage: str, dtype):
     TRACE_COUNT["build"] += 1
-    params = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), params)
+    params = params.astype(dtype)
     if stage == "single":
         s, nmax = t.shape
         n_in = index.shape[0]
@@ -276,9 +273,10 @@ def compile_operator(
         t, count = t[0], count[0]
     if t.ndim != 2 or count.shape != (t.shape[0],):
         raise InputError(f"template.t must have shape (S, nmax), got {template.t.shape}")
-    linear = config.subspace_rule in LINEAR_RULES and config.value_space in ("linear", "logsamples")
+    rule_linear = get_rule(config.subspace_rule).linear
+    linear = rule_linear and not value_space(config.value_space).log_subspace
     if not linear and nonlinear == "raise":
-        why = (f"rule={config.subspace_rule!r} is not linear in the samples" if config.subspace_rule not in LINEAR_RULES
+        why = (f"rule={config.subspace_rule!r} is not linear in the samples" if not rule_linear
                else f"value_space={config.value_space!r} takes the log after the subspace rule")
         raise InputError(
             f"compile_operator: {why}; use Config(rule='crossing' or 'average' or budget='iso102') with "
@@ -299,6 +297,6 @@ def compile_operator(
                     template.has_axial, targets, grid_wi, grid_wv, stage, jnp.dtype(build_dtype))
     return ReconstructionOperator(
         matrix.astype(dtype), jnp.asarray(index, jnp.int32), jnp.asarray(t, dtype), jnp.asarray(count, jnp.int32),
-        jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), params), config, stage, template.pairs,
+        params.astype(dtype), config, stage, template.pairs,
         template.has_axial, targets is None,
     )

@@ -7,15 +7,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._interp1d import METHODS as INTERP_METHODS
-from ._kernels import KERNELS
+from ._coords import parameterization
+from ._errors import InputError
+from ._names import BUDGETS, INTERP_METHODS, KERNELS, PARAMETERIZATIONS, PRESETS as PRESET_NAMES, RULES, VALUE_SPACES
+from ._names import check_registry
 from ._rbf import resolve_degree
 from ._slices import PROTOCOL_ALPHA_DEG, PROTOCOL_PAIRS, protocol_counts
-from ._subspace import RULES
-
-BUDGETS = ("iso102", "aniso204")
-PARAMETERIZATIONS = ("onion", "spherical", "halfdiff")
-VALUE_SPACES = ("linear", "log", "logsamples")
 
 
 class Config(eqx.Module):
@@ -63,23 +60,23 @@ class Config(eqx.Module):
             ("value_space", self.value_space, VALUE_SPACES),
         ):
             if value not in allowed:
-                raise ValueError(f"Config.{name} must be one of {allowed}, got {value!r}")
+                raise InputError(f"Config.{name} must be one of {allowed}, got {value!r}")
         resolve_degree(self.kernel, self.degree)
         if not self.pairs or any(len(p) != 2 or not all(0 <= float(t) < 90 for t in p) for p in self.pairs):
-            raise ValueError(f"Config.pairs must be (theta_i, theta_v) pairs in [0, 90) degrees, got {self.pairs!r}")
+            raise InputError(f"Config.pairs must be (theta_i, theta_v) pairs in [0, 90) degrees, got {self.pairs!r}")
         if not (isinstance(self.slice_count, int) and self.slice_count >= 2):
-            raise ValueError(f"Config.slice_count must be an int >= 2, got {self.slice_count!r}")
+            raise InputError(f"Config.slice_count must be an int >= 2, got {self.slice_count!r}")
         if not (isinstance(self.log_eps, float) and self.log_eps > 0):
-            raise ValueError(f"Config.log_eps must be a positive float, got {self.log_eps!r}")
+            raise InputError(f"Config.log_eps must be a positive float, got {self.log_eps!r}")
 
     @classmethod
     def recommended(cls, budget: str = "iso102", **overrides) -> "Config":
-        """The settings that won on the MERL train split (log values; see docs/notes.md).
+        """The settings that won on the MERL train split (log values): ``preset("recommended")``.
 
         ``Config()`` is the paper's method (linear values); this is the package's
         recommendation, measured side by side in ``benchmarks/merl_accuracy.py``.
         """
-        return cls(budget=budget, **{**RECOMMENDED, **overrides})
+        return preset("recommended", budget, **overrides)
 
     @property
     def subspace_rule(self) -> str:
@@ -100,7 +97,8 @@ class Config(eqx.Module):
 
 # Defaults chosen on the MERL *train* split, iso102, by mean ΔE76 with
 # `python -m benchmarks.merl_accuracy` (its JSON keeps the whole grid); see docs/notes.md.
-# Widths are radians of the onion coordinates. Other settings fall back to FALLBACK_WIDTH/REG.
+# Widths are radians of the onion coordinates. Other settings fall back to the
+# parameterization's width (abrdf_jax._coords) and FALLBACK_REG.
 TUNED_DEFAULTS = {
     # (kernel, value_space, degree): (width, reg)     train mean ΔE76 (iso102)
     ("gaussian", "linear", None): (0.45, 1e-2),  # 11.67, the paper's method
@@ -112,9 +110,34 @@ TUNED_DEFAULTS = {
     ("inverse_multiquadric", "log", 0): (0.3, 1e-3),  # 4.05
     ("gaussian", "log", 0): (0.45, 1e-2),  # 4.53
 }
-FALLBACK_WIDTH = {"onion": 0.6, "spherical": 0.6, "halfdiff": 0.6}
 FALLBACK_REG = 1e-2
 RECOMMENDED = dict(kernel="thin_plate_spline", value_space="log", degree=None)
+
+#: Every named configuration, in one place: ``preset(name, budget)`` is the same ``Config`` in
+#: ``reconstruct --preset``, ``fit --preset``, ``btf reconstruct --preset`` and the Python API.
+PRESETS: dict[str, dict] = {
+    # The package's recommendation: chosen on the MERL train split (iso102, mean ΔE76).
+    "recommended": RECOMMENDED,
+    # Filip 2012 as published: Gaussian kernel on linear values, eq. (2-4) for anisotropic data.
+    "paper": {},
+    # The recommended kernel made linear in the log of the samples (rule "average" of the two
+    # slices), so the whole reconstruction is one matrix (compile_operator): the BTF default,
+    # most accurate of the candidates on procedural BTF texels (docs/btf.md).
+    "operator": dict(RECOMMENDED, value_space="logsamples", rule="average"),
+}
+check_registry("PRESETS", PRESETS)
+
+
+def preset(name: str, budget: str = "iso102", **overrides) -> "Config":
+    """The named configuration ``name`` (see :data:`PRESETS`) for ``budget``.
+
+    Raises:
+        InputError: for an unknown name (the message lists the presets).
+    """
+    if name not in PRESETS:
+        raise InputError(f"unknown preset {name!r}; choose one of {PRESET_NAMES}")
+    return Config(budget=budget, **{**PRESETS[name], **overrides})
+
 
 
 class Params(eqx.Module):
@@ -139,9 +162,17 @@ class Params(eqx.Module):
         if config.parameterization == "onion" and key in TUNED_DEFAULTS:
             width, reg = TUNED_DEFAULTS[key]
         else:
-            width, reg = FALLBACK_WIDTH[config.parameterization], FALLBACK_REG
+            width, reg = parameterization(config.parameterization).fallback_width, FALLBACK_REG
         return cls(jnp.asarray(np.deg2rad(alpha_deg), dt), jnp.full((4,), width, dt), jnp.asarray(reg, dt))
 
     @property
     def alpha_deg(self) -> float:
         return float(np.rad2deg(np.asarray(self.alpha)))
+
+    def astype(self, dtype) -> "Params":
+        """The parameters as arrays of ``dtype``."""
+        return Params(jnp.asarray(self.alpha, dtype), jnp.asarray(self.widths, dtype), jnp.asarray(self.reg, dtype))
+
+    def with_alpha_deg(self, alpha_deg: float) -> "Params":
+        """The same widths and λ at another slice offset (degrees)."""
+        return Params(jnp.asarray(np.deg2rad(alpha_deg), self.alpha.dtype), self.widths, self.reg)

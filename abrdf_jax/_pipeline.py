@@ -15,74 +15,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._coords import pair_coordinates
 from ._errors import InputError
-from ._grid import UBO_COUNTS, UBO_THETAS_DEG, half_diff, onion_from_vector, pair_grid, to_vector, ubo_grid
+from ._grid import centre_layout, centre_vectors, keep_centres, ubo_target_vectors
+from ._measurements import Measurements, Samples, group_slices, stack_measurements
 from ._params import Config, Params
 from ._rbf import SolveInfo, fit_rbf, fit_rbf_info
-from ._samples import Samples
-from ._slices import Measurements, group_slices, stack_measurements
 from ._subspace import subspace
-
-
-def ring_azimuths_deg(theta_deg: float) -> np.ndarray:
-    """Azimuths of the UBO ring at ``theta_deg``; 24 uniform azimuths off the grid's rings."""
-    for t, n in zip(UBO_THETAS_DEG, UBO_COUNTS):
-        if np.isclose(t, theta_deg):
-            return np.arange(n) * 360.0 / n
-    return np.arange(24) * 15.0
-
-
-def centre_layout(pairs) -> list[tuple[np.ndarray, np.ndarray]]:
-    """RBF centres: per elevation pair, every (φi, φv) of the two rings (degrees), flattened."""
-    out = []
-    for ti, tv in pairs:
-        ai, av = ring_azimuths_deg(ti), ring_azimuths_deg(tv)
-        out.append((np.repeat(ai, len(av)), np.tile(av, len(ai))))
-    return out
-
-
-def centre_vectors(pairs, dtype):
-    wi, wv = [], []
-    for (ti, tv), (pi_, pv) in zip(pairs, centre_layout(pairs)):
-        wi.append(to_vector(np.full(len(pi_), np.deg2rad(ti)), np.deg2rad(pi_)))
-        wv.append(to_vector(np.full(len(pv), np.deg2rad(tv)), np.deg2rad(pv)))
-    return jnp.concatenate(wi).astype(dtype), jnp.concatenate(wv).astype(dtype)
-
-
-def pair_coordinates(wi: Float[Array, "q 3"], wv: Float[Array, "q 3"], parameterization: str) -> Float[Array, "q 4"]:
-    """Coordinates of direction pairs for the RBF (see :class:`Config`)."""
-    if parameterization == "onion":
-        return jnp.concatenate([onion_from_vector(wi), onion_from_vector(wv)], axis=-1)
-    if parameterization == "spherical":
-        from ._grid import from_vector
-
-        ti, pi_ = from_vector(wi)
-        tv, pv = from_vector(wv)
-        return jnp.stack([ti, pi_, tv, pv], axis=-1)
-    if parameterization == "halfdiff":
-        return half_diff(wi, wv)
-    raise ValueError(f"unknown parameterization {parameterization!r}")
-
-
-def ubo_target_vectors(dtype):
-    ti, pi_, tv, pv = pair_grid()
-    wi = to_vector(np.deg2rad(ti), np.deg2rad(pi_))
-    wv = to_vector(np.deg2rad(tv), np.deg2rad(pv))
-    return jnp.asarray(wi, dtype), jnp.asarray(wv, dtype)
-
-
-def _centre_target_index(pairs) -> np.ndarray | None:
-    """Flat UBO pair index (i*81 + v) of every centre, or None if a pair is off the grid."""
-    theta, phi = ubo_grid()
-    idx = []
-    for (ti, tv), (pi_, pv) in zip(pairs, centre_layout(pairs)):
-        for a, b in zip(pi_, pv):
-            ii = np.nonzero(np.isclose(theta, ti) & np.isclose(phi, a))[0]
-            vv = np.nonzero(np.isclose(theta, tv) & np.isclose(phi, b))[0]
-            if len(ii) != 1 or len(vv) != 1:
-                return None
-            idx.append(ii[0] * 81 + vv[0])
-    return np.asarray(idx)
+from ._values import value_space
 
 
 def subspace_values(meas: Measurements, config: Config, params: Params) -> Float[Array, "n 3"]:
@@ -99,36 +39,6 @@ def subspace_values(meas: Measurements, config: Config, params: Params) -> Float
             )
         )
     return jnp.concatenate(vals)
-
-
-def value_eps(mean_abs, log_eps: float, dtype):
-    """ε of the log value spaces: ``log_eps`` times the mean absolute sample, per channel."""
-    return log_eps * mean_abs + jnp.finfo(dtype).tiny ** 0.5
-
-
-def _value_eps(meas: Measurements, config: Config):
-    valid = (jnp.arange(meas.y.shape[1])[None, :] < meas.count[:, None])[..., None]
-    mean = jnp.sum(jnp.where(valid, jnp.abs(meas.y), 0.0), axis=(0, 1)) / jnp.maximum(jnp.sum(meas.count), 1)
-    return value_eps(mean, config.log_eps, meas.y.dtype)
-
-
-def log_values(x, eps):
-    """``ln(max(x, 0) + ε)``: the values the RBF sees in the log value spaces."""
-    return jnp.log(jnp.maximum(x, 0.0) + eps)
-
-
-def log_samples(meas: Measurements, eps) -> Measurements:
-    """The measurement with every valid sample replaced by ``ln(max(y, 0) + ε)`` (padding stays 0)."""
-    valid = (jnp.arange(meas.y.shape[1])[None, :] < meas.count[:, None])[..., None]
-    y = jnp.where(valid, log_values(meas.y, eps), 0.0)
-    return Measurements(meas.t, y, meas.count, meas.pairs, meas.has_axial)
-
-
-def keep_centres(out: Float[Array, "q C"], vals: Float[Array, "n C"], pairs) -> Float[Array, "q C"]:
-    """Put the reconstructed subspaces back at their UBO grid pairs (the paper's step 3 fills
-    only the missing values); a no-op when a pair is off the grid."""
-    idx = _centre_target_index(pairs)
-    return out if idx is None else out.at[idx].set(vals)
 
 
 def rbf_map(fit_vals: Float[Array, "n C"], pairs, config: Config, params: Params, targets=None, keep: bool = True):
@@ -154,25 +64,14 @@ def rbf_map(fit_vals: Float[Array, "n C"], pairs, config: Config, params: Params
 
 
 def _reconstruct_core(meas: Measurements, config: Config, params: Params, targets=None):
-    log_space = config.value_space in ("log", "logsamples")
-    eps = _value_eps(meas, config) if log_space else None
-    if config.value_space == "logsamples":
-        # The log is taken of the samples, before slice interpolation and the subspace rule:
-        # everything from ln(y + ε) to the RBF output is then linear (see _operator.py).
-        meas = log_samples(meas, eps)
-    vals = subspace_values(meas, config, params)
-    if config.value_space == "log":
-        out = jnp.exp(rbf_map(log_values(vals, eps), meas.pairs, config, params, targets, keep=False)) - eps
-        if targets is None:
-            out = keep_centres(out, vals, meas.pairs)
-    else:
-        out = rbf_map(vals, meas.pairs, config, params, targets, keep=True)
-        if config.value_space == "logsamples":
-            out = jnp.exp(out) - eps
+    vs = value_space(config.value_space)
+    eps = vs.eps(meas, config.log_eps)
+    vals = subspace_values(vs.encode_samples(meas, eps), config, params)
+    fit_vals = vs.encode_subspace(vals, eps)
+    out = vs.decode(rbf_map(fit_vals, meas.pairs, config, params, targets, keep=True), eps)
     if targets is None:
         out = out.reshape(81, 81, out.shape[-1])
-    # An ABRDF is non-negative: negative values are interpolation overshoot.
-    return jnp.maximum(out, 0.0)
+    return out
 
 
 _reconstruct_jit = eqx.filter_jit(_reconstruct_core)
@@ -313,29 +212,3 @@ def check_finite(table, where: str = "reconstruction") -> None:
             f"index {first}): the sample values are too large for {arr.dtype} arithmetic or the RBF solve failed; "
             "nothing was written for it (rescale the values, e.g. to a maximum near 1)"
         )
-
-
-def sample(source, config: Config | None = None, params: Params | None = None, *, as_measurements: bool = False):
-    """Sample the PROTOCOL slices of ``config.budget`` from a model or a dense table.
-
-    Args:
-        source: a callable ``model(wi, wv) -> (..., 3)`` (exact angles) or an ``(81, 81, 3)``
-            table (interpolated over azimuth on the UBO rings).
-        config: gives the budget and the elevation pairs.
-        params: gives α (differentiable: the sample values follow α).
-        as_measurements: return the grouped :class:`Measurements` (JAX, differentiable) instead
-            of flat :class:`Samples`.
-    """
-    from ._slices import sample_model, sample_table
-
-    config = config or Config()
-    params = params or Params.default(config)
-    if callable(source) and not hasattr(source, "shape"):
-        dtype = params.alpha.dtype
-        meas = sample_model(source, config.counts, params.alpha, config.pairs, dtype=dtype)
-    else:
-        arr = jnp.asarray(source)
-        meas = sample_table(arr, config.counts, params.alpha, config.pairs, dtype=arr.dtype)
-    if as_measurements:
-        return meas
-    return meas.to_samples(alpha_deg=params.alpha_deg)

@@ -29,17 +29,24 @@ Rules (``rule=``):
 - ``"log"`` — multiplicative (log-additive) variant for reflectance: ``B̂ = a · b / c``, computed
   as ``exp(ln(a+ε) + ln(b+ε) − ln(c+ε)) − ε``; exact for ``f(s) · g(d)`` (up to ε).
 
-All rules except ``"filip2012"`` and ``"log"`` are linear in the sample values.
+Each rule is a :class:`Rule` in :data:`RULES` with its properties beside it (``linear``: linear in
+the sample values, so the compiled operator can absorb it). To add a rule, register one function
+with :func:`_rule` and list its name in ``abrdf_jax._names.RULES``; an unknown name raises.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+from typing import Callable
+
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ._errors import InputError
 from ._interp1d import periodic_interp
+from ._names import check_registry
 
-RULES = ("filip2012", "average", "crossing", "log", "diagonal")
 TWO_PI = 2.0 * jnp.pi
 
 
@@ -52,6 +59,115 @@ def _masked_extreme(y, n, fn):
     valid = (jnp.arange(y.shape[0]) < n)[:, None]
     fill = jnp.inf if fn is jnp.min else -jnp.inf
     return fn(jnp.where(valid, y, fill), axis=0)
+
+
+class _Slices:
+    """The two slices of one pair read at the queries; each quantity computed when a rule asks."""
+
+    def __init__(self, t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, interp, log_eps):
+        self.ta, self.ya, self.na = t_axial, y_axial, n_axial
+        self.td, self.yd, self.nd = t_diag, y_diag, n_diag
+        self.s, self.d = phi_i + phi_v, phi_i - phi_v
+        self.alpha, self.interp, self.log_eps = alpha, interp, log_eps
+
+    @functools.cached_property
+    def a(self):
+        """The axial slice at the point with the same ``s``: ``φi' = (s + α) / 2``."""
+        return _slice_at(self.ta, self.ya, self.na, (self.s + self.alpha) / 2, self.interp)
+
+    @functools.cached_property
+    def b(self):
+        """The diagonal slice at the point with the same ``d``: ``φv' = (2π + α − d) / 2``."""
+        return _slice_at(self.td, self.yd, self.nd, (TWO_PI + self.alpha - self.d) / 2, self.interp)
+
+    @functools.cached_property
+    def c(self):
+        """The value where the slices cross, (α, 0) and (α + π, π), read from both slices."""
+        tc = jnp.stack([self.alpha, self.alpha + jnp.pi])
+        zero = 0.0 * self.alpha
+        return 0.25 * (
+            jnp.sum(periodic_interp(self.ta, self.ya, self.na, tc, self.interp), axis=0)
+            + jnp.sum(periodic_interp(self.td, self.yd, self.nd, jnp.stack([zero, zero + jnp.pi]), self.interp), axis=0)
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class Rule:
+    """A subspace rule: ``fn(slices) -> (Q, C)`` and its properties.
+
+    Attributes:
+        linear: linear in the sample values (then :func:`abrdf_jax.compile_operator` folds it into
+            its matrix).
+        needs_axial: reads the axial slice (every rule but eq. 5).
+    """
+
+    name: str
+    fn: Callable[[_Slices], Array]
+    linear: bool
+    needs_axial: bool
+    description: str
+
+
+RULES: dict[str, Rule] = {}
+
+
+def _rule(name: str, *, linear: bool, needs_axial: bool = True, description: str):
+    def register(fn):
+        RULES[name] = Rule(name, fn, linear, needs_axial, description)
+        return fn
+
+    return register
+
+
+@_rule("filip2012", linear=False, description="eq. (2-4): min-max stretch of a + b to the slices' range")
+def _filip2012(sl: _Slices):
+    amin, amax = _masked_extreme(sl.ya, sl.na, jnp.min), _masked_extreme(sl.ya, sl.na, jnp.max)
+    dmin, dmax = _masked_extreme(sl.yd, sl.nd, jnp.min), _masked_extreme(sl.yd, sl.nd, jnp.max)
+    m, big_m = jnp.minimum(amin, dmin), jnp.maximum(amax, dmax)
+    lo, hi = amin + dmin, amax + dmax
+    span = hi - lo
+    ok = span > 0
+    u = jnp.where(ok, (sl.a + sl.b - lo) / jnp.where(ok, span, 1.0), 0.0)
+    return m + u * (big_m - m)
+
+
+@_rule("average", linear=True, description="(a + b) / 2")
+def _average(sl: _Slices):
+    return 0.5 * (sl.a + sl.b)
+
+
+@_rule("crossing", linear=True, description="a + b - c: reproduces both slices")
+def _crossing(sl: _Slices):
+    return sl.a + sl.b - sl.c
+
+
+@_rule("log", linear=False, description="a * b / c: multiplicative")
+def _log(sl: _Slices):
+    valid_a = (jnp.arange(sl.ya.shape[0]) < sl.na)[:, None]
+    valid_d = (jnp.arange(sl.yd.shape[0]) < sl.nd)[:, None]
+    total = jnp.sum(jnp.abs(jnp.where(valid_a, sl.ya, 0.0)), 0) + jnp.sum(jnp.abs(jnp.where(valid_d, sl.yd, 0.0)), 0)
+    eps = sl.log_eps * total / jnp.maximum(sl.na + sl.nd, 1) + jnp.finfo(sl.yd.dtype).tiny ** 0.5
+
+    def lg(x):
+        return jnp.log(jnp.maximum(x, 0.0) + eps)
+
+    return jnp.exp(lg(sl.a) + lg(sl.b) - lg(sl.c)) - eps
+
+
+@_rule("diagonal", linear=True, needs_axial=False, description="eq. (5), isotropic: b")
+def _diagonal(sl: _Slices):
+    return sl.b
+
+
+check_registry("RULES", RULES)
+
+
+def get_rule(name: str) -> Rule:
+    """The registered rule ``name``; :class:`InputError` listing the names otherwise."""
+    try:
+        return RULES[name]
+    except KeyError:
+        raise InputError(f"unknown subspace rule {name!r}; choose one of {tuple(RULES)}") from None
 
 
 def subspace(
@@ -82,54 +198,15 @@ def subspace(
     Returns:
         Reconstructed values, shape ``(Q, C)``.
     """
-    if rule not in RULES:
-        raise ValueError(f"rule must be one of {RULES}, got {rule!r}")
+    r = get_rule(rule)
     # A slice that was not measured (count 0, e.g. an axial slice with too few samples of its
     # own): the rules would read padding. The pair then falls back to the slice it has, eq. (5)
     # when only the diagonal one is there (docs/stability.md). Counts of at least 1 keep every
     # branch finite, so the unused one cannot put NaN into gradients.
     has_axial, has_diag = jnp.asarray(n_axial) > 0, jnp.asarray(n_diag) > 0
-    n_axial, n_diag = jnp.maximum(n_axial, 1), jnp.maximum(n_diag, 1)
-    out, a, b = _rule(t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, rule, interp, log_eps)
-    if rule == "diagonal":
+    sl = _Slices(t_axial, y_axial, jnp.maximum(n_axial, 1), t_diag, y_diag, jnp.maximum(n_diag, 1),
+                 phi_i, phi_v, alpha, interp, log_eps)
+    out = r.fn(sl)
+    if not r.needs_axial:
         return out
-    return jnp.where(has_axial, jnp.where(has_diag, out, a), b)
-
-
-def _rule(t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, rule, interp, log_eps):
-    """The rule's value and the two slices read at the queries, ``(out, a, b)``."""
-    s = phi_i + phi_v
-    d = phi_i - phi_v
-    b = _slice_at(t_diag, y_diag, n_diag, (TWO_PI + alpha - d) / 2, interp)
-    if rule == "diagonal":
-        return b, b, b
-    a = _slice_at(t_axial, y_axial, n_axial, (s + alpha) / 2, interp)
-    if rule == "average":
-        return 0.5 * (a + b), a, b
-    if rule == "filip2012":
-        amin, amax = _masked_extreme(y_axial, n_axial, jnp.min), _masked_extreme(y_axial, n_axial, jnp.max)
-        dmin, dmax = _masked_extreme(y_diag, n_diag, jnp.min), _masked_extreme(y_diag, n_diag, jnp.max)
-        m, big_m = jnp.minimum(amin, dmin), jnp.maximum(amax, dmax)
-        lo, hi = amin + dmin, amax + dmax
-        span = hi - lo
-        ok = span > 0
-        u = jnp.where(ok, (a + b - lo) / jnp.where(ok, span, 1.0), 0.0)
-        return m + u * (big_m - m), a, b
-    # The crossings (α, 0) and (α + π, π), read from both slices.
-    tc = jnp.stack([alpha, alpha + jnp.pi])
-    c = 0.25 * (
-        jnp.sum(periodic_interp(t_axial, y_axial, n_axial, tc, interp), axis=0)
-        + jnp.sum(periodic_interp(t_diag, y_diag, n_diag, jnp.stack([0.0 * alpha, 0.0 * alpha + jnp.pi]), interp), axis=0)
-    )
-    if rule == "crossing":
-        return a + b - c, a, b
-    # "log": multiplicative.
-    valid_a = (jnp.arange(y_axial.shape[0]) < n_axial)[:, None]
-    valid_d = (jnp.arange(y_diag.shape[0]) < n_diag)[:, None]
-    scale = (jnp.sum(jnp.abs(jnp.where(valid_a, y_axial, 0.0)), 0) + jnp.sum(jnp.abs(jnp.where(valid_d, y_diag, 0.0)), 0)) / jnp.maximum(n_axial + n_diag, 1)
-    eps = log_eps * scale + jnp.finfo(y_diag.dtype).tiny ** 0.5
-
-    def lg(x):
-        return jnp.log(jnp.maximum(x, 0.0) + eps)
-
-    return jnp.exp(lg(a) + lg(b) - lg(c)) - eps, a, b
+    return jnp.where(has_axial, jnp.where(has_diag, out, sl.a), sl.b)

@@ -42,7 +42,8 @@ import optimistix as optx
 from jaxtyping import Array, Float
 
 from abrdf_jax._grid import pair_grid, to_vector
-from abrdf_jax._slices import Measurements, slice_directions
+from abrdf_jax._measurements import Measurements
+from abrdf_jax._slices import slice_directions
 from abrdf_jax.materials import GGX, Ward
 
 MODELS = ("ggx", "ward")

@@ -37,7 +37,7 @@ import numpy as np
 import abrdf_jax as aj
 from abrdf_jax import select
 from abrdf_jax._pipeline import _reconstruct_batch_jit
-from abrdf_jax._select import CANDIDATES, DEFAULT_ANISO, KERNEL_FAMILY, _cv_batch_jit, fold_data, group_configs
+from abrdf_jax.select._select import CANDIDATES, DEFAULT_ANISO, KERNEL_FAMILY, _cv_batch_jit, fold_data, group_configs
 from abrdf_jax.materials import GGX, Ward, dense_table, get_material, is_anisotropic, material_names
 
 from ._common import RESULTS, machine, merl_split, metrics_of, sample_batch, write_json

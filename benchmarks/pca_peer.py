@@ -63,7 +63,8 @@ from jaxtyping import Array, Float
 
 import abrdf_jax as aj
 from abrdf_jax._grid import pair_grid
-from abrdf_jax._slices import Measurements, sample_table
+from abrdf_jax._measurements import Measurements
+from abrdf_jax._sampling import sample_table
 
 NIELSEN_EPS = 1e-3
 CHANNELS = ("joint", "shared")

@@ -66,7 +66,8 @@ import numpy as np
 
 import abrdf_jax as aj
 from abrdf_jax._pipeline import _reconstruct_batch_jit
-from abrdf_jax._slices import PROTOCOL_PAIRS, protocol_counts, sample_model
+from abrdf_jax._slices import PROTOCOL_PAIRS, protocol_counts
+from abrdf_jax._sampling import sample_model
 from abrdf_jax.materials import dense_table, get_material, material_info, material_names
 
 from ._common import RESULTS, machine, mean_fill, merl_split, metrics_of

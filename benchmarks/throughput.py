@@ -38,7 +38,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import abrdf_jax as aj
-from abrdf_jax._slices import PROTOCOL_PAIRS, protocol_counts, sample_model
+from abrdf_jax._slices import PROTOCOL_PAIRS, protocol_counts
+from abrdf_jax._sampling import sample_model
 from abrdf_jax.materials import default_materials
 
 from ._common import machine, write_json

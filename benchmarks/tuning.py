@@ -106,7 +106,7 @@ def alpha_study(steps, quick, log=print):
     p0 = aj.Params.default(config, dtype=jnp.float32)
     prob = Population(config=config, space=ParamSpace(widths="fixed", reg=False, alpha=True))
     data = Population.make_data(stacked, ref, p0)
-    from abrdf_jax._fitting import _loss_jit
+    from abrdf_jax.tuning._fitting import _loss_jit
 
     grid = np.arange(5.0, 46.0, 10.0 if quick else 2.5)
     losses = []

@@ -19,7 +19,7 @@ import pytest
 
 import abrdf_jax as aj
 from abrdf_jax import btf
-from abrdf_jax._cli import main
+from abrdf_jax.cli import main
 from abrdf_jax._errors import InputError
 from abrdf_jax._grid import ubo_grid
 from abrdf_jax.metrics import delta_e76, log_error
@@ -433,7 +433,7 @@ def test_cli_generate_reconstruct_evaluate(generated, reconstructed, tmp_path, c
 def test_per_texel_model_choice(tmp_path):
     """model='auto': each texel gets the model its own isotropy test picks (the test of
     abrdf_jax.select, batched), and the store holds exactly that texel's reconstruction."""
-    from abrdf_jax._isotropy import isotropy_test
+    from abrdf_jax.select._isotropy import isotropy_test
     from abrdf_jax.btf import _batch
     from abrdf_jax.materials import get_material
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from abrdf_jax import io
-from abrdf_jax._cli import main
+from abrdf_jax.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -23,7 +23,7 @@ def run_cli(*args, cwd):
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     return subprocess.run(
-        [sys.executable, "-m", "abrdf_jax._cli", *map(str, args)],
+        [sys.executable, "-m", "abrdf_jax.cli", *map(str, args)],
         cwd=cwd, env=env, capture_output=True, text=True, timeout=300,
     )
 
@@ -43,7 +43,7 @@ def listing(folder: Path):
 
 @pytest.fixture(scope="module")
 def iso_material():
-    from abrdf_jax._demo import choose_materials
+    from abrdf_jax.cli.demo import choose_materials
 
     name, _, budget = choose_materials(1)[0]
     assert budget == "iso102"

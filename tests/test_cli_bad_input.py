@@ -2,7 +2,7 @@
 
 Every case checks the exit status (2), a one-line message ``abrdf-jax: error: ...`` that names
 the file (and line) or argument, that no output file appeared and that an existing output was
-left byte for byte. Most cases call ``abrdf_jax._cli.main`` in-process (no JAX start-up per
+left byte for byte. Most cases call ``abrdf_jax.cli.main`` in-process (no JAX start-up per
 case); two subprocess tests run the installed entry point end to end.
 """
 
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from abrdf_jax import io
-from abrdf_jax._cli import main
+from abrdf_jax.cli import main
 from abrdf_jax._errors import InputError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -61,7 +61,7 @@ def protocol_rows(budget="iso102", alpha=15.0):
 
 
 def _samples(rows, rgb=(0.1, 0.2, 0.3)):
-    from abrdf_jax._samples import Samples
+    from abrdf_jax._measurements import Samples
 
     rgb = np.broadcast_to(np.asarray(rgb, float), (len(rows), 3)).copy()
     return Samples(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], rgb)
@@ -251,7 +251,7 @@ def test_sample_write_failure_and_interrupt(tmp_path, capsys, monkeypatch):
     The sampling is a stub returning the protocol's 102 positions (no JAX work needed here).
     """
     import abrdf_jax as aj
-    import abrdf_jax._csv as csv_module
+    import abrdf_jax.io._csv as csv_module
 
     rows = protocol_rows()
     monkeypatch.setattr(aj, "sample", lambda source, config, params: _samples(rows))
@@ -283,7 +283,7 @@ def test_sample_write_failure_and_interrupt(tmp_path, capsys, monkeypatch):
 
 def test_exr_writer_failure(tmp_path, monkeypatch):
     """A failure inside the EXR library while writing is an InputError naming the file."""
-    import abrdf_jax._io as io_module
+    import abrdf_jax.io._tables as io_module
 
     p = tmp_path / "t.exr"
     p.write_bytes(PRECIOUS)
@@ -457,7 +457,7 @@ def _unreadable_runs(capsys):
 
 def test_unreadable_inputs_simulated(tmp_path, capsys, monkeypatch, merl_file):
     """Permission denied on open (simulated, so it also runs as root)."""
-    import abrdf_jax._atomic as atomic
+    import abrdf_jax.io._atomic as atomic
 
     monkeypatch.chdir(tmp_path)
     _inputs(tmp_path, merl_file[0])
@@ -562,7 +562,7 @@ def run_cli(*args, cwd):
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     return subprocess.run(
-        [sys.executable, "-m", "abrdf_jax._cli", *map(str, args)],
+        [sys.executable, "-m", "abrdf_jax.cli", *map(str, args)],
         cwd=cwd,
         env=env,
         capture_output=True,

@@ -11,7 +11,7 @@ import pytest
 
 from abrdf_jax._errors import InputError
 from abrdf_jax._grid import to_vector, vectors_from_half_diff
-from abrdf_jax._samples import Samples
+from abrdf_jax._measurements import Samples
 from abrdf_jax.io import (
     MERL_SCALE,
     MERL_SHAPE,
@@ -280,7 +280,7 @@ def test_csv_radians_detected(tmp_path, rng):
 def test_csv_streamed_in_small_blocks(tmp_path, rng, monkeypatch):
     """Block boundaries (here every ~50 bytes) change nothing: values, BOM, CRLF, blank lines,
     quoted fields, and the line number of an error deep in the file."""
-    import abrdf_jax._csv as csv_module
+    import abrdf_jax.io._csv as csv_module
 
     monkeypatch.setattr(csv_module, "BLOCK_BYTES", 50)
     s = _random_samples(rng, 300)

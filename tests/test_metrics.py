@@ -9,7 +9,7 @@ from jax.test_util import check_grads
 
 from abrdf_jax import metrics as M
 from abrdf_jax._errors import InputError
-from abrdf_jax._metrics import _de2000_pairs
+from abrdf_jax.metrics._metrics import _de2000_pairs
 
 de2000_pairs = jax.jit(_de2000_pairs)
 

@@ -75,7 +75,7 @@ def test_sample_table_exact_on_grid_positions():
     theta, phi = aj.ubo_grid()
     table = np.random.default_rng(0).uniform(0.1, 1.0, (81, 81, 3))
     counts = (0, 0, 0, 0, 0, 0, 0, 24)
-    from abrdf_jax._slices import sample_table
+    from abrdf_jax._sampling import sample_table
 
     m = sample_table(table, counts, 0.0, dtype=jnp.float64)
     ring = np.arange(57, 81)

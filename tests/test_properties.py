@@ -18,11 +18,12 @@ from hypothesis import HealthCheck, Phase, given, seed, settings
 from hypothesis import strategies as st
 
 import abrdf_jax as aj
-import abrdf_jax._csv as csv_module
+import abrdf_jax.io._csv as csv_module
 from abrdf_jax._errors import InputError
-from abrdf_jax._pipeline import _reconstruct_batch_jit, ubo_target_vectors
-from abrdf_jax._samples import Samples
-from abrdf_jax._slices import group_slices, stack_measurements
+from abrdf_jax._grid import ubo_target_vectors
+from abrdf_jax._pipeline import _reconstruct_batch_jit
+from abrdf_jax._measurements import Samples
+from abrdf_jax._measurements import group_slices, stack_measurements
 from abrdf_jax.io import read_samples_csv, write_samples_csv
 
 SEED = int(os.environ.get("ABRDF_TEST_SEED", "0"))

@@ -10,7 +10,7 @@ import pytest
 
 import abrdf_jax as aj
 from abrdf_jax import materials, select, tuning
-from abrdf_jax._cli import main
+from abrdf_jax.cli import main
 
 CFG_A = aj.Config.recommended("aniso204")
 

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 import abrdf_jax as aj
-from abrdf_jax._cli import main
+from abrdf_jax.cli import main
 from abrdf_jax._errors import InputError
 from abrdf_jax._pipeline import check_finite, solve_info
 from abrdf_jax._rbf import GUARD_FACTOR, fit_rbf_info
-from abrdf_jax._slices import group_slices
+from abrdf_jax._measurements import group_slices
 from abrdf_jax._subspace import RULES, subspace
 
 N, DUP = 24, 8  # every RBF system below has N + DUP = 32 centres (one compile per kernel)
@@ -136,7 +136,7 @@ def test_missing_slice_falls_back_to_the_other(rng):
         return jnp.stack([subspace(t, ya, na, t, yd, nd, pi_, pv, alpha, rule=r) for r in RULES])
 
     alpha = jnp.asarray(np.deg2rad(15.0))
-    diag = every_rule(alpha, ya, 6, yd, 7)[RULES.index("diagonal")]
+    diag = every_rule(alpha, ya, 6, yd, 7)[list(RULES).index("diagonal")]
     no_axial = every_rule(alpha, other, 0, yd, 7)
     np.testing.assert_allclose(no_axial, jnp.broadcast_to(diag, no_axial.shape), rtol=1e-12)
     no_diag = every_rule(alpha, ya, 6, other, 0)

@@ -113,5 +113,5 @@ def test_gradients_finite_in_alpha_and_values(rule):
 
 def test_unknown_rule_raises():
     t, ya, yd = make_slices(lambda s, d: f(s) + g(d))
-    with pytest.raises(ValueError, match="rule must be one of"):
+    with pytest.raises(ValueError, match="unknown subspace rule"):
         subspace(t, ya, N, t, yd, N, t, t, jnp.asarray(ALPHA), rule="nope")

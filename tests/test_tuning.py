@@ -13,8 +13,8 @@ from jax.test_util import check_grads
 
 import abrdf_jax as aj
 from abrdf_jax import materials, tuning
-from abrdf_jax._fitting import _loss_jit
-from abrdf_jax._tuning import TRACE_COUNT, AbstractProblem
+from abrdf_jax.tuning._fitting import _loss_jit
+from abrdf_jax.tuning._problems import TRACE_COUNT, AbstractProblem
 
 CFG_ISO = aj.Config.recommended("iso102")
 
@@ -239,7 +239,7 @@ def test_refuses_to_save_nan(tmp_path):
 
 
 def test_cli_fit_then_reconstruct_with_params(tmp_path, capsys):
-    from abrdf_jax._cli import main
+    from abrdf_jax.cli import main
 
     params = tmp_path / "p.json"
     assert main(["fit", "population", "--materials", "ggx-plastic,ward-brushed-steel", "-o", str(params),

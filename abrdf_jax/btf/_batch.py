@@ -243,7 +243,7 @@ def isotropy_map(meas_store, *, chunk: int = DEFAULT_CHUNK, config: Config | Non
         "fraction_isotropic": float}`` (statistic: χ²/dof; effect: RMS log variation of the axial
         slices, see :func:`abrdf_jax.select.isotropy_test`).
     """
-    from .._isotropy import LEVEL, MIN_EFFECT
+    from ..select._isotropy import LEVEL, MIN_EFFECT
 
     meas = _as_store(meas_store)
     if meas.kind != "measurements":

@@ -31,8 +31,8 @@ from jaxtyping import Array, Float
 from .._errors import InputError
 from .._params import Config, Params
 from .._pipeline import reconstruct_batch
-from .._samples import Samples
-from .._slices import Measurements, group_slices
+from .._measurements import Samples
+from .._measurements import Measurements, group_slices
 
 BACKENDS = ("auto", "operator", "pipeline")
 N_PAIRS = 81 * 81
@@ -178,8 +178,8 @@ def make_chunk_fn(config: Config, params: Params, geometry: dict, backend: str =
 def texel_isotropy(group, t, count, y, *, level: float, min_effect: float):
     """The isotropy test of every texel: flat samples ``y`` ``(C, n, 3)`` put into the slice layout
     ``(t, count)`` by the grouping matrix ``group`` (:func:`grouping`), then
-    :func:`abrdf_jax._isotropy.isotropy_batch`. Returns ``(isotropic, statistic, effect)``."""
-    from .._isotropy import isotropy_batch
+    :func:`abrdf_jax.select._isotropy.isotropy_batch`. Returns ``(isotropic, statistic, effect)``."""
+    from ..select._isotropy import isotropy_batch
 
     s, nmax = t.shape
     ys = jnp.einsum("pn,cnk->cpk", group.astype(y.dtype), y).reshape(y.shape[0], s, nmax, 3)
@@ -189,7 +189,7 @@ def texel_isotropy(group, t, count, y, *, level: float, min_effect: float):
 class ModelChoiceChunkFunction(eqx.Module):
     """Per-texel model choice: the isotropy test of :mod:`abrdf_jax.select` on every texel.
 
-    Each texel's axial slices are tested (:func:`abrdf_jax._isotropy.isotropy_batch`, the test
+    Each texel's axial slices are tested (:func:`abrdf_jax.select._isotropy.isotropy_batch`, the test
     ``abrdf-jax reconstruct --model auto`` runs on one material, noise estimated per texel); an
     isotropic texel gets the diagonal-only model (eq. 5), the others the anisotropic one. Both are
     compiled chunk maps; on a chunk both run and each texel keeps its own (two matrix products
@@ -241,7 +241,7 @@ def make_model_choice_fn(config: Config, params: Params, geometry: dict, backend
         InputError: the anisotropic configuration is not ``aniso204`` or the geometry has no
             axial slice (nothing to test).
     """
-    from .._isotropy import LEVEL, MIN_EFFECT
+    from ..select._isotropy import LEVEL, MIN_EFFECT
     from ._batch import default_config
 
     if config.budget != "aniso204":

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from .._metrics import _de76_pairs, _log_error_from_y, _mean_over_pairs, expose, srgb_to_lab, tonemap
+from ..metrics._metrics import _de76_pairs, _log_error_from_y, _mean_over_pairs, expose, srgb_to_lab, tonemap
 from ._store import ChunkedStore
 
 METRICS = ("de76", "logerr")

@@ -230,8 +230,8 @@ def read_exr_pairs(folder, out_store, *, chunk: int = 1024, dtype: str = "float3
                                     dtype=dtype, chunk=chunk, geometry=_UBO_GEOMETRY,
                                     attrs=dict(source=str(folder)), overwrite=overwrite)
     else:
-        from .._samples import Samples
-        from .._slices import estimate_alpha
+        from .._measurements import Samples
+        from .._measurements import estimate_alpha
         from .._pipeline import infer_budget
 
         if alpha_deg is None:

@@ -20,7 +20,8 @@ from jaxtyping import Array, Float
 from .._errors import InputError
 from .._grid import to_vector, ubo_grid
 from .._params import Config, Params
-from .._slices import Measurements, sample_model
+from .._measurements import Measurements
+from .._sampling import sample_model
 from ._surface import MIN_RASTER, FourierField, Surface, horizon_map, make_surface, raster
 from ._texel import TexelModel
 

@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from ._errors import InputError
+from .._errors import InputError
 
 SOLVER_HELP = "lm (optimistix Levenberg-Marquardt, default), gn, bfgs, lbfgs (jaxopt), lbfgsb (jaxopt, bounded)"
 
@@ -49,7 +49,7 @@ def _report(res, out: Path, extra: str = "") -> int:
 def cmd_fit_self(args) -> int:
     import abrdf_jax as aj
     from abrdf_jax import io, tuning
-    from abrdf_jax._cli import _plan
+    from abrdf_jax.cli import _plan
 
     out = _check_json_output(Path(args.output))
     src = Path(args.input)
@@ -132,7 +132,7 @@ def cmd_fit_population(args) -> int:
 
 def register(sub) -> None:
     """Add the ``fit`` subcommand to the ``abrdf-jax`` parser."""
-    from ._cli import BUDGETS
+    from . import BUDGETS
 
     f = sub.add_parser("fit", help="tune widths, regularisation and alpha; write PARAMS.json",
                        description="Tune the continuous parameters by gradient-based fitting and save "

@@ -24,8 +24,8 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._atomic import _check_readable, atomic_write
-from ._errors import InputError, located
-from ._grid import half_diff
+from .._errors import InputError, located
+from .._grid import half_diff
 
 #: Bins of a MERL BRDF: (θh, θd, φd).
 MERL_BINS = (90, 90, 180)

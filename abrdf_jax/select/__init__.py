@@ -12,7 +12,7 @@
 
     curve = select.sample_count_curve(material)       # how few samples per slice suffice?
 
-See :mod:`abrdf_jax._isotropy` (the test) and :mod:`abrdf_jax._select` (candidates, ranks,
+See :mod:`abrdf_jax.select._isotropy` (the test) and :mod:`abrdf_jax.select._select` (candidates, ranks,
 held-out errors, the tolerance rule).
 """
 

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import InputError
-from ._grid import UBO_THETAS_DEG, ubo_grid
+from .._errors import InputError
+from .._grid import UBO_THETAS_DEG, ubo_grid
 
 __all__ = [
     "exposure_of",
@@ -313,7 +313,7 @@ def render_sphere(
 
 def _atomic_bytes(path: Path, data: bytes) -> None:
     try:  # the package's I/O module, when present, owns atomic writes
-        from .io import atomic_write  # type: ignore[attr-defined]
+        from ..io import atomic_write  # type: ignore[attr-defined]
     except ImportError:
         atomic_write = None
     if atomic_write is not None:

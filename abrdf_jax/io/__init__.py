@@ -1,13 +1,13 @@
 """File input and output (public API): atomic writes, measurement CSV, ABRDF tables, MERL files."""
 
-from ._io import CSV_COLUMNS as CSV_COLUMNS
-from ._io import NPZ_KEY as NPZ_KEY
-from ._io import TABLE_SHAPE as TABLE_SHAPE
-from ._io import atomic_write as atomic_write
-from ._io import read_samples_csv as read_samples_csv
-from ._io import read_table as read_table
-from ._io import write_samples_csv as write_samples_csv
-from ._io import write_table as write_table
+from ._tables import CSV_COLUMNS as CSV_COLUMNS
+from ._tables import NPZ_KEY as NPZ_KEY
+from ._tables import TABLE_SHAPE as TABLE_SHAPE
+from ._tables import atomic_write as atomic_write
+from ._tables import read_samples_csv as read_samples_csv
+from ._tables import read_table as read_table
+from ._tables import write_samples_csv as write_samples_csv
+from ._tables import write_table as write_table
 from ._merl import MERL_SCALE as MERL_SCALE
 from ._merl import MERL_SHAPE as MERL_SHAPE
 from ._merl import MERLMaterial as MERLMaterial

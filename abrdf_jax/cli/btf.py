@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from ._errors import InputError
+from .._errors import InputError
 
 
 def _positive(name):
@@ -64,7 +64,7 @@ def _config_params(args, store):
     """Configuration and float32 parameters: a parameter file, the paper's method or the BTF default."""
     import abrdf_jax as aj
     import jax.numpy as jnp
-    from abrdf_jax._cli import _params_for
+    from abrdf_jax.cli import _params_for
     from abrdf_jax.btf import default_config
 
     geometry = store.geometry

@@ -15,12 +15,12 @@ Two problems share one fitting API::
     res = tuning.fit(prob, tuning.Population.make_data(models, tables, p0), p0, solver="lbfgsb")
     tuning.save_params("params.json", cfg, res.params, fit=res.summary())
 
-See :mod:`abrdf_jax._tuning` (problems, parameter space) and :mod:`abrdf_jax._fitting` (solvers).
+See :mod:`abrdf_jax.tuning._problems` (problems, parameter space) and :mod:`abrdf_jax.tuning._fitting` (solvers).
 """
 
 from ._fitting import FitResult as FitResult, SOLVERS as SOLVERS, fit as fit, held_out_loss as held_out_loss
-from ._paramfile import load_params as load_params, save_params as save_params
-from ._tuning import (
+from ..io._paramfile import load_params as load_params, save_params as save_params
+from ._problems import (
     AbstractProblem as AbstractProblem,
     FOLD_KINDS as FOLD_KINDS,
     LOSSES as LOSSES,

@@ -28,17 +28,17 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PyTree
 
-from ._errors import InputError
-from ._metrics import LUMA_WEIGHTS, srgb_to_lab, tonemap
-from ._params import Config, Params
-from ._pipeline import _reconstruct_core, prepare
-from ._samples import Samples
-from ._slices import KINDS, Measurements, slice_angles
-from ._grid import to_vector
+from .._errors import InputError
+from ..metrics._metrics import LUMA_WEIGHTS, srgb_to_lab, tonemap
+from .._params import Config, Params
+from .._pipeline import _reconstruct_core, prepare
+from .._measurements import Measurements, Samples
+from .._names import FOLD_KINDS, LOSSES
+from .._folds import held_out_directions, log_residual, sample_folds
+from .._slices import slice_vectors
+from .._values import measurement_eps
 
 WIDTH_MODES = ("per_dim", "shared", "fixed")
-FOLD_KINDS = ("pairs", "samples")
-LOSSES = ("lab", "log", "lab+log")
 
 #: Number of traces of any problem's ``residuals`` (the trace-count test reads it).
 TRACE_COUNT = {"residuals": 0}
@@ -135,45 +135,6 @@ class AbstractProblem(eqx.Module):
 # Self-calibration
 
 
-def _select_pairs(meas: Measurements, keep: tuple[int, ...]) -> Measurements:
-    rows = np.asarray([r for p in keep for r in (2 * p, 2 * p + 1)])
-    return Measurements(meas.t[rows], meas.y[rows], meas.count[rows], tuple(meas.pairs[p] for p in keep), meas.has_axial)
-
-
-def _slice_vectors(t, kind_index: int, pair, alpha):
-    pi_, pv = slice_angles(KINDS[kind_index], t, alpha)
-    ti, tv = np.deg2rad(pair[0]), np.deg2rad(pair[1])
-    return to_vector(jnp.full_like(pi_, ti), pi_), to_vector(jnp.full_like(pv, tv), pv)
-
-
-def _sample_folds(meas: Measurements, k: int):
-    """``k`` folds: fold ``j`` holds out samples ``j, j+k, ...`` of every slice (numpy, concrete)."""
-    t, y, cnt = np.asarray(meas.t), np.asarray(meas.y), np.asarray(meas.count)
-    S, nmax = t.shape
-    train_t, train_y, train_c, test_t, test_y, test_m = [], [], [], [], [], []
-    ntest = -(-nmax // k)
-    for j in range(k):
-        tt, yy, cc = np.zeros_like(t), np.zeros_like(y), np.zeros(S, np.int32)
-        et, ey, em = np.zeros((S, ntest), t.dtype), np.zeros((S, ntest, 3), y.dtype), np.zeros((S, ntest), bool)
-        for s in range(S):
-            n = int(cnt[s])
-            idx = np.arange(n)
-            held = idx[idx % k == j]
-            kept = idx[idx % k != j]
-            if n and len(kept) < 3:
-                raise InputError(f"folds='samples' with k={k}: slice {s} has only {n} samples; use fewer folds")
-            tt[s, : len(kept)], yy[s, : len(kept)], cc[s] = t[s, kept], y[s, kept], len(kept)
-            if n:
-                et[s, : len(held)], ey[s, : len(held)], em[s, : len(held)] = t[s, held], y[s, held], True
-        train_t.append(tt), train_y.append(yy), train_c.append(cc)
-        test_t.append(et), test_y.append(ey), test_m.append(em)
-    train = Measurements(
-        jnp.asarray(np.stack(train_t)), jnp.asarray(np.stack(train_y)), jnp.asarray(np.stack(train_c)),
-        meas.pairs, meas.has_axial,
-    )
-    return train, jnp.asarray(np.stack(test_t)), jnp.asarray(np.stack(test_y)), jnp.asarray(np.stack(test_m))
-
-
 class SelfCalibration(AbstractProblem):
     """Held-out error of one material's own measurements (k-fold, no ground truth).
 
@@ -230,50 +191,36 @@ class SelfCalibration(AbstractProblem):
                     raise InputError(f"elevation pair {self.pairs[p]} has no diagonal slice: cannot self-calibrate")
             data["meas"] = meas
         else:
-            train, tt, ty, tm = _sample_folds(meas, self.k)
+            train, tt, ty, tm = sample_folds(meas, self.k)
             data.update(meas=meas, train=train, test_t=tt, test_y=ty, test_mask=tm)
         return data
-
-    def _eps(self, meas: Measurements):
-        valid = (jnp.arange(meas.y.shape[1])[None, :] < meas.count[:, None])[..., None]
-        mean = jnp.sum(jnp.where(valid, jnp.abs(meas.y), 0.0), axis=(0, 1)) / jnp.maximum(jnp.sum(meas.count), 1)
-        return self.config.log_eps * mean + jnp.finfo(meas.y.dtype).tiny ** 0.5
 
     def residuals(self, theta, data):
         TRACE_COUNT["residuals"] += 1
         params = self.space.to_params(theta, data["base"])
         meas = data["meas"]
-        eps = self._eps(meas)
+        eps = measurement_eps(meas, self.config.log_eps)
         alpha = data["alpha"]
         out = []
         P = len(self.pairs)
         # Only slices that are measured are predicted (an iso102 axial slice is empty).
         if self.folds == "pairs":
             for p in range(P):
-                keep = tuple(q for q in range(P) if q != p)
-                sub = _select_pairs(meas, keep)
+                sub = meas.select_slices(tuple(q for q in range(P) if q != p))
                 cfg = dataclasses.replace(self.config, pairs=sub.pairs)
                 for kind in ((0, 1) if meas.has_axial else (1,)):
                     s = 2 * p + kind
-                    wi, wv = _slice_vectors(meas.t[s], kind, self.pairs[p], alpha)
+                    wi, wv = slice_vectors(meas.t[s], kind, self.pairs[p], alpha)
                     pred = _reconstruct_core(sub, cfg, params, targets=(wi, wv))
-                    mask = (jnp.arange(meas.t.shape[1]) < meas.count[s])[:, None]
-                    r = jnp.log(pred + eps) - jnp.log(jnp.maximum(meas.y[s], 0.0) + eps)
-                    out.append(jnp.where(mask, r, 0.0).reshape(-1))
+                    out.append(log_residual(pred, meas.y[s], eps, meas.mask[s][:, None]).reshape(-1))
         else:
-            S = meas.t.shape[0]
             for j in range(self.k):
                 train = jax.tree_util.tree_map(lambda x: x[j], data["train"])
-                wis, wvs = [], []
-                for s in range(S):
-                    wi, wv = _slice_vectors(data["test_t"][j, s], s % 2, self.pairs[s // 2], alpha)
-                    wis.append(wi), wvs.append(wv)
-                wi, wv = jnp.concatenate(wis), jnp.concatenate(wvs)
+                wi, wv = held_out_directions(data["test_t"][j], self.pairs, alpha)
                 pred = _reconstruct_core(train, self.config, params, targets=(wi, wv))
                 y = data["test_y"][j].reshape(-1, 3)
                 mask = data["test_mask"][j].reshape(-1, 1)
-                r = jnp.log(pred + eps) - jnp.log(jnp.maximum(y, 0.0) + eps)
-                out.append(jnp.where(mask, r, 0.0).reshape(-1))
+                out.append(log_residual(pred, y, eps, mask).reshape(-1))
         return jnp.concatenate(out)
 
 
@@ -324,7 +271,7 @@ class Population(AbstractProblem):
         return {"source": source, "ref": ref, "base": params}
 
     def residuals(self, theta, data):
-        from ._pipeline import sample
+        from .._sampling import sample
 
         TRACE_COUNT["residuals"] += 1
         params = self.space.to_params(theta, data["base"])

@@ -1,6 +1,6 @@
 """One small fitting API over optimistix and jaxopt.
 
-``fit(problem, data, params, solver=...)`` minimises a tuning problem (:mod:`abrdf_jax._tuning`)
+``fit(problem, data, params, solver=...)`` minimises a tuning problem (:mod:`abrdf_jax.tuning._problems`)
 and returns a :class:`FitResult`. Solvers:
 
 ========  ===========================================  ==================================
@@ -33,9 +33,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._errors import InputError
-from ._params import Params
-from ._tuning import AbstractProblem
+from .._errors import InputError
+from .._params import Params
+from ._problems import AbstractProblem
 
 SOLVERS = ("lm", "gn", "bfgs", "lbfgs", "lbfgsb")
 LEAST_SQUARES = ("lm", "gn")

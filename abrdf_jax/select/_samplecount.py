@@ -25,11 +25,13 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from ._errors import InputError
-from ._params import Config, Params
-from ._pipeline import _reconstruct_jit, prepare
-from ._samples import Samples
-from ._slices import Measurements, sample_model, sample_table
+from .._errors import InputError
+from .._params import Config, Params
+from .._pipeline import _reconstruct_jit, prepare
+from .._folds import held_out_directions, log_rms
+from .._measurements import Measurements, Samples
+from .._values import measurement_eps
+from .._sampling import sample_model, sample_table
 
 DEFAULT_COUNTS = (6, 8, 10, 12, 16, 20, 25, 32)
 GROUND_TRUTH_METRICS = ("de76", "de2000", "rmse8", "logerr")
@@ -76,10 +78,7 @@ def _pad(meas: Measurements, nmax: int) -> Measurements:
     extra = nmax - meas.t.shape[1]
     if extra <= 0:
         return meas
-    return Measurements(
-        jnp.pad(meas.t, ((0, 0), (0, extra))), jnp.pad(meas.y, ((0, 0), (0, extra), (0, 0))),
-        meas.count, meas.pairs, meas.has_axial,
-    )
+    return meas.replace(t=jnp.pad(meas.t, ((0, 0), (0, extra))), y=jnp.pad(meas.y, ((0, 0), (0, extra), (0, 0))))
 
 
 def _slice_counts(config: Config, n: int) -> tuple[int, ...]:
@@ -101,7 +100,7 @@ def _thin(meas: Measurements, n: int):
         kt[s, : len(keep)], ky[s, : len(keep)], kc[s] = t[s, keep], y[s, keep], len(keep)
         rest = np.setdiff1d(np.arange(m), keep)
         held.append((s, t[s, rest], y[s, rest]))
-    kept = Measurements(jnp.asarray(kt), jnp.asarray(ky), jnp.asarray(kc), meas.pairs, meas.has_axial)
+    kept = meas.replace(t=jnp.asarray(kt), y=jnp.asarray(ky), count=jnp.asarray(kc))
     return kept, held
 
 
@@ -137,8 +136,8 @@ def sample_count_curve(
         InputError: counts below 3, an unknown metric, or (for a measurement) no count below the
             measured one.
     """
-    from ._metrics import evaluate
-    from ._tuning import _slice_vectors
+    from ..metrics._metrics import evaluate
+    from .._slices import slice_vectors
 
     counts = tuple(sorted({int(c) for c in counts}))
     if not counts or counts[0] < 3:
@@ -166,7 +165,7 @@ def sample_count_curve(
         is_table = hasattr(source, "shape") and not callable(source)
         ref = jnp.asarray(source) if is_table else None
         if ref is None:
-            from .materials import dense_table
+            from ..materials import dense_table
 
             ref = jnp.asarray(dense_table(source, np.float64 if params.alpha.dtype == jnp.float64 else np.float32))
     errors, totals = [], []
@@ -175,15 +174,11 @@ def sample_count_curve(
         if measured:
             kept, held = _thin(meas, n)
             rec_in = _pad(kept, meas.t.shape[1])
-            wi, wv, yy = [], [], []
-            for s, ts, ys in held:
-                a, b = _slice_vectors(jnp.asarray(ts, meas.t.dtype), s % 2, meas.pairs[s // 2], params.alpha.astype(meas.t.dtype))
-                wi.append(a), wv.append(b), yy.append(ys)
-            pred = np.asarray(_reconstruct_jit(rec_in, config, params, (jnp.concatenate(wi), jnp.concatenate(wv))))
-            y = np.concatenate(yy)
-            eps = config.log_eps * np.mean(np.abs(np.asarray(meas.y)[np.arange(meas.t.shape[1])[None, :] < np.asarray(meas.count)[:, None]]), axis=0)
-            r = np.log(np.maximum(pred, 0) + eps) - np.log(np.maximum(y, 0) + eps)
-            errors.append(float(np.sqrt(np.mean(r * r))))
+            wi, wv = zip(*(slice_vectors(jnp.asarray(ts, meas.t.dtype), s % 2, meas.pairs[s // 2], params.alpha.astype(meas.t.dtype))
+                           for s, ts, _ in held))
+            pred = _reconstruct_jit(rec_in, config, params, (jnp.concatenate(wi), jnp.concatenate(wv)))
+            y = jnp.asarray(np.concatenate([ys for _, _, ys in held]), pred.dtype)
+            errors.append(float(log_rms(pred, y, measurement_eps(meas, config.log_eps), True)))
             totals.append(int(np.sum(np.asarray(kept.count))))
         else:
             cnts = _slice_counts(config, n)

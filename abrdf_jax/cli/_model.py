@@ -18,14 +18,14 @@ import math
 import sys
 from pathlib import Path
 
-from ._errors import InputError
+from .._errors import InputError
 
 FORMAT = "abrdf_jax.model/1"
 
 
 def add_arguments(parser) -> None:
     """The ``--model``, ``--tol`` and ``--noise`` options of ``abrdf-jax reconstruct``."""
-    from ._select import CANDIDATES, TOL
+    from ..select._select import CANDIDATES, TOL
 
     parser.add_argument("--model", metavar="MODEL", default=None,
                         help="auto (default: isotropy test, then the simplest candidate within --tol of the best "
@@ -38,7 +38,7 @@ def add_arguments(parser) -> None:
 
 def check_arguments(args) -> None:
     """Fail before any work on contradictory model options."""
-    from ._select import candidate
+    from ..select._select import candidate
 
     if args.model is not None and args.model != "auto":
         candidate(args.model)  # unknown names fail here, listing the valid ones
@@ -66,12 +66,12 @@ def model_json_path(out: Path, folder_mode: bool) -> Path:
 def choose(aj, samples, budget: str, alpha: float, args, where: Path, forced: str | None) -> dict:
     """The model for one measurement: ``{"name", "config", "params", "record"}``.
 
-    ``budget``/``alpha`` come from :func:`abrdf_jax._cli._plan`; ``forced`` is the budget of
+    ``budget``/``alpha`` come from :func:`abrdf_jax.cli._plan`; ``forced`` is the budget of
     ``--isotropic``/``--anisotropic`` (``None`` when not given).
     """
-    from ._cli import _params_for
-    from ._paramfile import params_to_dict
-    from ._select import CANDIDATES, candidate, select_model
+    from . import _params_for
+    from ..io._paramfile import params_to_dict
+    from ..select._select import CANDIDATES, candidate, select_model
 
     def record(name, config, params, how, reason, extra=None):
         p = params_to_dict(config, params)
@@ -119,7 +119,7 @@ def describe(choice: dict) -> list[str]:
 
 def save(path: Path, choices: list[dict], folder_mode: bool) -> Path:
     """Write the model record(s) atomically."""
-    from ._atomic import atomic_write
+    from ..io._atomic import atomic_write
 
     doc = {"format": FORMAT}
     if folder_mode:

@@ -16,7 +16,7 @@ import sys
 import traceback
 from pathlib import Path
 
-from ._errors import InputError
+from .._errors import InputError
 
 PROG = "abrdf-jax"
 TABLE_EXTENSIONS = (".npz", ".exr")
@@ -35,7 +35,7 @@ def _version() -> str:
 
         return version("abrdf_jax")
     except Exception:  # noqa: BLE001 - not installed: fall back to the source tree's version
-        from . import __version__
+        from .. import __version__
 
         return __version__
 
@@ -209,7 +209,7 @@ def cmd_reconstruct(args) -> int:
             raise InputError(f"{out}: extension disagrees with --format {args.format}")
         targets = [out]
 
-    from ._cli_select import check_arguments, choose_all, describe, model_json_path, save, summary
+    from ._model import check_arguments, choose_all, describe, model_json_path, save, summary
 
     check_arguments(args)
     # Read and check every input before computing or writing anything.
@@ -334,7 +334,7 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from ._demo import run_demo
+    from .demo import run_demo
 
     if args.materials is not None and args.materials < 1:
         raise InputError(f"--materials must be at least 1, got {args.materials}")
@@ -403,7 +403,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "paper: Filip 2012 as published (linear values)")
     r.add_argument("--params", metavar="PARAMS.json", type=Path,
                    help="fitted configuration and parameters from 'abrdf-jax fit' (overrides --preset)")
-    from ._cli_select import add_arguments as add_model_arguments
+    from ._model import add_arguments as add_model_arguments
 
     add_model_arguments(r)  # --model auto|NAME, --tol, --noise
     r.set_defaults(func=cmd_reconstruct)
@@ -436,10 +436,10 @@ def build_parser() -> argparse.ArgumentParser:
     m = sub.add_parser("materials", parents=[common], help="list the built-in materials")
     m.set_defaults(func=cmd_materials)
 
-    from ._cli_fit import register as register_fit
+    from .fit import register as register_fit
 
     register_fit(sub)
-    from ._cli_btf import register as register_btf
+    from .btf import register as register_btf
 
     register_btf(sub)
     return p

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
-from ._errors import InputError, located
+from .._errors import InputError, located
 
 
 def _current_umask() -> int:

@@ -45,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._errors import InputError
+from .._errors import InputError
 
 __all__ = [
     "D65_XY",

@@ -2,7 +2,7 @@
 
 Two stages, both on the material's own measurements (no ground truth):
 
-1. **Isotropy** (:func:`abrdf_jax._isotropy.isotropy_test`): a noise-aware test on the axial
+1. **Isotropy** (:func:`abrdf_jax.select._isotropy.isotropy_test`): a noise-aware test on the axial
    slices. An isotropic material keeps the diagonal-only model (eq. 5, ``iso102``) and the
    anisotropic candidates are not even evaluated.
 2. **Complexity** by held-out (cross-validated) error with a tolerance rule: every candidate
@@ -40,13 +40,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._errors import InputError
+from .._errors import InputError
 from ._isotropy import LEVEL, MIN_EFFECT, IsotropyReport, isotropy_test
-from ._params import Config, Params
-from ._pipeline import _value_eps, centre_vectors, pair_coordinates, prepare, subspace_values
-from ._rbf import fit_rbf
-from ._samples import Samples
-from ._slices import Measurements
+from .._params import Config, Params
+from .._coords import pair_coordinates
+from .._folds import held_out_directions, log_rms, sample_folds
+from .._grid import centre_vectors
+from .._pipeline import prepare, subspace_values
+from .._values import measurement_eps, value_space
+from .._rbf import fit_rbf
+from .._measurements import Samples
+from .._measurements import Measurements
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,7 +68,7 @@ class Candidate:
 
 
 def _rec(budget, **kw):
-    from ._params import RECOMMENDED
+    from .._params import RECOMMENDED
 
     return dict(budget=budget, **{**RECOMMENDED, **kw})
 
@@ -121,24 +125,16 @@ def fold_data(meas: Measurements, alpha, k: int = 4) -> dict:
         ``test_wi``/``test_wv`` ``(k, q, 3)``, ``test_y`` ``(k, q, 3)``, ``test_mask`` ``(k, q)``
         and ``res_eps`` ``(3,)`` (the ε of the log residual, from the whole measurement).
     """
-    from ._tuning import _sample_folds, _slice_vectors
-
-    if not (isinstance(k, int) and k >= 2):
-        raise InputError(f"k (folds) must be an int >= 2, got {k!r}")
-    train, tt, ty, tm = _sample_folds(meas, k)
-    S = meas.t.shape[0]
-    wis, wvs = [], []
-    for j in range(k):
-        wi, wv = zip(*(_slice_vectors(tt[j, s], s % 2, meas.pairs[s // 2], jnp.asarray(alpha, meas.y.dtype)) for s in range(S)))
-        wis.append(jnp.concatenate(wi)), wvs.append(jnp.concatenate(wv))
-    res_eps = _value_eps(meas, Config())  # log_eps 0.01 of the mean sample, as SelfCalibration
+    train, tt, ty, tm = sample_folds(meas, k)
+    a = jnp.asarray(alpha, meas.y.dtype)
+    wis, wvs = zip(*(held_out_directions(tt[j], meas.pairs, a) for j in range(k)))
     return {
         "train": train,
         "test_wi": jnp.stack(wis).astype(meas.y.dtype),
         "test_wv": jnp.stack(wvs).astype(meas.y.dtype),
         "test_y": ty.reshape(k, -1, 3),
         "test_mask": tm.reshape(k, -1),
-        "res_eps": res_eps,
+        "res_eps": measurement_eps(meas, Config().log_eps),  # 0.01 of the mean sample, as SelfCalibration
     }
 
 
@@ -146,13 +142,14 @@ def _cv_core(data: dict, configs: tuple, params: Params):
     """RMS held-out log error of every configuration of one kernel group, shape ``(G,)``."""
     train = data["train"]
     cfg0 = configs[0]
+    vs = value_space(cfg0.value_space)
     dtype = train.y.dtype
-    vals = jnp.stack([jax.vmap(lambda m, c=c: subspace_values(m, c, params))(train) for c in configs])
-    if cfg0.value_space == "log":
-        eps = jax.vmap(lambda m: _value_eps(m, cfg0))(train)  # (k, 3): each fold's own, as reconstruct
-        fit_vals = jnp.log(jnp.maximum(vals, 0.0) + eps[None, :, None, :])
-    else:
-        fit_vals = vals
+    eps = jax.vmap(lambda m: vs.eps(m, cfg0.log_eps))(train) if vs.is_log else None  # (k, 3): each fold's own
+
+    def fold_values(m, e, c):
+        return vs.encode_subspace(subspace_values(vs.encode_samples(m, e), c, params), e)
+
+    fit_vals = jnp.stack([jax.vmap(lambda m, e, c=c: fold_values(m, e, c))(train, eps) for c in configs])
     G, k, n, C = fit_vals.shape
     # Every fold and configuration as right-hand sides of one system (it ignores the values).
     rhs = jnp.moveaxis(fit_vals, 2, 0).reshape(n, G * k * C)
@@ -164,14 +161,9 @@ def _cv_core(data: dict, configs: tuple, params: Params):
     out = rbf(xq).reshape(k, q, G, k, C)
     fold = jnp.arange(k)
     out = out[fold, :, :, fold, :]  # fold j's own prediction at fold j's held-out samples: (k, q, G, C)
-    if cfg0.value_space == "log":
-        out = jnp.exp(out) - eps[:, None, None, :]
-    pred = jnp.maximum(out, 0.0)
-    e = data["res_eps"]
-    r = jnp.log(pred + e) - jnp.log(jnp.maximum(data["test_y"], 0.0) + e)[:, :, None, :]
+    pred = vs.decode(out, None if eps is None else eps[:, None, None, :])
     mask = data["test_mask"][:, :, None, None]
-    ss = jnp.sum(jnp.where(mask, r * r, 0.0), axis=(0, 1, 3))
-    return jnp.sqrt(ss / (C * jnp.maximum(jnp.sum(data["test_mask"]), 1)))
+    return log_rms(pred, data["test_y"][:, :, None, :], data["res_eps"], mask, axis=(0, 1, 3))
 
 
 _cv_jit = eqx.filter_jit(_cv_core)
@@ -299,7 +291,7 @@ class Selection:
 
     def to_dict(self) -> dict:
         """JSON-ready summary (what ``abrdf-jax reconstruct`` saves as ``OUT.model.json``)."""
-        from ._paramfile import params_to_dict
+        from ..io._paramfile import params_to_dict
 
         p = params_to_dict(self.config, self.params)
         return {

@@ -16,7 +16,7 @@ from typing import TextIO
 
 import numpy as np
 
-from ._errors import InputError
+from .._errors import InputError
 
 # How many of each kind the demo shows by default, and which come first when present.
 N_ISOTROPIC = 2
@@ -75,7 +75,7 @@ def choose_materials(n_materials: int | None = None) -> list[tuple[str, object, 
     Isotropic and anisotropic materials alternate, so that any ``n_materials >= 2`` shows both
     kinds; by default :data:`N_ISOTROPIC` isotropic and :data:`N_ANISOTROPIC` anisotropic ones.
     """
-    from . import materials
+    from .. import materials
 
     iso, aniso = [], []
     available = materials.default_materials()
@@ -122,8 +122,8 @@ def run_demo(
     """
     import abrdf_jax as aj
 
-    from . import materials, metrics
-    from ._render import check_figure_path, comparison_figure
+    from .. import materials, metrics
+    from ..render._figures import check_figure_path, comparison_figure
 
     stream = sys.stdout if stream is None else stream
     output = check_figure_path(output)

@@ -26,8 +26,8 @@ from typing import BinaryIO
 import numpy as np
 
 from ._atomic import _check_readable, atomic_write
-from ._errors import InputError, located
-from ._samples import Samples
+from .._errors import InputError, located
+from .._measurements import Samples
 
 #: Column names of a measurement CSV file, in the order the writer uses.
 CSV_COLUMNS = ("theta_i", "phi_i", "theta_v", "phi_v", "r", "g", "b")
@@ -241,7 +241,7 @@ def read_samples_csv(path: str | os.PathLike) -> Samples:
         path: the file (str or path-like).
 
     Returns:
-        :class:`~abrdf_jax._samples.Samples` holding float64 numpy arrays, angles in degrees, in
+        :class:`~abrdf_jax.Samples` holding float64 numpy arrays, angles in degrees, in
         file order.
 
     Raises:

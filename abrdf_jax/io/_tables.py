@@ -2,16 +2,16 @@
 
 Every reader turns a malformed file into an :class:`~abrdf_jax._errors.InputError` whose message
 starts with ``path:line:`` (where a line applies), never a raw traceback from a library. Every
-writer is atomic (:func:`~abrdf_jax._atomic.atomic_write`): the file appears complete or not at
+writer is atomic (:func:`~abrdf_jax.io._atomic.atomic_write`): the file appears complete or not at
 all, and an existing file is only replaced once the new content has been fully written and
 flushed to disk.
 
 Formats:
 
-- Measurement CSV: see :mod:`abrdf_jax._csv` (re-exported here).
+- Measurement CSV: see :mod:`abrdf_jax.io._csv` (re-exported here).
 - ABRDF table: ``table[i, v, c]``, shape ``(81, 81, 3)`` float32, as ``.npz`` (key ``abrdf``) or as
   an 81×81 RGB float EXR image whose row is the illumination index and column the view index.
-- MERL ``.binary`` files: see :mod:`abrdf_jax._merl`.
+- MERL ``.binary`` files: see :mod:`abrdf_jax.io._merl`.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from ._atomic import atomic_write as atomic_write
 from ._csv import CSV_COLUMNS as CSV_COLUMNS
 from ._csv import read_samples_csv as read_samples_csv
 from ._csv import write_samples_csv as write_samples_csv
-from ._errors import InputError, located
+from .._errors import InputError, located
 
 #: Shape of an ABRDF table on the UBO2003 grid.
 TABLE_SHAPE = (81, 81, 3)

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import InputError
-from ._params import Config, Params
+from .._errors import InputError
+from .._params import Config, Params
 
 FORMAT = "abrdf_jax.params/1"
 _CONFIG_FIELDS = ("budget", "rule", "kernel", "degree", "parameterization", "interp", "value_space", "log_eps", "slice_count")
@@ -43,7 +43,7 @@ def params_to_dict(config: Config, params: Params, fit: dict | None = None) -> d
 
 def save_params(path, config: Config, params: Params, fit: dict | None = None) -> Path:
     """Write ``config`` and ``params`` (and the fit's provenance) to ``path`` atomically."""
-    from ._io import atomic_write
+    from ._tables import atomic_write
 
     path = Path(path)
     payload = json.dumps(params_to_dict(config, params, fit), indent=2)

@@ -40,10 +40,10 @@ import math
 
 import numpy as np
 
-from ._errors import InputError
-from ._metrics import LUMA_WEIGHTS
-from ._samples import Samples
-from ._slices import Measurements, group_slices
+from .._errors import InputError
+from ..metrics._metrics import LUMA_WEIGHTS
+from .._measurements import Samples
+from .._measurements import Measurements, group_slices
 
 #: Default significance level and minimum effect (RMS log variation of the axial slices).
 LEVEL = 1e-3

@@ -1,0 +1,38 @@
+"""The names of every choice the package offers, in one place that imports nothing heavy.
+
+The command line builds its ``choices=`` and help texts from these tuples without importing JAX;
+each registry that implements a choice (kernels, rules, parameterizations, value spaces, …)
+checks at import that its keys are exactly the names listed here (:func:`check_registry`), so a
+name cannot be added to one and forgotten in the other.
+"""
+
+from __future__ import annotations
+
+BUDGETS = ("iso102", "aniso204")
+KERNELS = ("gaussian", "inverse_multiquadric", "inverse_quadratic", "multiquadric", "thin_plate_spline", "cubic",
+           "linear")
+RULES = ("filip2012", "average", "crossing", "log", "diagonal")
+PARAMETERIZATIONS = ("onion", "spherical", "halfdiff")
+VALUE_SPACES = ("linear", "log", "logsamples")
+INTERP_METHODS = ("linear", "cubic")
+#: Named configurations (``abrdf_jax.preset``); the same meaning in every command.
+PRESETS = ("recommended", "paper", "operator")
+#: Named models of the automatic model choice (``abrdf_jax.select.CANDIDATES``), in complexity order.
+MODELS = ("iso", "iso-linear", "iso-gaussian", "paper", "aniso-average", "aniso-crossing", "aniso-log", "aniso",
+          "paper-aniso")
+SOLVERS = ("lm", "gn", "bfgs", "lbfgs", "lbfgsb")
+FOLD_KINDS = ("pairs", "samples")
+LOSSES = ("lab", "log", "lab+log")
+WIDTH_MODES = ("per_dim", "shared", "fixed")
+BTF_BACKENDS = ("auto", "operator", "pipeline")
+BTF_MODELS = ("fixed", "auto")
+#: Table files by suffix (``abrdf_jax.io.read_table``/``write_table``).
+TABLE_SUFFIXES = (".npz", ".exr")
+MEASUREMENT_SUFFIXES = (".csv",)
+
+
+def check_registry(kind: str, keys) -> None:
+    """Fail at import when a registry's keys differ from the names listed here for ``kind``."""
+    names = globals()[kind]
+    if tuple(keys) != names:
+        raise AssertionError(f"registry {kind} has {tuple(keys)}, but abrdf_jax._names.{kind} lists {names}")

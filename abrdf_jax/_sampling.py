@@ -1,0 +1,96 @@
+"""Sampling a material along the slices: the measurement a device would record (PROTOCOL.md).
+
+:func:`sample_model` evaluates a continuous model at the exact slice directions, :func:`sample_table`
+interpolates a dense 81×81 table over azimuth; both are differentiable in α. :func:`sample` is the
+public entry point (budget and pairs from a :class:`Config`, α from :class:`Params`).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._errors import InputError
+from ._grid import ring_indices, ubo_grid
+from ._measurements import Measurements
+from ._params import Config, Params
+from ._slices import KINDS, PROTOCOL_PAIRS, protocol_parameters, slice_angles, slice_directions
+
+
+def sample_model(model, counts, alpha, pairs=PROTOCOL_PAIRS, dtype=jnp.float32) -> Measurements:
+    """Sample the PROTOCOL slices from a continuous model ``model(wi, wv) -> (..., 3)``.
+
+    Args:
+        model: callable of unit vectors (illumination, view), returning ABRDF values.
+        counts: per-slice counts (see :func:`protocol_counts`); 0 leaves a slice unmeasured.
+        alpha: slice offset in radians (traced: the samples are differentiable in α).
+        pairs: elevation pairs in degrees.
+    """
+    t, count = protocol_parameters(counts, dtype=dtype)
+    wi, wv = slice_directions(t, pairs, jnp.asarray(alpha, dtype))
+    y = model(wi, wv)
+    valid = (jnp.arange(t.shape[1])[None, :] < count[:, None])[..., None]
+    y = jnp.where(valid, y, 0.0).astype(dtype)
+    return Measurements(t, y, count, tuple(pairs), any(c > 0 for c in counts[0::2]))
+
+
+def sample_table(table, counts, alpha, pairs=PROTOCOL_PAIRS, dtype=jnp.float32) -> Measurements:
+    """Sample the PROTOCOL slices from a dense 81×81 UBO table, interpolating over azimuth.
+
+    Both azimuths are interpolated periodically and linearly on their rings (bilinear over
+    ``(φi, φv)``), so the result is differentiable in α. The elevations must be UBO rings.
+    """
+    table = jnp.asarray(table, dtype)
+    if table.shape != (81, 81, 3):
+        raise InputError(f"table must have shape (81, 81, 3), got {table.shape}")
+    _, phi_deg = ubo_grid()
+    t, count = protocol_parameters(counts, dtype=dtype)
+    alpha = jnp.asarray(alpha, dtype)
+    ys = []
+    for s in range(t.shape[0]):
+        ti, tv = pairs[s // 2]
+        ri, rv = ring_indices(ti), ring_indices(tv)
+        pi_, pv = slice_angles(KINDS[s % 2], t[s], alpha)
+        ii0, ii1, wi_ = _ring_weights(pi_, len(ri))
+        vv0, vv1, wv_ = _ring_weights(pv, len(rv))
+        sub = table[np.ix_(ri, rv)]  # (ni, nv, 3)
+        v00, v01 = sub[ii0, vv0], sub[ii0, vv1]
+        v10, v11 = sub[ii1, vv0], sub[ii1, vv1]
+        a, b = wi_[:, None], wv_[:, None]
+        ys.append((1 - a) * ((1 - b) * v00 + b * v01) + a * ((1 - b) * v10 + b * v11))
+    y = jnp.stack(ys)
+    valid = (jnp.arange(t.shape[1])[None, :] < count[:, None])[..., None]
+    y = jnp.where(valid, y, 0.0)
+    return Measurements(t, y, count, tuple(pairs), any(c > 0 for c in counts[0::2]))
+
+
+def _ring_weights(phi, n):
+    x = jnp.mod(phi, 2 * jnp.pi) * n / (2 * jnp.pi)
+    k0 = jnp.floor(x)
+    w = x - k0
+    k0 = k0.astype(jnp.int32) % n
+    return k0, (k0 + 1) % n, w
+
+
+def sample(source, config: Config | None = None, params: Params | None = None, *, as_measurements: bool = False):
+    """Sample the PROTOCOL slices of ``config.budget`` from a model or a dense table.
+
+    Args:
+        source: a callable ``model(wi, wv) -> (..., 3)`` (exact angles) or an ``(81, 81, 3)``
+            table (interpolated over azimuth on the UBO rings).
+        config: gives the budget and the elevation pairs.
+        params: gives α (differentiable: the sample values follow α).
+        as_measurements: return the grouped :class:`Measurements` (JAX, differentiable) instead
+            of flat :class:`Samples`.
+    """
+    config = config or Config()
+    params = params or Params.default(config)
+    if callable(source) and not hasattr(source, "shape"):
+        dtype = params.alpha.dtype
+        meas = sample_model(source, config.counts, params.alpha, config.pairs, dtype=dtype)
+    else:
+        arr = jnp.asarray(source)
+        meas = sample_table(arr, config.counts, params.alpha, config.pairs, dtype=arr.dtype)
+    if as_measurements:
+        return meas
+    return meas.to_samples(alpha_deg=params.alpha_deg)
