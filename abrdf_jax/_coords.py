@@ -14,9 +14,8 @@ from typing import Callable
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._errors import InputError
 from ._grid import from_vector, half_diff, onion_from_vector
-from ._names import check_registry
+from ._names import check_registry, lookup
 
 
 def _onion(wi, wv):
@@ -52,10 +51,7 @@ check_registry("PARAMETERIZATIONS", PARAMETERIZATIONS)
 
 def parameterization(name: str) -> Parameterization:
     """The registered parameterization ``name``; :class:`InputError` listing the names otherwise."""
-    try:
-        return PARAMETERIZATIONS[name]
-    except KeyError:
-        raise InputError(f"unknown parameterization {name!r}; choose one of {tuple(PARAMETERIZATIONS)}") from None
+    return lookup(PARAMETERIZATIONS, name, "parameterization")
 
 
 def pair_coordinates(wi: Float[Array, "q 3"], wv: Float[Array, "q 3"], name: str) -> Float[Array, "q 4"]:

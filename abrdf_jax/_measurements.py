@@ -13,7 +13,7 @@ import dataclasses
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from ._errors import InputError
 from ._slices import KINDS, PROTOCOL_ALPHA_DEG, PROTOCOL_PAIRS, slice_angles

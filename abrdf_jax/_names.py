@@ -31,6 +31,16 @@ TABLE_SUFFIXES = (".npz", ".exr")
 MEASUREMENT_SUFFIXES = (".csv",)
 
 
+def lookup(registry: dict, name: str, what: str):
+    """``registry[name]``, or an :class:`InputError` naming ``what`` and listing the valid names."""
+    try:
+        return registry[name]
+    except (KeyError, TypeError):
+        from ._errors import InputError
+
+        raise InputError(f"unknown {what} {name!r}; choose one of {tuple(registry)}") from None
+
+
 def check_registry(kind: str, keys) -> None:
     """Fail at import when a registry's keys differ from the names listed here for ``kind``."""
     names = globals()[kind]

@@ -294,7 +294,6 @@ def fit_rbf_info(
     """
     degree = resolve_degree(kernel, degree)
     widths = jnp.broadcast_to(jnp.asarray(widths, x.dtype), (x.shape[1],))
-    n = x.shape[0]
     reg = jnp.asarray(reg, x.dtype)
     shift, scale = _centre_stats(x)
     k, p, s = _blocks(x, widths, kernel, max(degree, -1), shift, scale)

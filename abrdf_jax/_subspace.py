@@ -43,9 +43,8 @@ from typing import Callable
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._errors import InputError
 from ._interp1d import periodic_interp
-from ._names import check_registry
+from ._names import check_registry, lookup
 
 TWO_PI = 2.0 * jnp.pi
 
@@ -164,10 +163,7 @@ check_registry("RULES", RULES)
 
 def get_rule(name: str) -> Rule:
     """The registered rule ``name``; :class:`InputError` listing the names otherwise."""
-    try:
-        return RULES[name]
-    except KeyError:
-        raise InputError(f"unknown subspace rule {name!r}; choose one of {tuple(RULES)}") from None
+    return lookup(RULES, name, "subspace rule")
 
 
 def subspace(

@@ -17,9 +17,8 @@ import dataclasses
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._errors import InputError
 from ._measurements import Measurements
-from ._names import check_registry
+from ._names import check_registry, lookup
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,10 +63,7 @@ check_registry("VALUE_SPACES", VALUE_SPACES)
 
 def value_space(name: str) -> ValueSpace:
     """The registered value space ``name``; :class:`InputError` listing the names otherwise."""
-    try:
-        return VALUE_SPACES[name]
-    except KeyError:
-        raise InputError(f"unknown value space {name!r}; choose one of {tuple(VALUE_SPACES)}") from None
+    return lookup(VALUE_SPACES, name, "value space")
 
 
 def value_eps(mean_abs, log_eps: float, dtype):

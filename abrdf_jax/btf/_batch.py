@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from .._params import Config, Params
+from .._params import Config, Params, preset
 from ._chunkfn import BACKENDS, N_PAIRS, grouping, make_chunk_fn, make_model_choice_fn, texel_isotropy
 from ._devices import DEFAULT_BLOCK, ShardedRunner, resolve_devices
 from ._store import ChunkedStore
@@ -35,7 +35,8 @@ DEFAULT_CHUNK = 1024
 
 
 def default_config(budget: str = "aniso204") -> Config:
-    """The BTF default: the recommended kernel with the log taken of the samples.
+    """The BTF default, ``preset("operator", budget)``: the recommended kernel with the log taken of
+    the samples.
 
     ``value_space="logsamples"`` with a linear rule (``"average"`` of the two slices in log
     space, i.e. their geometric mean, for aniso204) makes the whole reconstruction
@@ -45,9 +46,7 @@ def default_config(budget: str = "aniso204") -> Config:
     log after the rule, pipeline only), 13.40 with rule ``"crossing"``; mean fill 19.87
     (``python -m benchmarks.btf --quick``, table "configuration").
     """
-    if budget == "iso102":
-        return Config.recommended(budget="iso102", value_space="logsamples")
-    return Config.recommended(budget=budget, rule="average", value_space="logsamples")
+    return preset("operator", budget)
 
 
 def _as_store(store) -> ChunkedStore:

@@ -29,12 +29,11 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import InputError
-from .._params import Config, Params
+from .._params import Config, Params, preset
+from .._measurements import Measurements, Samples, group_slices
+from .._names import BTF_BACKENDS as BACKENDS
+from .._operator import compile_operator
 from .._pipeline import reconstruct_batch
-from .._measurements import Samples
-from .._measurements import Measurements, group_slices
-
-BACKENDS = ("auto", "operator", "pipeline")
 N_PAIRS = 81 * 81
 
 
@@ -72,18 +71,8 @@ def grouping(geometry: dict, pairs, alpha_deg: float) -> tuple[Measurements, np.
         if template is None:
             template = meas
     g = np.stack(cols, axis=1)
-    template = Measurements(template.t, jnp.zeros_like(template.y), template.count, template.pairs,
-                            template.has_axial)
+    template = template.replace(y=jnp.zeros_like(template.y))
     return template, g
-
-
-def _operator_module():
-    """``abrdf_jax._operator`` when it exists (another part of the package), else ``None``."""
-    try:
-        from .. import _operator
-    except ImportError:
-        return None
-    return _operator if hasattr(_operator, "compile_operator") else None
 
 
 class ChunkFunction(eqx.Module):
@@ -149,20 +138,13 @@ def make_chunk_fn(config: Config, params: Params, geometry: dict, backend: str =
     template, group = grouping(geometry, config.pairs, alpha)
     if config.budget == "aniso204" and not template.has_axial:
         raise InputError("Config(budget='aniso204') needs axial slices, but the measurement geometry has none")
-    template = Measurements(template.t.astype(dtype), template.y.astype(dtype), template.count,
-                            template.pairs, template.has_axial)
-    params = Params(jnp.asarray(params.alpha, dtype), jnp.asarray(params.widths, dtype),
-                    jnp.asarray(params.reg, dtype))
+    template, params = template.astype(dtype), params.astype(dtype)
     operator, source, why = None, None, None
     if backend in ("auto", "operator"):
-        mod = _operator_module()
-        if mod is None:
-            why = "abrdf_jax._operator is not available"
-        else:
-            try:
-                operator = mod.compile_operator(config, params, template)
-            except (InputError, ValueError, NotImplementedError) as e:
-                why = f"the operator does not apply: {e}"
+        try:
+            operator = compile_operator(config, params, template)
+        except InputError as e:
+            why = f"the operator does not apply: {e}"
         if operator is not None:
             rows = group[np.asarray(operator.index)]  # (n_in, n): which flat sample feeds each input
             if not np.all((rows == 0) | (rows == 1)) or not np.all(rows.sum(axis=1) == 1):
@@ -242,14 +224,13 @@ def make_model_choice_fn(config: Config, params: Params, geometry: dict, backend
             axial slice (nothing to test).
     """
     from ..select._isotropy import LEVEL, MIN_EFFECT
-    from ._batch import default_config
 
     if config.budget != "aniso204":
         raise InputError(f"model='auto' chooses between iso102 and aniso204 per texel; the configuration's "
                          f"budget is {config.budget!r} (use model='fixed')")
     aniso = make_chunk_fn(config, params, geometry, backend, dtype)
     if iso_config is None:
-        iso_config = default_config("iso102")
+        iso_config = preset("operator", "iso102")
     if iso_params is None:
         alpha = float(geometry.get("alpha_deg", np.rad2deg(float(params.alpha))))
         iso_params = Params.default(iso_config, alpha_deg=alpha, dtype=dtype)

@@ -31,6 +31,7 @@ import numpy as np
 from .._errors import InputError, located
 from .._grid import pair_grid
 from ..io import atomic_write
+from ..io._exr import read_rgb_exr, write_rgb_exr
 from ._store import ChunkedStore
 
 PAIRS_INDEX = "pairs.json"
@@ -62,48 +63,6 @@ def store_pairs(store: ChunkedStore) -> np.ndarray:
         return np.stack(pair_grid(), axis=1)
     g = store.geometry
     return np.stack([np.asarray(g[k], float) for k in ("theta_i", "phi_i", "theta_v", "phi_v")], axis=1)
-
-
-def _exr():
-    try:
-        import OpenEXR
-    except ImportError as e:  # pragma: no cover - OpenEXR is a dependency
-        raise InputError("per-pair EXR images need the OpenEXR package (pip install OpenEXR)") from e
-    return OpenEXR
-
-
-def _write_image(path: Path, rgb: np.ndarray, half: bool, compression: str) -> None:
-    OpenEXR = _exr()
-    comp = {"zip": OpenEXR.ZIP_COMPRESSION, "none": OpenEXR.NO_COMPRESSION}[compression]
-    header = {"compression": comp, "type": OpenEXR.scanlineimage}
-    dt = np.float16 if half else np.float32
-    channels = {c: np.ascontiguousarray(rgb[..., k], dtype=dt) for k, c in enumerate("RGB")}
-    # Temporary file and rename, without an fsync per image (thousands of them): the folder's
-    # pairs.json, written last and fsync-ed, marks a complete export.
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        OpenEXR.File(header, channels).write(str(tmp))
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
-
-
-def _read_image(path: Path) -> np.ndarray:
-    OpenEXR = _exr()
-    try:
-        f = OpenEXR.File(str(path), separate_channels=True)
-        parts = f.parts
-    except Exception as e:  # noqa: BLE001 - the library raises several types
-        raise located(f"cannot read as OpenEXR (truncated or corrupt?): {e}", path) from e
-    if len(parts) != 1:
-        raise located(f"expected one image part, found {len(parts)} (truncated or multi-part?)", path)
-    ch = parts[0].channels
-    missing = [c for c in "RGB" if c not in ch]
-    if missing:
-        raise located(f"EXR lacks channel(s) {', '.join(missing)}", path)
-    return np.stack([np.asarray(ch[c].pixels, np.float32) for c in "RGB"], axis=-1)
 
 
 def write_exr_pairs(store, folder, *, half: bool = True, compression: str = "zip",
@@ -150,7 +109,8 @@ def write_exr_pairs(store, folder, *, half: bool = True, compression: str = "zip
                 a, b = store.chunk_range(k)
                 buf[:, a:b] = store.read_chunk(k, verify=False)[:, p0:p1].transpose(1, 0, 2)
             for j in range(p1 - p0):
-                _write_image(folder / names[p0 + j], buf[j].reshape(h, w, 3), half, compression)
+                write_rgb_exr(folder / names[p0 + j], buf[j].reshape(h, w, 3), half=half, compression=compression,
+                              durable=False)
                 bar.update(1)
     index = dict(kind=store.kind, texel_shape=[h, w], geometry=store.geometry,
                  pairs=[dict(file=n, theta_i=float(p[0]), phi_i=float(p[1]), theta_v=float(p[2]),
@@ -221,7 +181,7 @@ def read_exr_pairs(folder, out_store, *, chunk: int = 1024, dtype: str = "float3
     for f in files:
         if not f.is_file():
             raise InputError(f"{f}: listed in {PAIRS_INDEX} but missing")
-    first = _read_image(files[0])
+    first = read_rgb_exr(files[0])
     h, w = first.shape[:2]
     order = _match_ubo(angles)
     if order is not None:
@@ -256,7 +216,7 @@ def read_exr_pairs(folder, out_store, *, chunk: int = 1024, dtype: str = "float3
             a, b = store.chunk_range(k0)[0], store.chunk_range(k1 - 1)[1]
             buf = np.empty((b - a, len(files), 3), np.float32)
             for j, f in enumerate(files):
-                img = first if j == 0 else _read_image(f)
+                img = first if j == 0 else read_rgb_exr(f)
                 if img.shape != (h, w, 3):
                     raise located(f"image is {img.shape[1]}x{img.shape[0]}, the first one {w}x{h}", f)
                 buf[:, j] = img.reshape(-1, 3)[a:b]

@@ -28,6 +28,7 @@ from ._csv import CSV_COLUMNS as CSV_COLUMNS
 from ._csv import read_samples_csv as read_samples_csv
 from ._csv import write_samples_csv as write_samples_csv
 from .._errors import InputError, located
+from ._exr import read_rgb_exr, write_rgb_exr
 
 #: Shape of an ABRDF table on the UBO2003 grid.
 TABLE_SHAPE = (81, 81, 3)
@@ -58,7 +59,7 @@ def _shape_message(shape: tuple, where: str) -> str:
     return f"{where}: table has shape {shape}, expected {TABLE_SHAPE}{hint}"
 
 
-def _check_table(table, where: str) -> np.ndarray:
+def check_table(table, where: str) -> np.ndarray:
     """Finite float32 array of shape ``TABLE_SHAPE``, else an InputError starting ``where``."""
     arr = np.asarray(table)
     if arr.shape != TABLE_SHAPE:
@@ -100,8 +101,8 @@ def read_table(path: str | os.PathLike) -> np.ndarray:
     if ext == ".npz":
         table = _read_npz(path)
     else:
-        table = _read_exr(path)
-    return _check_table(table, str(path))
+        table = read_rgb_exr(path, TABLE_SHAPE[:2])
+    return check_table(table, str(path))
 
 
 def _read_npz(path: Path) -> np.ndarray:
@@ -150,56 +151,6 @@ def _check_table_header(shape, dtype, where: str) -> None:
         raise InputError(f"{where}: table has dtype {dtype}, expected a real floating type")
 
 
-def _exr():
-    try:
-        import OpenEXR
-    except ImportError as e:  # pragma: no cover - OpenEXR is a dependency
-        raise InputError(
-            "reading or writing .exr needs the OpenEXR package (pip install OpenEXR)"
-        ) from e
-    return OpenEXR
-
-
-def _read_exr(path: Path) -> np.ndarray:
-    OpenEXR = _exr()
-    try:
-        f = OpenEXR.File(str(path), separate_channels=True)
-        parts = f.parts
-    except Exception as e:  # noqa: BLE001 - the library raises RuntimeError, IndexError, ...
-        raise located(f"cannot read as OpenEXR (truncated or corrupt?): {e}", path) from e
-    if len(parts) == 0:
-        # OpenEXR 3.x returns no parts when the pixel data cannot be decoded (truncated file).
-        raise located(
-            "cannot read as OpenEXR: no readable image part (truncated or corrupt?)", path
-        )
-    if len(parts) > 1:
-        raise located(f"multi-part EXR ({len(parts)} parts); expected one 81x81 RGB image", path)
-    channels = parts[0].channels
-    missing = [c for c in "RGB" if c not in channels]
-    if missing:
-        raise located(
-            f"EXR lacks channel(s) {', '.join(missing)}; "
-            f"it has {', '.join(sorted(channels)) or 'none'}",
-            path,
-        )
-    planes = []
-    for c in "RGB":
-        px = np.asarray(channels[c].pixels)
-        if px.dtype not in (np.float32, np.float16):
-            raise located(
-                f"EXR channel {c} has pixel type {px.dtype}, expected float or half", path
-            )
-        if px.shape != TABLE_SHAPE[:2]:
-            raise located(
-                f"EXR image is {px.shape[1] if px.ndim > 1 else '?'}x{px.shape[0]} "
-                "(width x height), "
-                f"expected 81x81",
-                path,
-            )
-        planes.append(px.astype(np.float32))
-    return np.stack(planes, axis=-1)
-
-
 def write_table(path: str | os.PathLike, table) -> None:
     """Write one ABRDF table atomically as ``.npz`` (key ``abrdf``, compressed) or ``.exr``.
 
@@ -216,24 +167,10 @@ def write_table(path: str | os.PathLike, table) -> None:
     """
     path = Path(path)
     ext = _table_extension(path)
-    arr = _check_table(table, f"cannot write {path}")
+    arr = check_table(table, f"cannot write {path}")
     if ext == ".npz":
         with atomic_write(path, "wb") as f:
             np.savez_compressed(f, **{NPZ_KEY: arr})
     else:
-        OpenEXR = _exr()
-        header = {
-            "compression": OpenEXR.ZIP_COMPRESSION,
-            "type": OpenEXR.scanlineimage,
-            "comment": "abrdf_jax ABRDF table: row = illumination index, column = view index "
-            "(UBO2003 81-direction grid), linear RGB BRDF*cos(theta_i)",
-        }
-        channels = {c: np.ascontiguousarray(arr[..., k]) for k, c in enumerate("RGB")}
-        image = OpenEXR.File(header, channels)
-        with atomic_write(path, "wb") as f:
-            try:
-                image.write(f)
-            except (OSError, InputError):
-                raise
-            except Exception as e:  # noqa: BLE001 - the library raises RuntimeError and others
-                raise InputError(f"cannot write {path}: OpenEXR: {e}") from e
+        write_rgb_exr(path, arr, comment="abrdf_jax ABRDF table: row = illumination index, column = view index "
+                      "(UBO2003 81-direction grid), linear RGB BRDF*cos(theta_i)")

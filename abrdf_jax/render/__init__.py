@@ -6,7 +6,6 @@ from ._figures import exposure_of as exposure_of
 from ._figures import grid_weights as grid_weights
 from ._figures import interpolate_table as interpolate_table
 from ._figures import render_sphere as render_sphere
-from ._figures import tonemap as tonemap
 
 __all__ = [
     "abrdf_image",
@@ -15,5 +14,4 @@ __all__ = [
     "grid_weights",
     "interpolate_table",
     "render_sphere",
-    "tonemap",
 ]

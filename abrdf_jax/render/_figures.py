@@ -21,11 +21,13 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from ..io._atomic import atomic_write
+from ..io._tables import check_table
+from ..metrics import expose, srgb_encode, tonemap
 from .._grid import UBO_THETAS_DEG, ubo_grid
 
 __all__ = [
     "exposure_of",
-    "tonemap",
     "abrdf_image",
     "grid_weights",
     "interpolate_table",
@@ -46,50 +48,20 @@ _FIG_FORMATS = (".png", ".pdf", ".svg")
 
 
 def _check_table(table, name: str = "table") -> np.ndarray:
-    t = np.asarray(table, dtype=np.float64)
-    if t.shape != (_N, _N, 3):
-        raise InputError(f"{name} has shape {t.shape}, expected (81, 81, 3) (illumination, view, RGB)")
-    if not np.all(np.isfinite(t)):
-        raise InputError(f"{name} contains {int(np.sum(~np.isfinite(t)))} non-finite values")
-    return t
+    check_table(table, name)  # shape, dtype and finite values, as every table the package reads
+    return np.asarray(table, dtype=np.float64)
 
 
 def exposure_of(reference) -> float:
-    """The protocol's exposure of a reference table: ``0.18 / median(Y)``.
-
-    Args:
-        reference: array ``(..., 3)`` of linear RGB values, usually an ``(81, 81, 3)`` table.
-
-    Returns:
-        The exposure factor ``e`` (a Python float). ``Y`` is Rec. 709 luminance; where the median
-        is not positive the mean is used, and where that is not positive either, ``e = 1``.
-    """
-    y = np.asarray(reference, dtype=np.float64) @ _LUMA
-    ym = float(np.median(y))
-    if not ym > 0.0:
-        ym = float(np.mean(y))
-    if not (ym > 0.0 and np.isfinite(ym)):
-        return 1.0
-    return 0.18 / ym
+    """The protocol's exposure of a reference table (:func:`abrdf_jax.metrics.expose`) as a float."""
+    return float(expose(np.asarray(reference)))
 
 
-def _srgb_encode(t: np.ndarray) -> np.ndarray:
-    t = np.clip(t, 0.0, 1.0)
-    return np.where(t <= 0.0031308, 12.92 * t, 1.055 * np.power(t, 1.0 / 2.4) - 0.055)
-
-
-def tonemap(rgb, exposure: float) -> np.ndarray:
-    """Linear RGB to display values in ``[0, 1]`` as the protocol's metric does.
-
-    Args:
-        rgb: array ``(..., 3)`` of linear values.
-        exposure: the factor ``e`` (see :func:`exposure_of`).
-
-    Returns:
-        float32 array ``(..., 3)``: ``srgb_encode(y / (1 + y))`` with ``y = max(e · rgb, 0)``.
-    """
+def _display(rgb, exposure: float) -> np.ndarray:
+    """Linear RGB to display values in ``[0, 1]`` as the protocol's metric does (float32):
+    ``srgb_encode(tonemap(max(e · rgb, 0)))`` of :mod:`abrdf_jax.metrics`."""
     y = np.maximum(np.asarray(rgb, dtype=np.float64) * float(exposure), 0.0)
-    return _srgb_encode(y / (1.0 + y)).astype(np.float32)
+    return np.asarray(srgb_encode(tonemap(y)), dtype=np.float32)
 
 
 def abrdf_image(table, exposure: float | None = None, scale: int = 1) -> np.ndarray:
@@ -115,7 +87,7 @@ def abrdf_image(table, exposure: float | None = None, scale: int = 1) -> np.ndar
     if int(scale) != scale or scale < 1:
         raise InputError(f"scale must be a positive integer, got {scale!r}")
     e = exposure_of(t) if exposure is None else float(exposure)
-    img = tonemap(t, e)
+    img = _display(t, e)
     if scale > 1:
         img = np.repeat(np.repeat(img, int(scale), axis=0), int(scale), axis=1)
     return img
@@ -300,7 +272,7 @@ def render_sphere(
 
     radiance = interpolate_table(t, local(l_w), local(c))
     img = np.full((m, m, 3), _BACKGROUND, dtype=np.float32)
-    img[inside] = tonemap(radiance, e)
+    img[inside] = _display(radiance, e)
     if ss > 1:
         img = img.reshape(size, ss, size, ss, 3).mean(axis=(1, 3))
     return img
@@ -312,27 +284,8 @@ def render_sphere(
 
 
 def _atomic_bytes(path: Path, data: bytes) -> None:
-    try:  # the package's I/O module, when present, owns atomic writes
-        from ..io import atomic_write  # type: ignore[attr-defined]
-    except ImportError:
-        atomic_write = None
-    if atomic_write is not None:
-        with atomic_write(path, "wb") as f:
-            f.write(data)
-        return
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    with atomic_write(path, "wb") as f:
+        f.write(data)
 
 
 def check_figure_path(path) -> Path:

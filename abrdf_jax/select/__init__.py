@@ -20,6 +20,7 @@ from ._isotropy import (
     LEVEL as LEVEL,
     MIN_EFFECT as MIN_EFFECT,
     IsotropyReport as IsotropyReport,
+    isotropy_batch as isotropy_batch,
     chi2_sf as chi2_sf,
     estimate_noise as estimate_noise,
     isotropy_test as isotropy_test,

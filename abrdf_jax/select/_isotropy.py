@@ -38,12 +38,13 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import jax.numpy as jnp
 import numpy as np
+from jax.scipy.special import gammaincc
 
 from .._errors import InputError
 from ..metrics._metrics import LUMA_WEIGHTS
-from .._measurements import Samples
-from .._measurements import Measurements, group_slices
+from .._measurements import Measurements, Samples, group_slices
 
 #: Default significance level and minimum effect (RMS log variation of the axial slices).
 LEVEL = 1e-3
@@ -100,55 +101,9 @@ class IsotropyReport:
         return out
 
 
-def chi2_sf(q: float, dof: int) -> float:
-    """Survival function ``P(χ²_dof ≥ q)`` in float64 (no SciPy needed).
-
-    The regularised upper incomplete gamma ``Q(dof/2, q/2)``: its power series below
-    ``x = a + 1`` and Lentz's continued fraction above (Numerical Recipes, 3rd ed., §6.2).
-    """
-    if dof <= 0 or not math.isfinite(q):
-        return float("nan") if dof <= 0 or math.isnan(q) else 0.0
-    a, x = dof / 2.0, max(q, 0.0) / 2.0
-    if x == 0.0:
-        return 1.0
-    log_front = a * math.log(x) - x - math.lgamma(a)
-    if x < a + 1.0:  # P(a, x) by its series; Q = 1 - P
-        term = total = 1.0 / a
-        ap = a
-        for _ in range(10_000):
-            ap += 1.0
-            term *= x / ap
-            total += term
-            if abs(term) < abs(total) * 1e-16:
-                break
-        return max(0.0, 1.0 - total * math.exp(log_front))
-    tiny = 1e-300
-    b = x + 1.0 - a
-    c, d = 1.0 / tiny, 1.0 / b
-    h = d
-    for i in range(1, 10_000):
-        an = -i * (i - a)
-        b += 2.0
-        d = an * d + b
-        d = tiny if abs(d) < tiny else d
-        c = b + an / c
-        c = tiny if abs(c) < tiny else c
-        d = 1.0 / d
-        delta = d * c
-        h *= delta
-        if abs(delta - 1.0) < 1e-16:
-            break
-    return min(1.0, math.exp(log_front) * h)
-
-
-def _log_luminance(meas: Measurements, log_eps: float):
-    y = np.asarray(meas.y, np.float64)
-    cnt = np.asarray(meas.count)
-    lum = y @ np.asarray(LUMA_WEIGHTS, np.float64)  # (S, nmax)
-    valid = np.arange(y.shape[1])[None, :] < cnt[:, None]
-    mean = np.abs(lum[valid]).mean() if valid.any() else 0.0
-    eps = log_eps * mean + np.finfo(np.float64).tiny ** 0.5
-    return np.log(np.maximum(lum, 0.0) + eps), cnt
+def chi2_sf(q, dof):
+    """Survival function ``P(χ²_dof ≥ q)``: the regularised upper incomplete gamma ``Q(dof/2, q/2)``."""
+    return gammaincc(jnp.asarray(dof / 2.0, jnp.result_type(float)), jnp.asarray(q) / 2.0)
 
 
 def _interp_weights(t: np.ndarray) -> np.ndarray:
@@ -162,17 +117,43 @@ def _interp_weights(t: np.ndarray) -> np.ndarray:
     return (t - tl) / span
 
 
-def _interp_residuals(t: np.ndarray, l: np.ndarray) -> np.ndarray:
-    """Residual of each sample of a periodic slice against its neighbours' linear interpolation.
+def _log_luminance(y, valid, log_eps: float):
+    """``ln(Y + ε)`` of slice values ``y`` ``(B, S, nmax, 3)``, ``ε = log_eps · mean |Y|`` per material."""
+    lum = jnp.einsum("bsnc,c->bsn", y, jnp.asarray(LUMA_WEIGHTS, y.dtype))
+    mean = jnp.sum(jnp.where(valid, jnp.abs(lum), 0.0), axis=(1, 2)) / max(int(valid.sum()), 1)
+    eps = log_eps * mean + np.finfo(np.float64).tiny ** 0.5
+    return jnp.log(jnp.maximum(lum, 0.0) + eps[:, None, None])
 
-    Normalised to unit variance for unit independent noise: ``r / sqrt(1 + wl² + wr²)``.
-    """
-    if len(t) < 3:
-        return np.zeros(0)
-    wr = _interp_weights(t)
-    wl = 1.0 - wr
-    r = l - (wl * np.roll(l, 1) + wr * np.roll(l, -1))
-    return r / np.sqrt(1.0 + wl**2 + wr**2)
+
+def _noise(logl, t: np.ndarray, count: np.ndarray, rows):
+    """Noise ``σ`` ``(B,)``: ``1.4826 · median |r|`` of the normalised residuals ``r`` of every
+    sample of the slices ``rows`` against the linear interpolation of its two neighbours (a unit
+    independent noise gives residuals of unit variance); ``nan`` when no slice has 3 samples."""
+    rows = [s for s in rows if count[s] >= 3]
+    if not rows:
+        return jnp.full((logl.shape[0],), jnp.nan, logl.dtype)
+    ss, ks, lefts, rights, wls, wrs = [], [], [], [], [], []
+    for s in rows:
+        n = int(count[s])
+        wr = _interp_weights(t[s, :n])
+        ss.append(np.full(n, s)), ks.append(np.arange(n))
+        lefts.append(np.roll(np.arange(n), 1)), rights.append(np.roll(np.arange(n), -1))
+        wls.append(1.0 - wr), wrs.append(wr)
+    ss, ks, lefts, rights = (np.concatenate(a) for a in (ss, ks, lefts, rights))
+    wl, wr = (jnp.asarray(np.concatenate(a), logl.dtype) for a in (wls, wrs))
+    r = (logl[:, ss, ks] - (wl * logl[:, ss, lefts] + wr * logl[:, ss, rights])) / jnp.sqrt(1.0 + wl**2 + wr**2)
+    return _MAD_TO_SIGMA * jnp.median(jnp.abs(r), axis=1)
+
+
+def _axial_sums(logl, count: np.ndarray):
+    """Sum of squared deviations from the slice mean of every axial slice with ≥ 3 samples:
+    ``(B, S)`` (0 elsewhere), and the mask of those slices ``(S,)``."""
+    S, nmax = logl.shape[1:]
+    used = np.array([s % 2 == 0 and count[s] >= 3 for s in range(S)])
+    amask = used[:, None] & (np.arange(nmax)[None, :] < count[:, None])
+    n_p = np.where(used, count, 1)
+    slice_mean = jnp.sum(jnp.where(amask, logl, 0.0), axis=2, keepdims=True) / n_p[None, :, None]
+    return jnp.sum(jnp.where(amask, (logl - slice_mean) ** 2, 0.0), axis=2), used
 
 
 def estimate_noise(meas: Measurements, log_eps: float = None, slices: str = "axial") -> float:
@@ -190,16 +171,13 @@ def estimate_noise(meas: Measurements, log_eps: float = None, slices: str = "axi
     log_eps = LOG_EPS if log_eps is None else log_eps
     if slices not in ("axial", "diagonal", "all"):
         raise InputError(f"slices must be 'axial', 'diagonal' or 'all', got {slices!r}")
-    l, cnt = _log_luminance(meas, log_eps)
-    t = np.asarray(meas.t, np.float64)
+    t, cnt = np.asarray(meas.t, np.float64), np.asarray(meas.count)
+    y = jnp.asarray(meas.y)[None]
+    logl = _log_luminance(y, np.asarray(meas.mask)[None], log_eps)
     if slices == "axial" and not np.any(cnt[0::2] >= 3):
         slices = "diagonal"
     rows = {"axial": range(0, len(cnt), 2), "diagonal": range(1, len(cnt), 2), "all": range(len(cnt))}[slices]
-    res = [_interp_residuals(t[s, : cnt[s]], l[s, : cnt[s]]) for s in rows]
-    res = np.concatenate(res) if res else np.zeros(0)
-    if res.size == 0:
-        return float("nan")
-    return float(_MAD_TO_SIGMA * np.median(np.abs(res)))
+    return float(_noise(logl, t, cnt, rows)[0])
 
 
 def isotropy_test(
@@ -241,23 +219,22 @@ def isotropy_test(
     elif not isinstance(samples, Measurements):
         raise InputError(f"samples must be Samples or Measurements, got {type(samples).__name__}")
     meas = samples
-    l, cnt = _log_luminance(meas, log_eps)
+    t_, cnt = np.asarray(meas.t, np.float64), np.asarray(meas.count)
+    logl = _log_luminance(jnp.asarray(meas.y)[None], np.asarray(meas.mask)[None], log_eps)
     floor = 1e-6  # log units: float32 rounding of constant slices stays below it
     if noise is None:
-        sigma, source = estimate_noise(meas, log_eps), "estimated"
+        sigma, source = float(_noise(logl, t_, cnt, range(0, len(cnt), 2) if np.any(cnt[0::2] >= 3)
+                                     else range(1, len(cnt), 2))[0]), "estimated"
     else:
         sigma, source = float(noise), "given"
     sigma = max(sigma, floor) if math.isfinite(sigma) else floor
-    per_pair, q, dof, ss, nn = [], 0.0, 0, 0.0, 0
-    for p, pair in enumerate(meas.pairs):
-        n = int(cnt[2 * p])
-        if n < 3:
-            continue
-        r = l[2 * p, :n] - l[2 * p, :n].mean()
-        qp = float(np.sum(r**2) / sigma**2)
-        eff = float(np.sqrt(max(float(np.sum(r**2)) - (n - 1) * sigma**2, 0.0) / n))
-        per_pair.append(dict(pair=tuple(pair), n=n, effect=eff, statistic=qp / (n - 1)))
-        q, dof, ss, nn = q + qp, dof + n - 1, ss + float(np.sum(r**2)), nn + n
+    sums, used = _axial_sums(logl, cnt)
+    sums = np.asarray(sums[0], np.float64)
+    per_pair = [dict(pair=tuple(pair), n=int(cnt[2 * p]), statistic=float(sums[2 * p] / sigma**2 / (cnt[2 * p] - 1)),
+                     effect=float(np.sqrt(max(sums[2 * p] - (cnt[2 * p] - 1) * sigma**2, 0.0) / cnt[2 * p])))
+                for p, pair in enumerate(meas.pairs) if used[2 * p]]
+    ss, dof, nn = float(sums[used].sum()), int((cnt[used] - 1).sum()), int(cnt[used].sum())
+    q = ss / sigma**2
     common = dict(noise=sigma, noise_source=source, level=level, min_effect=min_effect)
     if not per_pair:
         return IsotropyReport(
@@ -268,7 +245,7 @@ def isotropy_test(
     # The raw RMS includes the noise: remove its expected share (n_p - 1) σ² per pair.
     effect = math.sqrt(max(ss - dof * sigma**2, 0.0) / nn)
     stat = q / dof
-    pval = chi2_sf(q, dof)
+    pval = float(chi2_sf(q, dof))
     significant = pval < level
     material = effect >= min_effect
     iso = not (significant and material)
@@ -316,46 +293,19 @@ def isotropy_batch(
         ``(isotropic, statistic, effect)``, each of shape ``(B,)``. ``isotropic`` is ``True``
         for every material when no axial slice has three samples (the test cannot run).
     """
-    import jax.numpy as jnp
-    from jax.scipy.special import gammaincc
-
     t = np.asarray(t, np.float64)
     count = np.asarray(count)
     S, nmax = t.shape
-    valid = np.arange(nmax)[None, :] < count[:, None]
-    axial = [s for s in range(0, S, 2) if count[s] >= 3]
     B = y.shape[0]
-    if not axial:
-        ones = jnp.ones((B,), bool)
+    if not any(count[s] >= 3 for s in range(0, S, 2)):
         nan = jnp.full((B,), jnp.nan, y.dtype)
-        return ones, nan, nan
-    lum = jnp.einsum("bsnc,c->bsn", y, jnp.asarray(LUMA_WEIGHTS, y.dtype))
-    mean = jnp.sum(jnp.where(valid, jnp.abs(lum), 0.0), axis=(1, 2)) / valid.sum()
-    eps = log_eps * mean + np.finfo(np.float64).tiny ** 0.5
-    l = jnp.log(jnp.maximum(lum, 0.0) + eps[:, None, None])
-    # Noise: the interpolation residuals of the axial samples (fixed weights, static gathers).
-    rows, ks, lefts, rights, wls, wrs = [], [], [], [], [], []
-    for s in axial:
-        n = int(count[s])
-        wr = _interp_weights(t[s, :n])
-        rows.append(np.full(n, s)), ks.append(np.arange(n))
-        lefts.append(np.roll(np.arange(n), 1)), rights.append(np.roll(np.arange(n), -1))
-        wls.append(1.0 - wr), wrs.append(wr)
-    rows, ks, lefts, rights = (np.concatenate(a) for a in (rows, ks, lefts, rights))
-    wl, wr = (jnp.asarray(np.concatenate(a), y.dtype) for a in (wls, wrs))
-    r = (l[:, rows, ks] - (wl * l[:, rows, lefts] + wr * l[:, rows, rights])) / jnp.sqrt(1.0 + wl**2 + wr**2)
-    sigma = jnp.maximum(_MAD_TO_SIGMA * jnp.median(jnp.abs(r), axis=1), 1e-6)
-    # χ² statistic and effect size over the axial slices.
-    amask = np.zeros((S, nmax), bool)
-    for s in axial:
-        amask[s, : count[s]] = True
-    n_p = np.where(amask.any(axis=1), count, 1)
-    slice_mean = jnp.sum(jnp.where(amask, l, 0.0), axis=2, keepdims=True) / n_p[None, :, None]
-    ss = jnp.sum(jnp.where(amask, (l - slice_mean) ** 2, 0.0), axis=(1, 2))
-    dof = int(sum(int(count[s]) - 1 for s in axial))
-    nn = int(sum(int(count[s]) for s in axial))
+        return jnp.ones((B,), bool), nan, nan
+    logl = _log_luminance(y, np.arange(nmax)[None, :] < count[:, None], log_eps)
+    sigma = jnp.maximum(_noise(logl, t, count, range(0, S, 2)), 1e-6)
+    sums, used = _axial_sums(logl, count)
+    ss = jnp.sum(sums, axis=1)
+    dof, nn = int((count[used] - 1).sum()), int(count[used].sum())
     q = ss / sigma**2
     effect = jnp.sqrt(jnp.maximum(ss - dof * sigma**2, 0.0) / nn)
-    pval = gammaincc(dof / 2.0, q / 2.0)
-    isotropic = ~((pval < level) & (effect >= min_effect))
+    isotropic = ~((chi2_sf(q, dof) < level) & (effect >= min_effect))
     return isotropic, q / dof, effect

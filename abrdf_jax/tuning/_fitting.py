@@ -36,9 +36,10 @@ import numpy as np
 from .._errors import InputError
 from .._params import Params
 from ._problems import AbstractProblem
+from ._solvers import SOLVERS as _SOLVERS
 
-SOLVERS = ("lm", "gn", "bfgs", "lbfgs", "lbfgsb")
-LEAST_SQUARES = ("lm", "gn")
+SOLVERS = tuple(_SOLVERS)
+LEAST_SQUARES = tuple(name for name, (_, ls) in _SOLVERS.items() if ls)
 
 
 @dataclass
@@ -113,39 +114,10 @@ def _objective(problem: AbstractProblem, theta, data, least_squares: bool):
 
 def _solve(problem, solver_name, max_steps, rtol, atol, theta0, data, lo, hi):
     """The whole solve; returns (theta, steps, status code, loss at theta0, loss at theta)."""
-    import optimistix as optx
-
     initial = problem.loss(theta0, data)
-
-    if solver_name in LEAST_SQUARES:
-        cls = optx.LevenbergMarquardt if solver_name == "lm" else optx.GaussNewton
-        solver = cls(rtol=rtol, atol=atol)
-        sol = optx.least_squares(
-            lambda th, d: _objective(problem, th, d, True), solver, theta0, args=data,
-            max_steps=max_steps, throw=False,
-        )
-        theta, steps, result = sol.value, sol.stats["num_steps"], sol.result
-        code = jnp.where(result == optx.RESULTS.successful, 0, jnp.where(steps >= max_steps, 1, 2))
-    elif solver_name == "bfgs":
-        solver = optx.BFGS(rtol=rtol, atol=atol)
-        sol = optx.minimise(
-            lambda th, d: _objective(problem, th, d, False), solver, theta0, args=data,
-            max_steps=max_steps, throw=False,
-        )
-        theta, steps, result = sol.value, sol.stats["num_steps"], sol.result
-        code = jnp.where(result == optx.RESULTS.successful, 0, jnp.where(steps >= max_steps, 1, 2))
-    else:
-        import jaxopt
-
-        fun = lambda th, d: _objective(problem, th, d, False)  # noqa: E731
-        if solver_name == "lbfgs":
-            solver = jaxopt.LBFGS(fun=fun, maxiter=max_steps, tol=atol, jit=True)
-            theta, state = solver.run(theta0, data)
-        else:
-            solver = jaxopt.LBFGSB(fun=fun, maxiter=max_steps, tol=atol, jit=True)
-            theta, state = solver.run(theta0, (lo, hi), data)
-        steps = state.iter_num
-        code = jnp.where(state.error <= atol, 0, jnp.where(steps >= max_steps, 1, 2))
+    run, _ = _SOLVERS[solver_name]
+    theta, steps, code = run(lambda th, d, ls: _objective(problem, th, d, ls), theta0, data, max_steps, rtol, atol,
+                             lo, hi)
     final = problem.loss(theta, data)
     return theta, steps, code, initial, final
 
