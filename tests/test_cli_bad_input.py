@@ -223,7 +223,8 @@ def test_negative_values_warn_and_write_failure_keeps_output(tmp_path, capsys, m
         "warning: m.csv: 1 of 102 samples have negative values (min -0.002, first in data row 6)"
         in err
     )
-    assert seen[0].rgb[5, 1] == -0.002  # kept as measured
+    # kept as measured: the reconstruction gets the slices (grouped once), the value unclipped
+    assert np.asarray(seen[0].y).min() == np.float32(-0.002)
     assert io.read_table(tmp_path / "rec.npz").tobytes() == _T.tobytes()
     good = (tmp_path / "rec.npz").read_bytes()
 

@@ -12,26 +12,20 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
 from pathlib import Path
 
 from .._errors import InputError
+from .._names import BTF_BACKENDS, BTF_MODELS, PRESETS
+from . import _common as common
 
-
-def _positive(name):
-    def parse(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if v < 1:
-            raise argparse.ArgumentTypeError(f"{name} must be at least 1, got {v}")
-        return v
-
-    return parse
+_positive = common.positive
+#: The configuration without ``--preset``/``--params``: linear in the log of the samples, so the
+#: whole reconstruction is one matrix (``abrdf_jax.btf.reconstruct_btf``'s operator backend).
+DEFAULT_PRESET = "operator"
+STORE_DTYPES = ("float16", "float32")
 
 
 def _init_distributed(args) -> None:
@@ -61,25 +55,18 @@ def cmd_generate(args) -> int:
 
 
 def _config_params(args, store):
-    """Configuration and float32 parameters: a parameter file, the paper's method or the BTF default."""
-    import abrdf_jax as aj
+    """Configuration and float32 parameters: a parameter file or ``abrdf_jax.preset`` (default operator)."""
     import jax.numpy as jnp
-    from abrdf_jax.cli import _params_for
-    from abrdf_jax.btf import default_config
 
     geometry = store.geometry
     budget = "iso102" if args.isotropic else geometry.get("budget", "aniso204")
     alpha = float(geometry.get("alpha_deg", 15.0))
-    if args.params is not None or args.preset == "paper":
-        config, params = _params_for(aj, budget, alpha, args.preset, args.params)
-    else:
-        config = default_config(budget)
-        params = aj.Params.default(config, alpha_deg=alpha)
-    params = aj.Params(*(jnp.asarray(x, jnp.float32) for x in (params.alpha, params.widths, params.reg)))
-    return config, params
+    config, params = common.params_for(budget, alpha, args.preset or DEFAULT_PRESET, args.params)
+    return config, params.astype(jnp.float32)
 
 
 def cmd_reconstruct(args) -> int:
+    common.check_preset_or_params(args)
     _init_distributed(args)
     from abrdf_jax import btf
 
@@ -169,18 +156,18 @@ def cmd_evaluate(args) -> int:
 
 def register(sub) -> None:
     """Add the ``btf`` subcommand (and its own subcommands) to the ``abrdf-jax`` parser."""
-    b = sub.add_parser("btf", help="whole BTFs: generate, reconstruct, import/export EXR, evaluate",
+    b = sub.add_parser("btf", parents=[common.verbose_parent()], help="whole BTFs: generate, reconstruct, import/export EXR, evaluate",
                        description="Spatially varying data: one ABRDF per texel, streamed through "
                        "chunked stores (see docs/btf.md).")
     bsub = b.add_subparsers(dest="btf_command", metavar="BTF_COMMAND")
     bsub.required = True
 
-    def common(p):
-        p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-        p.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
-                       help="show a traceback on error")
+    verbose = common.verbose_parent()
 
-    g = bsub.add_parser("generate", help="a procedural BTF with dense ground truth and slice measurements",
+    def shared(p):
+        p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+    g = bsub.add_parser("generate", parents=[verbose], help="a procedural BTF with dense ground truth and slice measurements",
                         description="Generate a procedural BTF (height field, per-texel materials, "
                         "shadowing and masking) into DIR: measurements/ (204 slice samples per texel), "
                         "reference/ (81x81 per texel) and maps.npz.")
@@ -189,27 +176,28 @@ def register(sub) -> None:
     g.add_argument("--seed", type=int, default=0, metavar="S")
     g.add_argument("--chunk", type=_positive("--chunk"), default=1024, metavar="N", help="texels per chunk")
     g.add_argument("--no-reference", action="store_true", help="skip the dense ground truth")
-    g.add_argument("--reference-dtype", choices=("float16", "float32"), default="float16")
+    g.add_argument("--reference-dtype", choices=STORE_DTYPES, default=STORE_DTYPES[0])
     g.add_argument("--exr-dir", metavar="DIR", help="also write the measurements as one EXR per sample pair")
     g.add_argument("--overwrite", action="store_true", help="replace a different BTF in DIR")
-    common(g)
+    shared(g)
     g.set_defaults(func=cmd_generate)
 
-    r = bsub.add_parser("reconstruct", help="measurement store -> chunked ABRDF store",
+    r = bsub.add_parser("reconstruct", parents=[verbose], help="measurement store -> chunked ABRDF store",
                         description="Reconstruct every texel's 81x81 ABRDF. Resumable: rerun the same "
                         "command after an interruption and finished chunks are kept.")
     r.add_argument("input", metavar="MEAS_DIR", help="a measurement store or a generated BTF folder")
     r.add_argument("-o", "--output", required=True, metavar="OUT", help="output store folder")
     r.add_argument("--chunk", type=_positive("--chunk"), default=1024, metavar="N", help="texels per chunk")
     r.add_argument("--exr-dir", metavar="DIR", help="also export one EXR image per direction pair")
-    r.add_argument("--dtype", choices=("float16", "float32"), default="float16", help="output values")
-    r.add_argument("--preset", choices=("recommended", "paper"), default="recommended",
-                   help="recommended: log of the samples, geometric mean of the slices, one matrix "
-                        "product per chunk (default); paper: Filip 2012 as published")
-    r.add_argument("--params", metavar="PARAMS.json", type=Path, help="fitted parameters ('abrdf-jax fit')")
+    r.add_argument("--dtype", choices=STORE_DTYPES, default=STORE_DTYPES[0], help="output values")
+    r.add_argument("--preset", choices=PRESETS, default=None,
+                   help="a " + common.preset_help(DEFAULT_PRESET)
+                   + " (one matrix product per chunk; recommended and paper run the pipeline)")
+    r.add_argument("--params", metavar="PARAMS.json", type=Path,
+                   help="fitted configuration and parameters ('abrdf-jax fit'; instead of --preset)")
     r.add_argument("--isotropic", action="store_true", help="use only the diagonal slices (iso102)")
-    r.add_argument("--backend", choices=("auto", "operator", "pipeline"), default="auto")
-    r.add_argument("--model", choices=("fixed", "auto"), default="fixed",
+    r.add_argument("--backend", choices=BTF_BACKENDS, default=BTF_BACKENDS[0])
+    r.add_argument("--model", choices=BTF_MODELS, default=BTF_MODELS[0],
                    help="auto: per texel, the isotropy test picks the diagonal-only or the anisotropic model "
                         "(two matrix products per chunk); fixed: one model for every texel (default)")
     r.add_argument("--devices", type=_positive("--devices"), metavar="N", help="shard over the first N local devices")
@@ -219,30 +207,30 @@ def register(sub) -> None:
     d.add_argument("--coordinator", metavar="HOST:PORT", help="address of process 0")
     d.add_argument("--num-processes", type=_positive("--num-processes"), metavar="N")
     d.add_argument("--process-id", type=int, metavar="K")
-    common(r)
+    shared(r)
     r.set_defaults(func=cmd_reconstruct)
 
-    i = bsub.add_parser("import", help="folder of per-pair EXR images -> chunked store")
+    i = bsub.add_parser("import", parents=[verbose], help="folder of per-pair EXR images -> chunked store")
     i.add_argument("input", metavar="EXR_DIR")
     i.add_argument("-o", "--output", required=True, metavar="STORE")
     i.add_argument("--chunk", type=_positive("--chunk"), default=1024, metavar="N")
     i.add_argument("--alpha", type=float, metavar="DEG", help="slice offset (default: pairs.json or estimated)")
     i.add_argument("--overwrite", action="store_true")
-    common(i)
+    shared(i)
     i.set_defaults(func=cmd_import)
 
-    e = bsub.add_parser("export", help="chunked store -> one EXR image per direction pair")
+    e = bsub.add_parser("export", parents=[verbose], help="chunked store -> one EXR image per direction pair")
     e.add_argument("input", metavar="STORE")
     e.add_argument("--exr-dir", required=True, metavar="DIR")
     e.add_argument("--float32", action="store_true", help="32-bit channels (default 16-bit half)")
     e.add_argument("--no-compression", action="store_true", help="uncompressed (faster, larger)")
-    common(e)
+    shared(e)
     e.set_defaults(func=cmd_export)
 
-    v = bsub.add_parser("evaluate", help="per-texel accuracy against a dense reference store")
+    v = bsub.add_parser("evaluate", parents=[verbose], help="per-texel accuracy against a dense reference store")
     v.add_argument("rec", metavar="REC")
     v.add_argument("ref", metavar="REF")
     v.add_argument("--png", metavar="MAP.png", help="save the ΔE76 map")
     v.add_argument("--json", action="store_true")
-    common(v)
+    shared(v)
     v.set_defaults(func=cmd_evaluate)

@@ -1,4 +1,4 @@
-"""The demo behind ``abrdf-jax demo``: sample → reconstruct → evaluate a few built-in materials.
+"""``abrdf-jax demo``: sample → reconstruct → evaluate a few built-in materials, and a figure.
 
 Isotropic materials are measured with the isotropic budget (102 samples, the 4 diagonal slices,
 eq. 5) and anisotropic ones with all 8 slices (204 samples), as in the paper's Fig. 4 and 6.
@@ -17,6 +17,7 @@ from typing import TextIO
 import numpy as np
 
 from .._errors import InputError
+from . import _common as common
 
 # How many of each kind the demo shows by default, and which come first when present.
 N_ISOTROPIC = 2
@@ -137,7 +138,7 @@ def run_demo(
     rows, results = [], []
     compiled: set[str] = set()
     for name, model, budget in chosen:
-        config = aj.Config.recommended(budget)
+        config = aj.preset("recommended", budget)
         params = aj.Params.default(config)
         reference = np.asarray(materials.dense_table(model), dtype=np.float32)
         measured = _sample_measurements(model, config, params)
@@ -158,3 +159,22 @@ def run_demo(
     print(f"{'mean':<22} {'':<9}{cells}", file=stream)
     print("* includes JIT compilation (once per budget); metrics as in PROTOCOL.md", file=stream)
     return comparison_figure(rows, output)
+
+
+def register(sub) -> None:
+    """Add the ``demo`` subcommand to the ``abrdf-jax`` parser."""
+    d = sub.add_parser("demo", parents=[common.verbose_parent()],
+                       help="sample, reconstruct and evaluate built-in materials",
+                       description="Sample -> reconstruct -> evaluate a few built-in materials, print a "
+                       "table and save a comparison figure.")
+    d.add_argument("-o", "--output", default="abrdf_demo.png", metavar="FIGURE.png")
+    d.add_argument("--materials", type=int, metavar="N", help="number of materials (default: all demo ones)")
+    d.set_defaults(func=run)
+
+
+def run(args) -> int:
+    if args.materials is not None and args.materials < 1:
+        raise InputError(f"--materials must be at least 1, got {args.materials}")
+    path = run_demo(args.output, n_materials=args.materials, stream=sys.stdout)
+    print(f"figure: {path}")
+    return 0

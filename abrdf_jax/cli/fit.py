@@ -11,28 +11,19 @@ The file is read back by ``abrdf-jax reconstruct --params PARAMS.json``.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
 
 from .._errors import InputError
+from .._names import BUDGETS, FOLD_KINDS, LOSSES, PRESETS, SOLVERS, WIDTH_MODES, check_registry
+from . import _common as common
 
-SOLVER_HELP = "lm (optimistix Levenberg-Marquardt, default), gn, bfgs, lbfgs (jaxopt), lbfgsb (jaxopt, bounded)"
-
-
-def _check_json_output(path: Path) -> Path:
-    if path.suffix.lower() != ".json":
-        raise InputError(f"{path}: parameter files are JSON; use a .json name")
-    if not path.parent.is_dir():
-        raise InputError(f"{path}: output folder {path.parent} does not exist")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, expected a file name")
-    return path
-
-
-def _config(aj, preset: str, budget: str):
-    return aj.Config.recommended(budget) if preset == "recommended" else aj.Config(budget=budget)
+#: What each solver is (``abrdf_jax.tuning.fit(solver=...)``), for ``--help``.
+SOLVER_HELP = {"lm": "optimistix Levenberg-Marquardt", "gn": "optimistix Gauss-Newton", "bfgs": "optimistix BFGS",
+               "lbfgs": "jaxopt L-BFGS", "lbfgsb": "jaxopt L-BFGS-B, bounded"}
+check_registry("SOLVERS", SOLVER_HELP)
+DEFAULT_PRESET = "recommended"
 
 
 def _report(res, out: Path, extra: str = "") -> int:
@@ -48,21 +39,19 @@ def _report(res, out: Path, extra: str = "") -> int:
 
 def cmd_fit_self(args) -> int:
     import abrdf_jax as aj
-    from abrdf_jax import io, tuning
-    from abrdf_jax.cli import _plan
+    from .. import io, tuning
 
-    out = _check_json_output(Path(args.output))
+    out = common.check_json_output(Path(args.output))
     src = Path(args.input)
     if not src.exists():
         raise InputError(f"{src}: file not found")
-    samples = io.read_samples_csv(src)
-    forced = "iso102" if args.isotropic else "aniso204" if args.anisotropic else None
-    budget, alpha = _plan(aj, samples, forced, args.alpha, src)
-    config = _config(aj, args.preset, budget)
-    params = aj.Params.default(config, alpha_deg=alpha)
+    item = common.plan(io.read_samples_csv(src), common.forced_budget(args), args.alpha, src)
+    config = aj.preset(args.preset, item.budget)
+    params = aj.Params.default(config, alpha_deg=item.alpha)
     space = tuning.ParamSpace(widths=args.widths, reg=not args.fixed_reg)
     try:
-        prob, data, params = tuning.SelfCalibration.from_samples(samples, config, params, space=space, folds=args.folds)
+        prob, data, params = tuning.SelfCalibration.from_samples(item.meas, config, params, space=space,
+                                                                 folds=args.folds)
     except InputError as e:
         raise InputError(f"{src}: {e}") from e
     res = tuning.fit(prob, data, params, solver=args.solver, max_steps=args.steps, progress=not args.quiet)
@@ -77,7 +66,7 @@ def _population_data(aj, names: str, config, params, data_dir):
     import jax.numpy as jnp
     import numpy as np
 
-    from abrdf_jax import materials
+    from .. import materials
 
     if names == "merl-train":
         t = materials.load_tables81(data_dir)
@@ -105,10 +94,10 @@ def cmd_fit_population(args) -> int:
     import jax.numpy as jnp
 
     import abrdf_jax as aj
-    from abrdf_jax import tuning
+    from .. import tuning
 
-    out = _check_json_output(Path(args.output))
-    config = _config(aj, args.preset, args.budget)
+    out = common.check_json_output(Path(args.output))
+    config = aj.preset(args.preset, args.budget)
     params = aj.Params.default(config, alpha_deg=args.alpha if args.alpha is not None else 15.0, dtype=jnp.float32)
     source, ref, mats = _population_data(aj, args.materials, config, params, args.data)
     if args.limit:
@@ -132,39 +121,39 @@ def cmd_fit_population(args) -> int:
 
 def register(sub) -> None:
     """Add the ``fit`` subcommand to the ``abrdf-jax`` parser."""
-    from . import BUDGETS
-
-    f = sub.add_parser("fit", help="tune widths, regularisation and alpha; write PARAMS.json",
+    f = sub.add_parser("fit", parents=[common.verbose_parent()],
+                       help="tune widths, regularisation and alpha; write PARAMS.json",
                        description="Tune the continuous parameters by gradient-based fitting and save "
                        "them for 'abrdf-jax reconstruct --params'.")
     fsub = f.add_subparsers(dest="mode", metavar="MODE")
     fsub.required = True
 
-    def common(p):
+    def shared(p):
         p.add_argument("-o", "--output", required=True, metavar="PARAMS.json")
-        p.add_argument("--solver", choices=("lm", "gn", "bfgs", "lbfgs", "lbfgsb"), default="lm", help=SOLVER_HELP)
+        p.add_argument("--solver", choices=SOLVERS, default=SOLVERS[0],
+                       help=", ".join(f"{k} ({v})" for k, v in SOLVER_HELP.items()) + f"; default {SOLVERS[0]}")
         p.add_argument("--steps", type=int, default=20, help="solver iterations (default 20)")
-        p.add_argument("--preset", choices=("recommended", "paper"), default="recommended")
-        p.add_argument("--widths", choices=("per_dim", "shared", "fixed"), default="per_dim",
-                       help="free widths: one per onion coordinate (default), one shared, or none")
+        p.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET,
+                       help="the configuration to tune: a " + common.preset_help(DEFAULT_PRESET))
+        p.add_argument("--widths", choices=WIDTH_MODES, default=WIDTH_MODES[0],
+                       help="free widths: one per onion coordinate (per_dim, default), one shared, or none (fixed)")
         p.add_argument("--fixed-reg", action="store_true", help="keep the regularisation at its default")
         p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
-        p.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
-                       help="show a traceback on error")
 
-    s = fsub.add_parser("self", help="self-calibration from one measurement CSV")
+    verbose = common.verbose_parent()
+    s = fsub.add_parser("self", parents=[verbose], help="self-calibration from one measurement CSV")
     s.add_argument("input", metavar="MEAS.csv")
-    common(s)
+    shared(s)
     g = s.add_mutually_exclusive_group()
     g.add_argument("--isotropic", action="store_true")
     g.add_argument("--anisotropic", action="store_true")
     s.add_argument("--alpha", type=float, metavar="DEG", help="slice offset (default: read off the data)")
-    s.add_argument("--folds", choices=("pairs", "samples"), default="pairs",
+    s.add_argument("--folds", choices=FOLD_KINDS, default=FOLD_KINDS[0],
                    help="leave one elevation pair out (default) or every 4th sample of each slice")
     s.set_defaults(func=cmd_fit_self)
 
-    p = fsub.add_parser("population", help="population tuning on training materials")
-    common(p)
+    p = fsub.add_parser("population", parents=[verbose], help="population tuning on training materials")
+    shared(p)
     p.add_argument("--materials", default="merl-train",
                    help="'merl-train' (MERL train split, needs the data folder) or NAME,NAME,... "
                         "(built-in materials; see 'abrdf-jax materials')")
@@ -172,7 +161,7 @@ def register(sub) -> None:
     p.add_argument("--budget", choices=BUDGETS, default="iso102")
     p.add_argument("--alpha", type=float, metavar="DEG", help="starting slice offset (default 15)")
     p.add_argument("--fixed-alpha", action="store_true", help="do not tune alpha")
-    p.add_argument("--loss", choices=("lab", "log", "lab+log"), default="lab",
+    p.add_argument("--loss", choices=LOSSES, default=LOSSES[0],
                    help="residuals: CIELAB differences (sum of squares = sum of dE76^2, default), log, or both")
     p.add_argument("--data", metavar="DIR", help="data folder (default: $ABRDF_DATA or ../shared/data)")
     p.set_defaults(func=cmd_fit_population)

@@ -1,17 +1,35 @@
-"""File input and output (public API): atomic writes, measurement CSV, ABRDF tables, MERL files."""
+"""File input and output (public API): atomic writes, measurement CSV, ABRDF tables, MERL files.
 
-from ._tables import CSV_COLUMNS as CSV_COLUMNS
-from ._tables import NPZ_KEY as NPZ_KEY
-from ._tables import TABLE_SHAPE as TABLE_SHAPE
-from ._tables import atomic_write as atomic_write
-from ._tables import read_samples_csv as read_samples_csv
-from ._tables import read_table as read_table
-from ._tables import write_samples_csv as write_samples_csv
-from ._tables import write_table as write_table
-from ._merl import MERL_SCALE as MERL_SCALE
-from ._merl import MERL_SHAPE as MERL_SHAPE
-from ._merl import MERLMaterial as MERLMaterial
-from ._merl import merl_bin_indices as merl_bin_indices
-from ._merl import merl_lookup as merl_lookup
-from ._merl import read_merl_binary as read_merl_binary
-from ._merl import write_merl_binary as write_merl_binary
+The names are loaded on first use (PEP 562, as in :mod:`abrdf_jax`), so ``from abrdf_jax import io``
+imports no JAX: reading a table or checking a measurement CSV needs numpy only (the CSV reader
+imports the :class:`~abrdf_jax.Samples` class once a file has passed every check), while the MERL
+helpers import JAX when first touched.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+# public name -> private module that defines it (the one place this package's API is listed)
+_EXPORTS = {
+    "_atomic": ("atomic_write",),
+    "_csv": ("CSV_COLUMNS", "read_samples_csv", "write_samples_csv"),
+    "_tables": ("NPZ_KEY", "TABLE_SHAPE", "read_table", "write_table"),
+    "_merl": ("MERL_SCALE", "MERL_SHAPE", "MERLMaterial", "merl_bin_indices", "merl_lookup", "read_merl_binary",
+              "write_merl_binary"),
+}
+_WHERE = {name: mod for mod, names in _EXPORTS.items() for name in names}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    if name not in _WHERE:
+        raise AttributeError(f"module 'abrdf_jax.io' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

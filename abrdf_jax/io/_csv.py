@@ -21,13 +21,15 @@ import os
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
-from typing import BinaryIO
+from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
 
 from ._atomic import _check_readable, atomic_write
 from .._errors import InputError, located
-from .._measurements import Samples
+
+if TYPE_CHECKING:  # the class imports JAX: the reader needs it only for a file that passed every check
+    from .._measurements import Samples
 
 #: Column names of a measurement CSV file, in the order the writer uses.
 CSV_COLUMNS = ("theta_i", "phi_i", "theta_v", "phi_v", "r", "g", "b")
@@ -286,6 +288,8 @@ def read_samples_csv(path: str | os.PathLike) -> Samples:
         angles, rgb = angles[:, :n].copy(), rgb[:n].copy()
     ti, pi, tv, pv = angles[0, :n], angles[1, :n], angles[2, :n], angles[3, :n]
     _check_units(path, ti, pi, tv, pv)
+    from .._measurements import Samples  # imports JAX: only now that the file is known good
+
     return Samples(ti, pi, tv, pv, rgb[:n])
 
 

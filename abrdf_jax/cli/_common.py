@@ -1,0 +1,330 @@
+"""What the subcommands of ``abrdf-jax`` share: output checks, inputs, presets, warnings, records.
+
+Arrows point into this module only: every subcommand module imports it, none imports another
+subcommand, and this module imports no subcommand. It imports no JAX at module level (the
+numerics are imported inside the functions that compute), so building the parser, ``--help`` and
+every check of an argument or a file that needs no numerics stay free of JAX.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from pathlib import Path
+from typing import NamedTuple
+
+from .._errors import InputError
+from .._names import check_registry
+
+PROG = "abrdf-jax"
+#: Format tag of the model record written beside a reconstruction (``OUT.model.json``).
+MODEL_FORMAT = "abrdf_jax.model/1"
+
+#: What each preset is, for ``--help`` and the model record (``abrdf_jax.preset(NAME, budget)``).
+PRESET_HELP = {
+    "recommended": "thin-plate spline on log values, chosen on the MERL train split",
+    "paper": "Filip 2012 as published: Gaussian kernel on linear values",
+    "operator": "the recommended kernel, linear in the log of the samples: one matrix product",
+}
+check_registry("PRESETS", PRESET_HELP)
+
+
+def preset_help(default: str | None) -> str:
+    """The ``--preset`` help text, the same in every command."""
+    kinds = "; ".join(f"{name}: {text}" for name, text in PRESET_HELP.items())
+    return (f"named configuration abrdf_jax.preset(NAME, budget), the same in reconstruct, fit and btf "
+            f"reconstruct ({kinds})" + (f"; default {default}" if default else ""))
+
+
+def version() -> str:
+    try:
+        from importlib.metadata import version as installed
+
+        return installed("abrdf_jax")
+    except Exception:  # noqa: BLE001 - not installed: the source tree's version
+        from .. import __version__
+
+        return __version__
+
+
+def verbose_parent() -> argparse.ArgumentParser:
+    """A parent parser with ``-v``; its default is suppressed so a later level cannot reset it."""
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                   help="show a traceback on error")
+    return p
+
+
+def positive(name: str):
+    """An argparse ``type=`` for an integer ``>= 1``, named ``name`` in its message."""
+    def parse(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
+        if v < 1:
+            raise argparse.ArgumentTypeError(f"{name} must be at least 1, got {v}")
+        return v
+
+    return parse
+
+
+def warn(message: str) -> None:
+    print(f"{PROG}: warning: {message}", file=sys.stderr)
+
+
+# --------------------------------------------------------------------------------------------
+# Outputs and inputs
+# --------------------------------------------------------------------------------------------
+
+
+def check_output_file(path: Path, suffixes: tuple[str, ...], what: str) -> Path:
+    """Fail before any work when ``path`` cannot be an output of the given kind."""
+    if path.suffix.lower() not in suffixes:
+        raise InputError(f"{path}: unknown {what} extension {path.suffix or '(none)'!r}; use {' or '.join(suffixes)}")
+    parent = path.parent
+    if not parent.is_dir():
+        raise InputError(f"{path}: output folder {parent} does not exist")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a file name")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{path}: output folder {parent} is not writable")
+    return path
+
+
+def check_json_output(path: Path) -> Path:
+    """A parameter file name (``.json``) in an existing folder."""
+    if path.suffix.lower() != ".json":
+        raise InputError(f"{path}: parameter files are JSON; use a .json name")
+    if not path.parent.is_dir():
+        raise InputError(f"{path}: output folder {path.parent} does not exist")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a file name")
+    return path
+
+
+def expand_inputs(inputs: list[str]) -> tuple[list[Path], bool]:
+    """Measurement files named on the command line; a folder contributes its ``*.csv`` files.
+
+    Returns the files and whether the output is a folder (several inputs or a folder input).
+    """
+    from .._names import MEASUREMENT_SUFFIXES
+
+    files: list[Path] = []
+    folder_mode = len(inputs) > 1
+    for name in inputs:
+        p = Path(name)
+        if p.is_dir():
+            folder_mode = True
+            found = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in MEASUREMENT_SUFFIXES)
+            if not found:
+                raise InputError(f"{p}: folder holds no {'/'.join(MEASUREMENT_SUFFIXES)} measurement files")
+            files.extend(found)
+        else:
+            if not p.exists():
+                raise InputError(f"{p}: file not found")
+            files.append(p)
+    return files, folder_mode
+
+
+def forced_budget(args) -> str | None:
+    """The budget of ``--isotropic``/``--anisotropic`` (``None`` when neither is given)."""
+    return "iso102" if args.isotropic else "aniso204" if args.anisotropic else None
+
+
+class Measured(NamedTuple):
+    """One input file on its way to the output: read once, grouped into slices once."""
+
+    path: Path
+    samples: object  # abrdf_jax.Samples, as read (negative values kept)
+    meas: object  # abrdf_jax.Measurements: the slices, passed on to every later step
+    budget: str
+    alpha: float  # slice offset, degrees
+
+
+def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measured:
+    """Group one measurement into slices (once) and decide its budget and slice offset α."""
+    import abrdf_jax as aj
+
+    a = float(alpha) if alpha is not None else round(float(aj.estimate_alpha(samples)), 3)
+    try:
+        meas, _ = aj.group_slices(samples, a)
+    except InputError as e:
+        raise InputError(f"{where}: {e} (slice offset alpha {a:g} deg)") from e
+    if forced == "aniso204" and not meas.has_axial:
+        raise InputError(f"{where}: --anisotropic needs axial slices, but the file has none")
+    return Measured(where, samples, meas, forced or ("aniso204" if meas.has_axial else "iso102"), a)
+
+
+def read_inputs(files: list[Path], forced: str | None, alpha: float | None) -> list[Measured]:
+    """Read and plan every input; one bad file fails the run before any work, naming them all."""
+    from .. import io
+
+    items, bad = [], []
+    for f in files:
+        try:
+            items.append(plan(io.read_samples_csv(f), forced, alpha, f))
+        except InputError as e:
+            bad.append((f, str(e)))
+    if bad:
+        others = ", ".join(str(f) for f, _ in bad[1:4]) + (", ..." if len(bad) > 4 else "")
+        more = f" (also bad: {others}; nothing was written)" if len(bad) > 1 else ""
+        raise InputError(bad[0][1] + more)
+    for item in items:
+        warn_negative(item.path, item.samples)
+    return items
+
+
+def measurements_for(item: Measured, config):
+    """``item``'s slices for ``config``: the grouping made once, unless the configuration names
+    elevation pairs other than those it was grouped on (a hand-made parameter file)."""
+    import abrdf_jax as aj
+
+    pairs = tuple(tuple(float(x) for x in p) for p in config.pairs)
+    if pairs in (tuple(item.meas.pairs), tuple(aj.PROTOCOL_PAIRS)):
+        return item.meas
+    return aj.group_slices(item.samples, item.alpha, pairs=config.pairs)[0]
+
+
+def params_for(budget: str, alpha_deg: float, preset: str = "recommended", params_file=None):
+    """Config and params: from a fitted parameter file (``--params``) or ``abrdf_jax.preset``.
+
+    A parameter file supplies the configuration, widths and λ; α stays the measurement's own
+    (it says where the samples lie), and the file's budget must match the data's.
+    """
+    import abrdf_jax as aj
+
+    if params_file is not None:
+        from ..tuning import load_params
+
+        config, params, _ = load_params(params_file)
+        if config.budget != budget:
+            raise InputError(
+                f"{params_file}: parameters were fitted for {config.budget}, but the measurement is {budget}; "
+                f"fit for {budget} or pass --{'isotropic' if config.budget == 'iso102' else 'anisotropic'}"
+            )
+        import jax.numpy as jnp
+
+        alpha = jnp.asarray(aj.Params.default(config, alpha_deg=alpha_deg).alpha, params.alpha.dtype)
+        return config, aj.Params(alpha, params.widths, params.reg)
+    config = aj.preset(preset, budget)
+    return config, aj.Params.default(config, alpha_deg=alpha_deg)
+
+
+def check_preset_or_params(args) -> None:
+    """``--preset`` and ``--params`` both fix the configuration: give one."""
+    if getattr(args, "preset", None) is not None and getattr(args, "params", None) is not None:
+        raise InputError(f"--preset {args.preset} and --params {args.params} both fix the configuration; give one")
+
+
+# --------------------------------------------------------------------------------------------
+# Warnings
+# --------------------------------------------------------------------------------------------
+
+
+def warn_negative(path: Path, samples) -> None:
+    """Negative values are kept (dark-frame noise); say so, since the output is clamped at 0."""
+    import numpy as np
+
+    rgb = np.asarray(samples.rgb)
+    neg = rgb < 0
+    if neg.any():
+        row = int(np.argmax(neg.any(axis=1)))
+        warn(f"{path}: {int(neg.any(axis=1).sum())} of {len(rgb)} samples have negative values (min "
+             f"{rgb.min():.3g}, first in data row {row + 1}); kept as measured, the reconstruction is clamped at 0")
+
+
+def warn_guard(path: Path, meas, config, params, params_file) -> None:
+    """Say when the RBF system was ill-conditioned and its regularisation raised (docs/stability.md).
+
+    Only parameters from a file can trigger it: the presets' systems are fixed (protocol pairs,
+    tuned widths and λ) and well conditioned in float32 (tests/test_stability.py), so the extra
+    compile is skipped for them.
+    """
+    if params_file is None:
+        return
+    import abrdf_jax as aj
+
+    info = aj.solve_info(meas, config, params)
+    if int(info.retries) or not bool(info.ok):
+        state = "raised" if bool(info.ok) else "raised, still ill-conditioned"
+        warn(f"{path}: the RBF system is singular to working precision at the requested regularisation; "
+             f"regularisation {state} to {float(info.reg):.3g} (condition ~{float(info.cond):.2g})")
+
+
+# --------------------------------------------------------------------------------------------
+# The model record (``OUT.model.json``)
+# --------------------------------------------------------------------------------------------
+
+
+def model_choice(where: Path, name, config, params, how: str, reason: str, extra: dict | None = None) -> dict:
+    """One input's model: ``{"name", "config", "params", "record"}`` (``record``: its JSON entry)."""
+    from ..io._paramfile import params_to_dict
+
+    p = params_to_dict(config, params)
+    rec = {"input": str(where), "model": name, "how": how, "config": p["config"], "params": p["params"],
+           "reason": reason}
+    rec.update(extra or {})
+    return {"name": name, "config": config, "params": params, "record": rec}
+
+
+def model_json_path(out: Path, folder_mode: bool) -> Path:
+    """Where the model record goes: ``OUT.model.json`` beside the output file or folder."""
+    out = Path(out)
+    if folder_mode:
+        return out.parent / (out.name.rstrip("/") + ".model.json")
+    return out.with_name(out.stem + ".model.json")
+
+
+def save_model_record(path: Path, choices: list[dict], folder_mode: bool) -> Path:
+    """Write the model record(s) atomically."""
+    from ..io import atomic_write
+
+    doc = {"format": MODEL_FORMAT}
+    if folder_mode:
+        doc["inputs"] = [c["record"] for c in choices]
+    else:
+        doc.update(choices[0]["record"])
+    text = json.dumps(_clean(doc), indent=2, allow_nan=False)
+    with atomic_write(path, "w") as fh:
+        fh.write(text + "\n")
+    return path
+
+
+def _clean(x):
+    """JSON-safe copy: non-finite floats as ``None``, numpy scalars as Python numbers."""
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, (bool, int, str)) or x is None:
+        return x
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return str(x)
+    return v if math.isfinite(v) else None
+
+
+def describe(choice: dict) -> list[str]:
+    """Lines printed for one measurement's model."""
+    rec = choice["record"]
+    name = rec["model"] or "from parameter file"
+    lines = [f"  model: {name} ({rec['how']}): {rec['reason']}"]
+    for c in rec.get("candidates") or []:
+        err = "n/a" if c["held_out_log_rms"] is None else f"{c['held_out_log_rms']:.4f}"
+        mark = "*" if c["name"] == rec["model"] else " "
+        lines.append(f"   {mark} {c['name']:<15} rank {c['rank']}  held-out log RMS {err}")
+    return lines
+
+
+def summary(choices: list[dict]) -> str:
+    """``"iso x2, aniso-crossing x1"``: how often each model was used."""
+    counts: dict = {}
+    for c in choices:
+        name = c["record"]["model"] or "parameter file"
+        counts[name] = counts.get(name, 0) + 1
+    return ", ".join(f"{n} x{k}" for n, k in counts.items())
