@@ -59,16 +59,16 @@ def mean_metrics(per: dict) -> dict:
 
 
 def mean_fill(meas: aj.Measurements) -> jnp.ndarray:
-    """The trivial reconstruction: every value is the mean of the samples (per channel)."""
-    valid = (jnp.arange(meas.y.shape[-2])[None, None, :] < meas.count[..., None])[..., None]
-    mean = jnp.sum(jnp.where(valid, meas.y, 0), axis=(1, 2)) / jnp.sum(meas.count, axis=1)[:, None]
+    """The trivial reconstruction of stacked measurements: every value is the mean of the samples (per channel)."""
+    mean = jnp.sum(jnp.where(meas.mask[..., None], meas.y, 0), axis=(1, 2)) / jnp.sum(meas.count, axis=1)[:, None]
     return jnp.broadcast_to(mean[:, None, None, :], (mean.shape[0], 81, 81, 3))
 
 
-def write_json(name: str, payload: dict) -> Path:
-    RESULTS.mkdir(exist_ok=True)
-    path = RESULTS / name
+def write_json(name: str | Path, payload: dict, indent: int = 2) -> Path:
+    """Write ``payload`` atomically to ``RESULTS / name``, or to ``name`` when it is a :class:`Path`."""
+    path = name if isinstance(name, Path) else RESULTS / name
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(payload, indent=2, default=float))
+    tmp.write_text(json.dumps(payload, indent=indent, default=float))
     os.replace(tmp, path)
     return path

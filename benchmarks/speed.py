@@ -13,15 +13,13 @@ import statistics
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import abrdf_jax as aj
-from abrdf_jax._pipeline import _reconstruct_batch_jit, _reconstruct_jit
 from abrdf_jax.materials import default_materials
 
 from ._common import machine, write_json
-from .scipy_baseline import reconstruct_scipy
+from .scipy_peer import reconstruct_samples
 
 
 def timeit(fn, repeats):
@@ -40,7 +38,7 @@ def measurements(n, cfg):
     out = []
     for k in range(n):
         m = base[k % len(base)]
-        out.append(aj.Measurements(m.t, m.y * float(rng.uniform(0.5, 2.0)), m.count, m.pairs, m.has_axial))
+        out.append(m.replace(y=m.y * float(rng.uniform(0.5, 2.0))))
     return out
 
 
@@ -56,23 +54,24 @@ def main(argv=None):
     for label, cfg in (("paper", aj.Config()), ("recommended", aj.Config.recommended())):
         p = aj.Params.default(cfg)
         t = time.perf_counter()
-        jax.block_until_ready(_reconstruct_jit(items[0], cfg, p))
+        jax.block_until_ready(aj.reconstruct(items[0], cfg, p))
         compile_single = time.perf_counter() - t
-        single = timeit(lambda: _reconstruct_jit(items[1], cfg, p), reps * 2)
+        single = timeit(lambda: aj.reconstruct(items[1], cfg, p), reps * 2)
         t = time.perf_counter()
-        jax.block_until_ready(_reconstruct_batch_jit(stacked, cfg, p))
+        jax.block_until_ready(aj.reconstruct_batch(stacked, cfg, p))
         compile_batch = time.perf_counter() - t
-        batch = timeit(lambda: _reconstruct_batch_jit(stacked, cfg, p), reps)
+        batch = timeit(lambda: aj.reconstruct_batch(stacked, cfg, p), reps)
         out["configs"][label] = dict(config=repr(cfg), compile_s_single=compile_single, seconds_per_abrdf=single,
                                      compile_s_batch=compile_batch, batch_seconds=batch,
                                      abrdfs_per_second_batch=args.batch / batch)
         print(f"jax {label}: {single * 1e3:.1f} ms per ABRDF, batch of {args.batch}: "
               f"{args.batch / batch:.1f} ABRDF/s (compile {compile_single:.1f} s / {compile_batch:.1f} s)", flush=True)
-    # the scipy peer, same materials, iso102, its train-selected kernel (see merl_accuracy)
+    # the scipy peer, same materials, iso102, the paper's method with its train-selected widths and λ
     n_sc = 10 if args.quick else args.batch
     flat = [m.to_samples() for m in items[:n_sc]]
-    call = lambda s: reconstruct_scipy(s.theta_i, s.phi_i, s.theta_v, s.phi_v, s.rgb, kernel="gaussian",  # noqa: E731
-                                       widths=(0.45,) * 4, smoothing=1e-2)
+    paper = aj.Config()
+    p_paper = aj.Params.default(paper)
+    call = lambda s: reconstruct_samples(s, paper, p_paper)  # noqa: E731
     call(flat[0])
     single_sc = timeit(lambda: call(flat[1]), reps)
     t = time.perf_counter()

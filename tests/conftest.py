@@ -11,7 +11,7 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))  # the benchmarks package (the scipy peer) serves as a test oracle
+sys.path.insert(0, str(REPO))  # for tests.scipy_oracle and the benchmarks that the smoke tests run
 DATA_DIR = Path(os.environ.get("ABRDF_DATA", REPO.parent / "shared" / "data"))
 SEED = int(os.environ.get("ABRDF_TEST_SEED", "0"))
 

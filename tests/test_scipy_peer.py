@@ -1,11 +1,11 @@
-"""The JAX pipeline against the independent numpy/scipy implementation in benchmarks/ (float64)."""
+"""The JAX pipeline against the independent numpy/scipy implementation ``tests/scipy_oracle.py`` (float64)."""
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import abrdf_jax as aj
-from benchmarks.scipy_baseline import reconstruct_scipy
+from tests.scipy_oracle import reconstruct_scipy
 
 
 def model(wi, wv):

@@ -1,11 +1,17 @@
-"""A plain numpy/scipy implementation of Filip (ICPR 2012): the peer for accuracy and speed.
+"""A plain numpy/scipy implementation of Filip (ICPR 2012): the test oracle of the JAX pipeline.
 
-Written independently of the package's JAX code (only the measurement layout is shared), the way a
-careful researcher would write it with scipy: the slices are grouped from the sample list, each
-toroidal subspace is rebuilt on the UBO grid pairs of its two rings (eq. 5 for the isotropic budget,
-eq. 2–4 with the min–max stretch for the anisotropic one, slices interpolated periodically and
-linearly, averaged over the two torus preimages), and ``scipy.interpolate.RBFInterpolator`` fills
-the other elevations in onion coordinates ``[αi, βi, αv, βv]`` scaled by the kernel widths.
+Written independently of the package's JAX code, the way a careful researcher would write it with
+scipy: the slices are grouped from the sample list, each toroidal subspace is rebuilt on the UBO
+grid pairs of its two rings (eq. 5 for the isotropic budget, eq. 2–4 with the min–max stretch for
+the anisotropic one, slices interpolated periodically and linearly, averaged over the two torus
+preimages), and ``scipy.interpolate.RBFInterpolator`` fills the other elevations in onion
+coordinates ``[αi, βi, αv, βv]`` scaled by the kernel widths. It imports nothing from
+``abrdf_jax``: the measurement layout (PROTOCOL.md's elevation pairs, the UBO rings) is written out
+here on purpose, so that a change to the package's constants shows up as a disagreement.
+
+Used by ``tests/test_scipy_peer.py`` (agreement to 1e-7 in float64) and
+``tests/test_merl_accuracy.py``; the benchmarks' scipy peer (``benchmarks/scipy_baseline.py``)
+imports this file, so there is one copy.
 """
 
 from __future__ import annotations
