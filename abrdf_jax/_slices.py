@@ -16,11 +16,10 @@ along them is :mod:`abrdf_jax._sampling`.
 
 from __future__ import annotations
 
-import equinox as eqx
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Float
 
 from ._grid import to_vector
 

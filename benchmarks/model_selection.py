@@ -203,12 +203,20 @@ def main(argv=None):
     # -- cost: select_model beside reconstruct, per material ----------------------------------------
     timing = {}
     samples = [m.to_samples() for m in merl_meas[:3]] + [a.to_samples() for a in a_meas[-3:]]
-    t0 = time.perf_counter(); sel = select.select_model(samples[-1]); timing["select_first_s"] = time.perf_counter() - t0
-    t0 = time.perf_counter(); aj.reconstruct(samples[-1], sel.config, sel.params).block_until_ready(); timing["reconstruct_first_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sel = select.select_model(samples[-1])
+    timing["select_first_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    aj.reconstruct(samples[-1], sel.config, sel.params).block_until_ready()
+    timing["reconstruct_first_s"] = time.perf_counter() - t0
     sel_t, rec_t = [], []
     for s in samples:
-        t0 = time.perf_counter(); sel = select.select_model(s); sel_t.append(time.perf_counter() - t0)
-        t0 = time.perf_counter(); aj.reconstruct(s, sel.config, sel.params).block_until_ready(); rec_t.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        sel = select.select_model(s)
+        sel_t.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        aj.reconstruct(s, sel.config, sel.params).block_until_ready()
+        rec_t.append(time.perf_counter() - t0)
     timing.update(select_median_s=float(np.median(sel_t)), reconstruct_median_s=float(np.median(rec_t)),
                   select_iso_median_s=float(np.median(sel_t[:3])), select_aniso_median_s=float(np.median(sel_t[3:])))
     log(f"cost: select {timing['select_median_s']:.3f} s/material (isotropic {timing['select_iso_median_s']:.3f}, anisotropic "

@@ -199,7 +199,6 @@ def fit_pca_prior(
     if basis_at not in BASIS_AT:
         raise ValueError(f"basis_at must be one of {BASIS_AT}, got {basis_at!r}")
     x_g = np.asarray(train_tables, np.float64).reshape(len(train_tables), -1, 3)
-    n = x_g.shape[0]
     cos_g = grid_cos_view()[:, None]
     ref_g = np.median(x_g, axis=0)  # (6561, 3)
     if channels == "shared":  # one reference per pair, shared by the channels

@@ -130,7 +130,7 @@ def main(argv=None) -> int:
                rows=rows, seconds=time.time() - t_start)
     suffix = "_quick" if args.quick else ""
     write_json(f"peer_stability{suffix}.json", out)
-    lines = [f"# Analytic peer (GGX + Lambert, LM) on anisotropic GGX materials, aniso204 slices, each start fitted alone",
+    lines = ["# Analytic peer (GGX + Lambert, LM) on anisotropic GGX materials, aniso204 slices, each start fitted alone",
              "", f"`python -m benchmarks.peer_stability{' --quick' if args.quick else ''}`, {out['machine']['date']}, "
              f"{len(_ANISO_STARTS)} starts per material (`analytic_peer._ANISO_STARTS`).", "",
              "| material, samples, noise | best start: ΔE76 | fitted ratio | axis error | starts within 10 % of the best loss | their ΔE76 spread | their long-axis spread | all starts: ΔE76 min–max |",

@@ -566,7 +566,7 @@ def markdown(payload) -> str:
     curves = payload["data_edges"]["curves"]
     for key, label in (("noise", "noise σ"), ("few_samples", "samples per slice")):
         xs = curves[key]["x"]
-        out += ["", f"ΔE76 vs {label}:", "", f"| method | " + " | ".join(g(x) for x in xs) + " |",
+        out += ["", f"ΔE76 vs {label}:", "", "| method | " + " | ".join(g(x) for x in xs) + " |",
                 "|---|" + "---|" * len(xs)]
         out += [f"| {n} | " + " | ".join(g(v, ".2f") for v in curves[key][n]) + " |" for n in METHODS]
     an = payload["anisotropy"]

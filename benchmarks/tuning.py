@@ -157,8 +157,10 @@ def markdown(out) -> str:
             f"{', '.join(f'{w:.2f}' for w in r['widths'])} | {r['reg']:.2g} |")
     sc = out.get("selfcal") or []
     if sc:
-        d0 = np.mean([r["before"]["de76"] for r in sc]); d1 = np.mean([r["after"]["de76"] for r in sc])
-        l0 = np.mean([r["before"]["logerr"] for r in sc]); l1 = np.mean([r["after"]["logerr"] for r in sc])
+        d0 = np.mean([r["before"]["de76"] for r in sc])
+        d1 = np.mean([r["after"]["de76"] for r in sc])
+        l0 = np.mean([r["before"]["logerr"] for r in sc])
+        l1 = np.mean([r["after"]["logerr"] for r in sc])
         better = sum(r["after"]["de76"] < r["before"]["de76"] for r in sc)
         lines += ["", f"Self-calibration (iso102, recommended, leave-one-pair-out, LM): mean ΔE76 {d0:.2f} → {d1:.2f}, "
                   f"LogErr {l0:.3f} → {l1:.3f} over {len(sc)} test materials ({better} improved)."]

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -13,7 +12,6 @@ from jax.test_util import check_grads
 
 import abrdf_jax as aj
 from abrdf_jax import materials, tuning
-from abrdf_jax.tuning._fitting import _loss_jit
 from abrdf_jax.tuning._problems import TRACE_COUNT, AbstractProblem
 
 CFG_ISO = aj.Config.recommended("iso102")

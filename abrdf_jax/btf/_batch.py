@@ -18,7 +18,6 @@ import hashlib
 import json
 import sys
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp

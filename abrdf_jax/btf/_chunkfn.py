@@ -23,7 +23,6 @@ batch path groups the samples exactly as ``abrdf-jax reconstruct`` groups a CSV 
 from __future__ import annotations
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float

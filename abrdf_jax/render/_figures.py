@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import functools
 import io as _io
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np

@@ -28,7 +28,7 @@ import numpy as np
 from .._errors import InputError
 from .._params import Config, Params
 from .._pipeline import _reconstruct_jit, prepare
-from .._folds import held_out_directions, log_rms
+from .._folds import log_rms
 from .._measurements import Measurements, Samples
 from .._values import measurement_eps
 from .._sampling import sample_model, sample_table
