@@ -17,6 +17,12 @@ from ._params import Config, Params
 from ._slices import KINDS, PROTOCOL_PAIRS, protocol_parameters, slice_angles, slice_directions
 
 
+def _measured(t, y, count, pairs, counts) -> Measurements:
+    """The sampled slices as a measurement, padding set to zero."""
+    meas = Measurements(t, y, count, tuple(pairs), any(c > 0 for c in counts[0::2]))
+    return meas.replace(y=jnp.where(meas.mask[..., None], y, 0.0))
+
+
 def sample_model(model, counts, alpha, pairs=PROTOCOL_PAIRS, dtype=jnp.float32) -> Measurements:
     """Sample the PROTOCOL slices from a continuous model ``model(wi, wv) -> (..., 3)``.
 
@@ -28,10 +34,7 @@ def sample_model(model, counts, alpha, pairs=PROTOCOL_PAIRS, dtype=jnp.float32) 
     """
     t, count = protocol_parameters(counts, dtype=dtype)
     wi, wv = slice_directions(t, pairs, jnp.asarray(alpha, dtype))
-    y = model(wi, wv)
-    valid = (jnp.arange(t.shape[1])[None, :] < count[:, None])[..., None]
-    y = jnp.where(valid, y, 0.0).astype(dtype)
-    return Measurements(t, y, count, tuple(pairs), any(c > 0 for c in counts[0::2]))
+    return _measured(t, model(wi, wv).astype(dtype), count, pairs, counts)
 
 
 def sample_table(table, counts, alpha, pairs=PROTOCOL_PAIRS, dtype=jnp.float32) -> Measurements:
@@ -58,10 +61,7 @@ def sample_table(table, counts, alpha, pairs=PROTOCOL_PAIRS, dtype=jnp.float32) 
         v10, v11 = sub[ii1, vv0], sub[ii1, vv1]
         a, b = wi_[:, None], wv_[:, None]
         ys.append((1 - a) * ((1 - b) * v00 + b * v01) + a * ((1 - b) * v10 + b * v11))
-    y = jnp.stack(ys)
-    valid = (jnp.arange(t.shape[1])[None, :] < count[:, None])[..., None]
-    y = jnp.where(valid, y, 0.0)
-    return Measurements(t, y, count, tuple(pairs), any(c > 0 for c in counts[0::2]))
+    return _measured(t, jnp.stack(ys), count, pairs, counts)
 
 
 def _ring_weights(phi, n):
