@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from abrdf_jax import _names
@@ -41,6 +42,8 @@ NO_JAX_CASES = [
     (["sample", "missing.npz", "-o", "meas.csv"], 2),
     (["evaluate", "missing.npz", "other.npz"], 2),
     (["evaluate", "table.tif", "other.npz"], 2),
+    (["evaluate", "shape.npz", "shape.npz"], 2),  # a table of the wrong shape
+    (["sample", "shape.npz", "-o", "meas.csv"], 2),
     (["fit", "self", "bad.csv", "-o", "p.txt"], 2),
     (["btf", "generate", "-o", "g", "--size", "0"], 2),
     (["demo", "--materials", "0"], 2),
@@ -73,12 +76,13 @@ def test_help_and_input_errors_import_no_jax(tmp_path):
     (tmp_path / "bad.csv").write_text(HEADER + "\n30,15,30,0,0.1,0.2,0.3\n30,0,30,15,0.1,oops,0.3\n")
     (tmp_path / "empty.csv").write_text("")
     (tmp_path / "header.csv").write_text(HEADER + "\n")  # no data rows
+    np.savez(tmp_path / "shape.npz", abrdf=np.zeros((80, 81, 3), np.float32))
     report, err = _run(NO_JAX_CASES, tmp_path)
     for (argv, want), (_, code, jax_loaded) in zip(NO_JAX_CASES, report):
         assert code == want, (argv, code, err)
         assert not jax_loaded, f"{argv} imported jax"
     assert "bad.csv:3:" in err and "abrdf-jax: error:" in err and "Traceback" not in err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.csv", "empty.csv", "header.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.csv", "empty.csv", "header.csv", "shape.npz"]
 
 
 @pytest.mark.xfail(reason="abrdf_jax.materials imports JAX on import (the registry builds eqx models); "
@@ -87,6 +91,22 @@ def test_materials_listing_imports_no_jax(tmp_path):
     report, err = _run([(["materials"], 0)], tmp_path)
     assert report[0][1] == 0, err
     assert not report[0][2], "abrdf-jax materials imported jax"
+
+
+def test_subcommands_import_only_the_shared_module():
+    """Arrows point into cli/_common only: no subcommand imports another, nor the package's
+    __init__ (checked on the source: relative imports inside abrdf_jax/cli)."""
+    import ast
+
+    folder = REPO / "abrdf_jax" / "cli"
+    for path in sorted(folder.glob("*.py")):
+        if path.name in ("__init__.py", "__main__.py"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 1:  # "from . import x", "from .x import y"
+                targets = [node.module] if node.module else [a.name for a in node.names]
+                allowed = {"_common"} if path.name != "_common.py" else set()
+                assert set(targets) <= allowed, (path.name, targets)
 
 
 def _actions(parser):
