@@ -179,6 +179,11 @@ def test_in_process_errors(tmp_path, capsys, monkeypatch):
         (["reconstruct", "m.csv", "-o", "x.npz", "--format", "exr"], "--format"),
         (["demo", "-o", "fig.gif"], "fig.gif"),
         (["demo", "--materials", "0"], "--materials"),
+        # --preset, --model NAME and --params each fix the model: one at a time
+        (["reconstruct", "m.csv", "-o", "x.npz", "--preset", "paper", "--model", "iso"], "both fix the model"),
+        (["reconstruct", "m.csv", "-o", "x.npz", "--preset", "paper", "--params", "p.json"], "both fix the model"),
+        (["reconstruct", "m.csv", "-o", "x.npz", "--model", "auto", "--preset", "paper"], "--model auto"),
+        (["btf", "reconstruct", "m.csv", "-o", "o", "--preset", "paper", "--params", "p.json"], "--preset paper"),
     ]
     for argv, name in cases:
         assert main(argv) == 2, argv
@@ -219,3 +224,50 @@ def test_evaluate_table_output(tmp_path, capsys):
     assert main(["evaluate", str(tmp_path / "ref.npz"), str(tmp_path / "ref.npz"), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["psnr"] is None and doc["de76"] == 0.0
+
+
+def test_internal_errors_exit_1_with_traceback(tmp_path, capsys, monkeypatch):
+    """A bug (any exception that is not bad input) is not blamed on the input: exit 1, traceback,
+    and a line asking to report it; an OSError naming a file is bad input (one line, exit 2)."""
+    import abrdf_jax as aj
+    from abrdf_jax.cli._common import version
+
+    monkeypatch.chdir(tmp_path)
+    io.write_table(tmp_path / "t.npz", _table(0))
+
+    def bug(*args, **kwargs):
+        raise ValueError("a bug")
+
+    monkeypatch.setattr(aj, "sample", bug)
+    assert main(["sample", "t.npz", "-o", "m.csv"]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "ValueError: a bug" in err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("abrdf-jax: internal error (ValueError: a bug)") and "report" in last, last
+    assert f"abrdf-jax {version()}" in last
+    assert listing(tmp_path) == ["t.npz"]
+
+    def denied(*args, **kwargs):
+        raise PermissionError(13, "Permission denied", "m.csv")
+
+    monkeypatch.setattr(aj, "sample", denied)
+    assert main(["sample", "t.npz", "-o", "m.csv"]) == 2
+    assert capsys.readouterr().err == "abrdf-jax: error: m.csv: Permission denied\n"
+
+
+def test_preset_fixes_the_model(tmp_path, capsys, iso_material):
+    """--preset NAME reconstructs with abrdf_jax.preset(NAME, budget); the record names the model."""
+    import abrdf_jax as aj
+
+    meas = tmp_path / "m.csv"
+    assert main(["sample", iso_material, "-o", str(meas), "--budget", "iso102"]) == 0
+    samples = io.read_samples_csv(meas)
+    for preset, model in (("operator", "operator"), ("recommended", "iso")):
+        out = tmp_path / f"{preset}.npz"
+        assert main(["reconstruct", str(meas), "-o", str(out), "--preset", preset]) == 0
+        doc = json.loads((tmp_path / f"{preset}.model.json").read_text())
+        assert doc["how"] == "preset" and doc["model"] == model and doc["reason"].startswith(f"--preset {preset}:")
+        config = aj.preset(preset, "iso102")
+        expected = aj.reconstruct(samples, config, aj.Params.default(config))
+        np.testing.assert_allclose(io.read_table(out), expected, rtol=1e-5, atol=1e-7)
+    assert "model: operator (preset)" in capsys.readouterr().out

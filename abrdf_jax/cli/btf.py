@@ -21,7 +21,6 @@ from .._errors import InputError
 from .._names import BTF_BACKENDS, BTF_MODELS, PRESETS
 from . import _common as common
 
-_positive = common.positive
 #: The configuration without ``--preset``/``--params``: linear in the log of the samples, so the
 #: whole reconstruction is one matrix (``abrdf_jax.btf.reconstruct_btf``'s operator backend).
 DEFAULT_PRESET = "operator"
@@ -156,7 +155,8 @@ def cmd_evaluate(args) -> int:
 
 def register(sub) -> None:
     """Add the ``btf`` subcommand (and its own subcommands) to the ``abrdf-jax`` parser."""
-    b = sub.add_parser("btf", parents=[common.verbose_parent()], help="whole BTFs: generate, reconstruct, import/export EXR, evaluate",
+    b = sub.add_parser("btf", parents=[common.verbose_parent()],
+                       help="whole BTFs: generate, reconstruct, import/export EXR, evaluate",
                        description="Spatially varying data: one ABRDF per texel, streamed through "
                        "chunked stores (see docs/btf.md).")
     bsub = b.add_subparsers(dest="btf_command", metavar="BTF_COMMAND")
@@ -167,14 +167,15 @@ def register(sub) -> None:
     def shared(p):
         p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
-    g = bsub.add_parser("generate", parents=[verbose], help="a procedural BTF with dense ground truth and slice measurements",
+    g = bsub.add_parser("generate", parents=[verbose],
+                        help="a procedural BTF with dense ground truth and slice measurements",
                         description="Generate a procedural BTF (height field, per-texel materials, "
                         "shadowing and masking) into DIR: measurements/ (204 slice samples per texel), "
                         "reference/ (81x81 per texel) and maps.npz.")
     g.add_argument("-o", "--output", required=True, metavar="DIR")
-    g.add_argument("--size", required=True, type=_positive("--size"), metavar="N", help="texels per side")
+    g.add_argument("--size", required=True, type=common.positive("--size"), metavar="N", help="texels per side")
     g.add_argument("--seed", type=int, default=0, metavar="S")
-    g.add_argument("--chunk", type=_positive("--chunk"), default=1024, metavar="N", help="texels per chunk")
+    g.add_argument("--chunk", type=common.positive("--chunk"), default=1024, metavar="N", help="texels per chunk")
     g.add_argument("--no-reference", action="store_true", help="skip the dense ground truth")
     g.add_argument("--reference-dtype", choices=STORE_DTYPES, default=STORE_DTYPES[0])
     g.add_argument("--exr-dir", metavar="DIR", help="also write the measurements as one EXR per sample pair")
@@ -187,7 +188,7 @@ def register(sub) -> None:
                         "command after an interruption and finished chunks are kept.")
     r.add_argument("input", metavar="MEAS_DIR", help="a measurement store or a generated BTF folder")
     r.add_argument("-o", "--output", required=True, metavar="OUT", help="output store folder")
-    r.add_argument("--chunk", type=_positive("--chunk"), default=1024, metavar="N", help="texels per chunk")
+    r.add_argument("--chunk", type=common.positive("--chunk"), default=1024, metavar="N", help="texels per chunk")
     r.add_argument("--exr-dir", metavar="DIR", help="also export one EXR image per direction pair")
     r.add_argument("--dtype", choices=STORE_DTYPES, default=STORE_DTYPES[0], help="output values")
     r.add_argument("--preset", choices=PRESETS, default=None,
@@ -200,12 +201,12 @@ def register(sub) -> None:
     r.add_argument("--model", choices=BTF_MODELS, default=BTF_MODELS[0],
                    help="auto: per texel, the isotropy test picks the diagonal-only or the anisotropic model "
                         "(two matrix products per chunk); fixed: one model for every texel (default)")
-    r.add_argument("--devices", type=_positive("--devices"), metavar="N", help="shard over the first N local devices")
+    r.add_argument("--devices", type=common.positive("--devices"), metavar="N", help="shard over the first N local devices")
     r.add_argument("--overwrite", action="store_true", help="replace an output store of other settings")
     d = r.add_argument_group("several hosts (jax.distributed; the stores on a shared file system)")
     d.add_argument("--distributed", action="store_true", help="initialise jax.distributed from the environment")
     d.add_argument("--coordinator", metavar="HOST:PORT", help="address of process 0")
-    d.add_argument("--num-processes", type=_positive("--num-processes"), metavar="N")
+    d.add_argument("--num-processes", type=common.positive("--num-processes"), metavar="N")
     d.add_argument("--process-id", type=int, metavar="K")
     shared(r)
     r.set_defaults(func=cmd_reconstruct)
@@ -213,7 +214,7 @@ def register(sub) -> None:
     i = bsub.add_parser("import", parents=[verbose], help="folder of per-pair EXR images -> chunked store")
     i.add_argument("input", metavar="EXR_DIR")
     i.add_argument("-o", "--output", required=True, metavar="STORE")
-    i.add_argument("--chunk", type=_positive("--chunk"), default=1024, metavar="N")
+    i.add_argument("--chunk", type=common.positive("--chunk"), default=1024, metavar="N")
     i.add_argument("--alpha", type=float, metavar="DEG", help="slice offset (default: pairs.json or estimated)")
     i.add_argument("--overwrite", action="store_true")
     shared(i)

@@ -14,8 +14,6 @@ import time
 from pathlib import Path
 from typing import TextIO
 
-import numpy as np
-
 from .._errors import InputError
 from . import _common as common
 
@@ -52,6 +50,8 @@ def is_isotropic(model, info=None, n: int = 64, seed: int = 0) -> bool:
     flag = info.get("isotropic") if isinstance(info, dict) else getattr(info, "isotropic", None)
     if isinstance(flag, bool):
         return flag
+    import numpy as np
+
     rng = np.random.default_rng(seed)
 
     def dirs(phi_shift):
@@ -121,6 +121,8 @@ def run_demo(
     Raises:
         InputError: a bad output path (checked before any work) or ``n_materials < 1``.
     """
+    import numpy as np
+
     import abrdf_jax as aj
 
     from .. import materials, metrics

@@ -39,13 +39,15 @@ def _report(res, out: Path, extra: str = "") -> int:
 
 def cmd_fit_self(args) -> int:
     import abrdf_jax as aj
-    from .. import io, tuning
+    from .. import io
 
     out = common.check_json_output(Path(args.output))
     src = Path(args.input)
     if not src.exists():
         raise InputError(f"{src}: file not found")
     item = common.plan(io.read_samples_csv(src), common.forced_budget(args), args.alpha, src)
+    from .. import tuning  # imports JAX: only once the input is known good
+
     config = aj.preset(args.preset, item.budget)
     params = aj.Params.default(config, alpha_deg=item.alpha)
     space = tuning.ParamSpace(widths=args.widths, reg=not args.fixed_reg)
@@ -90,13 +92,13 @@ def _population_data(aj, names: str, config, params, data_dir):
 
 
 def cmd_fit_population(args) -> int:
+    out = common.check_json_output(Path(args.output))
     import jax
     import jax.numpy as jnp
 
     import abrdf_jax as aj
     from .. import tuning
 
-    out = common.check_json_output(Path(args.output))
     config = aj.preset(args.preset, args.budget)
     params = aj.Params.default(config, alpha_deg=args.alpha if args.alpha is not None else 15.0, dtype=jnp.float32)
     source, ref, mats = _population_data(aj, args.materials, config, params, args.data)

@@ -100,7 +100,8 @@ def choose(item: common.Measured, args, forced: str | None) -> dict:
     where, budget, alpha = item.path, item.budget, item.alpha
     if args.params is not None:
         config, params = common.params_for(budget, alpha, params_file=args.params)
-        return common.model_choice(where, None, config, params, "params", f"parameters and model fixed by {args.params}")
+        return common.model_choice(where, None, config, params, "params",
+                                   f"parameters and model fixed by {args.params}")
     if args.preset is not None:
         config = aj.preset(args.preset, budget)
         params = aj.Params.default(config, alpha_deg=alpha)
@@ -113,7 +114,8 @@ def choose(item: common.Measured, args, forced: str | None) -> dict:
     if args.model is not None and args.model != "auto":
         c = candidate(args.model)
         if c.settings["budget"] == "aniso204" and budget != "aniso204":
-            raise InputError(f"{where}: --model {args.model} needs axial slices (aniso204), but the measurement has none")
+            raise InputError(f"{where}: --model {args.model} needs axial slices (aniso204), "
+                             "but the measurement has none")
         config = c.config()
         params = aj.Params.default(config, alpha_deg=alpha)
         return common.model_choice(where, c.name, config, params, "fixed", f"--model {c.name}: {c.description}",
