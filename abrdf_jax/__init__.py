@@ -12,9 +12,8 @@ The names below are loaded on first use (PEP 562), so ``import abrdf_jax`` and t
 
 from __future__ import annotations
 
-import importlib
-
 from ._errors import InputError as InputError
+from ._lazy import lazy_exports
 
 __version__ = "0.1.0"
 
@@ -35,22 +34,5 @@ _EXPORTS = {
     "_operator": ("ReconstructionOperator", "compile_operator"),
 }
 _SUBPACKAGES = ("btf", "cli", "io", "materials", "metrics", "render", "select", "tuning")
-_WHERE = {name: mod for mod, names in _EXPORTS.items() for name in names}
-
-__all__ = ["InputError", "__version__", *sorted(_WHERE), *_SUBPACKAGES]
-
-
-def __getattr__(name: str):
-    if name in _WHERE:
-        value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
-    elif name in _SUBPACKAGES:
-        value = importlib.import_module(f".{name}", __name__)
-    else:
-        raise AttributeError(f"module 'abrdf_jax' has no attribute {name!r}")
-    globals()[name] = value  # later look-ups skip this function
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
-
+__getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS, _SUBPACKAGES)
+__all__ += ["InputError", "__version__"]

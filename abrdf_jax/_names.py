@@ -26,6 +26,10 @@ LOSSES = ("lab", "log", "lab+log")
 WIDTH_MODES = ("per_dim", "shared", "fixed")
 BTF_BACKENDS = ("auto", "operator", "pipeline")
 BTF_MODELS = ("fixed", "auto")
+#: dtypes of the values in a chunked BTF store
+STORE_DTYPES = ("float16", "float32")
+#: relative tolerance of the automatic model choice (the simplest model within it of the best)
+MODEL_TOL = 0.05
 #: Table files by suffix (``abrdf_jax.io.read_table``/``write_table``).
 TABLE_SUFFIXES = (".npz", ".exr")
 MEASUREMENT_SUFFIXES = (".csv",)

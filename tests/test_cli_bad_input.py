@@ -284,7 +284,7 @@ def test_sample_write_failure_and_interrupt(tmp_path, capsys, monkeypatch):
 
 def test_exr_writer_failure(tmp_path, monkeypatch):
     """A failure inside the EXR library while writing is an InputError naming the file."""
-    import abrdf_jax.io._tables as io_module
+    import abrdf_jax.io._exr as io_module
 
     p = tmp_path / "t.exr"
     p.write_bytes(PRECIOUS)
@@ -297,17 +297,18 @@ def test_exr_writer_failure(tmp_path, monkeypatch):
             f.write(b"\x76\x2f\x31\x01" + b"\0" * 100)  # EXR magic, then a failure
             raise RuntimeError("simulated encoder failure")
 
-    real = io_module._exr()
+    real = io_module._openexr()
     fake = type(
         "FakeOpenEXR",
         (),
         {
             "File": FakeFile,
             "ZIP_COMPRESSION": real.ZIP_COMPRESSION,
+            "NO_COMPRESSION": real.NO_COMPRESSION,
             "scanlineimage": real.scanlineimage,
         },
     )
-    monkeypatch.setattr(io_module, "_exr", lambda: fake)
+    monkeypatch.setattr(io_module, "_openexr", lambda: fake)
     with pytest.raises(InputError, match=r"cannot write .*t\.exr: OpenEXR: simulated"):
         io.write_table(p, lambertian_table())
     assert snapshot(tmp_path) == {"t.exr": PRECIOUS}

@@ -12,7 +12,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from abrdf_jax import _names
 from abrdf_jax.cli import build_parser
@@ -85,8 +84,6 @@ def test_help_and_input_errors_import_no_jax(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.csv", "empty.csv", "header.csv", "shape.npz"]
 
 
-@pytest.mark.xfail(reason="abrdf_jax.materials imports JAX on import (the registry builds eqx models); "
-                          "needs a JAX-free material catalogue", strict=False)
 def test_materials_listing_imports_no_jax(tmp_path):
     report, err = _run([(["materials"], 0)], tmp_path)
     assert report[0][1] == 0, err

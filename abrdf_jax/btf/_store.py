@@ -32,12 +32,13 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from .._names import STORE_DTYPES
 from ..io import atomic_write
 
 FORMAT = "abrdf_jax.btf-store"
 VERSION = 1
 KINDS = ("measurements", "abrdf")
-DTYPES = ("float16", "float32")
+DTYPES = STORE_DTYPES
 MANIFEST = "manifest.json"
 CHUNKS = "chunks"
 

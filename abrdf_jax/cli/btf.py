@@ -18,13 +18,12 @@ import time
 from pathlib import Path
 
 from .._errors import InputError
-from .._names import BTF_BACKENDS, BTF_MODELS, PRESETS
+from .._names import BTF_BACKENDS, BTF_MODELS, PRESETS, STORE_DTYPES
 from . import _common as common
 
 #: The configuration without ``--preset``/``--params``: linear in the log of the samples, so the
 #: whole reconstruction is one matrix (``abrdf_jax.btf.reconstruct_btf``'s operator backend).
 DEFAULT_PRESET = "operator"
-STORE_DTYPES = ("float16", "float32")
 
 
 def _init_distributed(args) -> None:

@@ -24,7 +24,7 @@ import sys
 from pathlib import Path
 
 from .._errors import InputError
-from .._names import MODELS, PRESETS, TABLE_SUFFIXES
+from .._names import MODEL_TOL, MODELS, PRESETS, TABLE_SUFFIXES
 from . import _common as common
 
 #: Materials per batched reconstruction call (bounds memory, drives the progress bar).
@@ -56,7 +56,7 @@ def register(sub) -> None:
                    help="auto (default: isotropy test, then the simplest candidate within --tol of the best "
                         "held-out error) or a fixed model: " + ", ".join(MODELS))
     r.add_argument("--tol", type=float, default=None, metavar="FRAC",
-                   help="tolerance of the automatic choice, relative (default 0.05: abrdf_jax.select.TOL)")
+                   help=f"tolerance of the automatic choice, relative (default {MODEL_TOL:g})")
     r.add_argument("--noise", type=float, default=None, metavar="SIGMA",
                    help="relative noise of one sample for the isotropy test (default: estimated from the data)")
     r.set_defaults(func=run)

@@ -8,7 +8,7 @@ helpers import JAX when first touched.
 
 from __future__ import annotations
 
-import importlib
+from .._lazy import lazy_exports
 
 # public name -> private module that defines it (the one place this package's API is listed)
 _EXPORTS = {
@@ -18,18 +18,4 @@ _EXPORTS = {
     "_merl": ("MERL_SCALE", "MERL_SHAPE", "MERLMaterial", "merl_bin_indices", "merl_lookup", "read_merl_binary",
               "write_merl_binary"),
 }
-_WHERE = {name: mod for mod, names in _EXPORTS.items() for name in names}
-
-__all__ = sorted(_WHERE)
-
-
-def __getattr__(name: str):
-    if name not in _WHERE:
-        raise AttributeError(f"module 'abrdf_jax.io' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
-    globals()[name] = value  # later look-ups skip this function
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS)

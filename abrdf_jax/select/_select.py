@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
+from .._names import MODEL_TOL
 from ._isotropy import LEVEL, MIN_EFFECT, IsotropyReport, isotropy_test
 from .._params import Config, Params
 from .._coords import pair_coordinates
@@ -49,8 +50,7 @@ from .._grid import centre_vectors
 from .._pipeline import prepare, subspace_values
 from .._values import measurement_eps, value_space
 from .._rbf import fit_rbf
-from .._measurements import Samples
-from .._measurements import Measurements
+from .._measurements import Measurements, Samples
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,7 +93,7 @@ DEFAULT_ISO = ("iso",)
 DEFAULT_ANISO = ("iso", "aniso-average", "aniso-crossing", "aniso-log", "aniso")
 #: Optional kernel-family candidates (each family is one more compilation).
 KERNEL_FAMILY = ("iso", "iso-linear", "iso-gaussian")
-TOL = 0.05
+TOL = MODEL_TOL
 
 
 def candidate(name: str) -> Candidate:
