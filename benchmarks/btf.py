@@ -125,7 +125,6 @@ def _operator_in_memory(meas_path: Path) -> dict:
     """One chunk through the BTF chunk map, no I/O: texels per second and GFLOP/s."""
     import jax
     import jax.numpy as jnp
-    import numpy as np
 
     from abrdf_jax import btf
 
@@ -320,7 +319,6 @@ def main(argv=None) -> int:
     ap.add_argument("--note", default="", help="a remark stored with the figures (e.g. the machine was busy)")
     args = ap.parse_args(argv)
 
-    import numpy as np
 
     from abrdf_jax import btf
 
