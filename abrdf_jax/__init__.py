@@ -20,7 +20,7 @@ __version__ = "0.1.0"
 # public name -> private module that defines it (the one place the public API is listed)
 _EXPORTS = {
     "_grid": ("half_diff", "onion", "onion_from_vector", "pair_grid", "to_vector", "from_vector", "ubo_grid",
-              "vector_from_onion"),
+              "vector_from_onion", "centre_vectors"),
     "_kernels": ("KERNELS",),
     "_coords": ("PARAMETERIZATIONS", "pair_coordinates"),
     "_measurements": ("Samples", "Measurements", "estimate_alpha", "group_slices", "stack_measurements"),

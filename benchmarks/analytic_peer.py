@@ -41,9 +41,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float
 
-from abrdf_jax._grid import pair_grid, to_vector
-from abrdf_jax._measurements import Measurements
-from abrdf_jax._slices import slice_directions
+import abrdf_jax as aj
 from abrdf_jax.materials import GGX, Ward
 
 MODELS = ("ggx", "ward")
@@ -127,9 +125,9 @@ class AnalyticFit(eqx.Module):
 
 @eqx.filter_jit
 def _grid_tables(theta, model, anisotropic):
-    ti, pi_, tv, pv = (np.deg2rad(a) for a in pair_grid())
+    ti, pi_, tv, pv = (np.deg2rad(a) for a in aj.pair_grid())
     dt = theta.dtype
-    wi, wv = to_vector(jnp.asarray(ti, dt), jnp.asarray(pi_, dt)), to_vector(jnp.asarray(tv, dt), jnp.asarray(pv, dt))
+    wi, wv = aj.to_vector(jnp.asarray(ti, dt), jnp.asarray(pi_, dt)), aj.to_vector(jnp.asarray(tv, dt), jnp.asarray(pv, dt))
     return jax.vmap(lambda t: evaluate_model(unpack(t, model, anisotropic), model, wi, wv).reshape(81, 81, 3))(theta)
 
 
@@ -155,13 +153,13 @@ def _solve(theta0, target, eps, w, wi, wv, model, anisotropic, max_steps):
 
 
 @eqx.filter_jit
-def _fit_batch(meas: Measurements, alpha, model, anisotropic, eps_rel, max_steps):
+def _fit_batch(meas: aj.Measurements, alpha, model, anisotropic, eps_rel, max_steps):
     one = jax.tree_util.tree_map(lambda x: x[0], meas)
-    wi, wv = slice_directions(one.t, meas.pairs, jnp.asarray(alpha, meas.y.dtype))  # (S, nmax, 3)
+    wi, wv = aj.slice_directions(one.t, meas.pairs, jnp.asarray(alpha, meas.y.dtype))  # (S, nmax, 3)
     b, s, n = meas.y.shape[0], wi.shape[0], wi.shape[1]
     wi, wv = wi.reshape(s * n, 3), wv.reshape(s * n, 3)
     y = meas.y.reshape(b, s * n, 3)
-    valid = (jnp.arange(n)[None, None, :] < meas.count[..., None]).reshape(b, s * n)
+    valid = meas.mask.reshape(b, s * n)
     target, eps, w = jax.vmap(lambda yy, vv: _problem(yy, vv, eps_rel))(y, valid)
     starts = jax.vmap(lambda yy, vv: _starts(model, anisotropic, yy, vv, wi, wv, y.dtype))(y, valid)  # (B, k, p)
     k = starts.shape[1]
@@ -175,7 +173,7 @@ def _fit_batch(meas: Measurements, alpha, model, anisotropic, eps_rel, max_steps
     return theta, loss[jnp.arange(b), best], jnp.sum(steps.reshape(b, k), axis=1)
 
 
-def fit_analytic(meas: Measurements, model: str = "ggx", anisotropic: bool | None = None, *, eps_rel: float = 0.01,
+def fit_analytic(meas: aj.Measurements, model: str = "ggx", anisotropic: bool | None = None, *, eps_rel: float = 0.01,
                  alpha_deg: float = 15.0, max_steps: int = 100) -> AnalyticFit:
     """Fit the analytic model to a batch of measurements (one slice layout, leading material axis).
 
@@ -206,7 +204,7 @@ def fit_analytic(meas: Measurements, model: str = "ggx", anisotropic: bool | Non
     return AnalyticFit(theta, loss, steps, model, aniso)
 
 
-def reconstruct_analytic(meas: Measurements, **kwargs) -> Float[Array, "B 81 81 3"]:
+def reconstruct_analytic(meas: aj.Measurements, **kwargs) -> Float[Array, "B 81 81 3"]:
     """Fit (:func:`fit_analytic`) and evaluate on the 81×81 grid in one call (in the dtype of ``meas``)."""
     return fit_analytic(meas, **kwargs).tables().astype(meas.y.dtype)
 

@@ -20,15 +20,15 @@ import itertools
 import sys
 import time
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 import abrdf_jax as aj
-from abrdf_jax._pipeline import _reconstruct_batch_jit
 from abrdf_jax.materials import dense_table, get_material, material_info, material_names
 
 from ._common import machine, mean_fill, mean_metrics, merl_split, metrics_of, sample_batch, write_json
-from .scipy_baseline import reconstruct_scipy
+from .scipy_peer import reconstruct_scipy
 
 KEYS = ("de76", "de2000", "rmse8", "psnr", "logerr")
 
@@ -46,16 +46,16 @@ def jax_grid(quick):
 
 def run_jax(meas, ref, s, budget="iso102"):
     cfg = aj.Config(budget=budget, kernel=s["kernel"], value_space=s["value_space"], degree=s["degree"])
-    p = aj.Params(jnp.deg2rad(15.0), jnp.full(4, s["width"], jnp.float32), jnp.asarray(s["reg"], jnp.float32))
-    rec = _reconstruct_batch_jit(meas, cfg, p)
+    p = aj.Params(jnp.deg2rad(aj.PROTOCOL_ALPHA_DEG), jnp.full(4, s["width"], jnp.float32),
+                  jnp.asarray(s["reg"], jnp.float32))
+    rec = aj.reconstruct_batch(meas, cfg, p)
     return rec, metrics_of(rec, ref)
 
 
 def run_scipy(meas, ref, s):
     recs = []
     for k in range(meas.y.shape[0]):
-        m = aj.Measurements(meas.t[k], meas.y[k], meas.count[k], meas.pairs, meas.has_axial)
-        smp = m.to_samples()
+        smp = jax.tree_util.tree_map(lambda x, k=k: x[k], meas).to_samples()
         recs.append(reconstruct_scipy(smp.theta_i, smp.phi_i, smp.theta_v, smp.phi_v, smp.rgb,
                                       kernel=s["kernel"], widths=(s["width"],) * 4, smoothing=s["reg"]))
     rec = np.stack(recs)
@@ -76,8 +76,6 @@ def main(argv=None):
     te_names, te_models, te_ref, te_group = merl_split("test")
     if args.quick:
         sel = np.arange(8)
-        import jax
-
         tr_models = jax.tree_util.tree_map(lambda x: x[sel], tr_models)
         te_models = jax.tree_util.tree_map(lambda x: x[sel], te_models)
         tr_ref, te_ref = tr_ref[sel], te_ref[sel]

@@ -36,8 +36,7 @@ import numpy as np
 
 import abrdf_jax as aj
 from abrdf_jax import select
-from abrdf_jax._pipeline import _reconstruct_batch_jit
-from abrdf_jax.select._select import CANDIDATES, DEFAULT_ANISO, KERNEL_FAMILY, _cv_batch_jit, fold_data, group_configs
+from abrdf_jax.select import CANDIDATES, DEFAULT_ANISO, KERNEL_FAMILY
 from abrdf_jax.materials import GGX, Ward, dense_table, get_material, is_anisotropic, material_names
 
 from ._common import RESULTS, machine, merl_split, metrics_of, sample_batch, write_json
@@ -67,7 +66,14 @@ def add_noise(meas: aj.Measurements, sigma: float, seed: int) -> aj.Measurements
         return meas
     rng = np.random.default_rng(seed)
     y = np.asarray(meas.y) * (1.0 + sigma * rng.standard_normal(meas.y.shape))
-    return aj.Measurements(meas.t, jnp.asarray(y, meas.y.dtype), meas.count, meas.pairs, meas.has_axial)
+    return meas.replace(y=jnp.asarray(y, meas.y.dtype))
+
+
+def timed(fn):
+    """``(fn(), seconds)``, the result blocked until ready."""
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(fn())
+    return out, time.perf_counter() - t0
 
 
 def unstack(meas, i):
@@ -81,13 +87,13 @@ def stack(items):
 def cv_errors(meas_list, names, alpha, k=4, log=print):
     """Held-out errors ``(B, len(names))`` for a list of measurements (batched per kernel group)."""
     configs = {n: CANDIDATES[n].config() for n in names}
-    data = stack([fold_data(m, alpha, k) for m in meas_list])
+    data = stack([select.fold_data(m, alpha, k) for m in meas_list])
     out = np.zeros((len(meas_list), len(names)))
     compile_s = 0.0
-    for gnames, cfgs in group_configs(configs):
+    for gnames, cfgs in select.group_configs(configs):
         params = aj.Params.default(cfgs[0], dtype=jnp.float32)
         t0 = time.perf_counter()
-        errs = np.asarray(_cv_batch_jit(data, cfgs, params))
+        errs = np.asarray(select.held_out_errors_batch(data, cfgs, params))
         compile_s += time.perf_counter() - t0
         for j, n in enumerate(gnames):
             out[:, names.index(n)] = errs[:, j]
@@ -102,7 +108,7 @@ def dense_errors(meas, ref, names, log=print):
         cfg = CANDIDATES[n].config()
         params = aj.Params.default(cfg, dtype=jnp.float32)
         t0 = time.perf_counter()
-        rec = _reconstruct_batch_jit(meas, cfg, params)
+        rec = aj.reconstruct_batch(meas, cfg, params)
         m = metrics_of(rec, ref)
         out[n] = {"de76": m["de76"], "logerr": m["logerr"]}
         log(f"  {n:15s} dense ΔE76 {np.mean(m['de76']):6.2f}  LogErr {np.mean(m['logerr']):.3f}  ({time.perf_counter() - t0:.0f} s)")
@@ -128,7 +134,7 @@ def main(argv=None):
     log = lambda s: print(s, flush=True)  # noqa: E731
     noise = (0.0, 0.05) if quick else NOISE
     cand_names = list(DEFAULT_ANISO) + ([] if quick else [n for n in KERNEL_FAMILY if n not in DEFAULT_ANISO] + ["paper", "paper-aniso"])
-    alpha = np.deg2rad(15.0)
+    alpha = np.deg2rad(aj.PROTOCOL_ALPHA_DEG)
     cfg_a = aj.Config.recommended("aniso204")
     p_a = aj.Params.default(cfg_a, dtype=jnp.float32)
     t_start = time.time()
@@ -203,20 +209,13 @@ def main(argv=None):
     # -- cost: select_model beside reconstruct, per material ----------------------------------------
     timing = {}
     samples = [m.to_samples() for m in merl_meas[:3]] + [a.to_samples() for a in a_meas[-3:]]
-    t0 = time.perf_counter()
-    sel = select.select_model(samples[-1])
-    timing["select_first_s"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    aj.reconstruct(samples[-1], sel.config, sel.params).block_until_ready()
-    timing["reconstruct_first_s"] = time.perf_counter() - t0
+    sel, timing["select_first_s"] = timed(lambda: select.select_model(samples[-1]))
+    _, timing["reconstruct_first_s"] = timed(lambda: aj.reconstruct(samples[-1], sel.config, sel.params))
     sel_t, rec_t = [], []
     for s in samples:
-        t0 = time.perf_counter()
-        sel = select.select_model(s)
-        sel_t.append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
-        aj.reconstruct(s, sel.config, sel.params).block_until_ready()
-        rec_t.append(time.perf_counter() - t0)
+        sel, t = timed(lambda: select.select_model(s))
+        sel_t.append(t)
+        rec_t.append(timed(lambda: aj.reconstruct(s, sel.config, sel.params))[1])
     timing.update(select_median_s=float(np.median(sel_t)), reconstruct_median_s=float(np.median(rec_t)),
                   select_iso_median_s=float(np.median(sel_t[:3])), select_aniso_median_s=float(np.median(sel_t[3:])))
     log(f"cost: select {timing['select_median_s']:.3f} s/material (isotropic {timing['select_iso_median_s']:.3f}, anisotropic "

@@ -20,7 +20,7 @@ Reflectance Acquisition", ACM TOG 34(6) (SIGGRAPH Asia) 2015, Sec. 4–5. Our re
    ``ρ_ref`` there is the median of those values), exactly as a database of dense measurements
    would be looked up at measured directions. ``basis_at="tables"``: the component, mean and
    reference tables are interpolated at the sample positions with the package's own table
-   sampling (:func:`abrdf_jax._slices.sample_table`, periodic bilinear over the two azimuths), a
+   sampling (:func:`abrdf_jax.sample_table`, periodic bilinear over the two azimuths), a
    linear map ``S``: ``Q_s = S Q``, ``μ_s = S μ``, ``ρ_ref,s = S ρ_ref``. Both are offered;
    the suite reports both.
 4. **Ridge projection** (their reconstruction): ``c = argmin ‖Q_s c − (ŷ − μ_s)‖² + λ‖c‖²``
@@ -62,9 +62,6 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import abrdf_jax as aj
-from abrdf_jax._grid import pair_grid
-from abrdf_jax._measurements import Measurements
-from abrdf_jax._sampling import sample_table
 
 NIELSEN_EPS = 1e-3
 CHANNELS = ("joint", "shared")
@@ -78,29 +75,28 @@ SELECTED = {
 }
 
 
-def sample_mask(meas: Measurements) -> np.ndarray:
+def sample_mask(meas: aj.Measurements) -> np.ndarray:
     """Boolean ``(S, nmax)`` mask of the valid sample positions of a (single) measurement layout."""
-    count = np.asarray(meas.count)
-    return np.arange(meas.t.shape[-1])[None, :] < count[:, None]
+    return np.asarray(meas.mask)
 
 
-def sample_cos_view(meas: Measurements) -> np.ndarray:
+def sample_cos_view(meas: aj.Measurements) -> np.ndarray:
     """``cos θv`` of every valid sample position, ``(n,)`` in the order of :func:`flat_samples`."""
     mask = sample_mask(meas)
     tv = np.asarray([meas.pairs[s // 2][1] for s in range(mask.shape[0])])
     return np.broadcast_to(np.cos(np.deg2rad(tv))[:, None], mask.shape)[mask]
 
 
-def flat_samples(meas: Measurements) -> Float[Array, "... n 3"]:
+def flat_samples(meas: aj.Measurements) -> Float[Array, "... n 3"]:
     """The valid sample values of (batched) measurements as ``(..., n, 3)`` (layout order)."""
-    count = np.asarray(meas.count).reshape(-1, meas.count.shape[-1])[0]  # one layout for the batch
-    rows, cols = np.nonzero(np.arange(meas.t.shape[-1])[None, :] < count[:, None])
+    mask = np.asarray(meas.mask).reshape(-1, *meas.t.shape[-2:])[0]  # one layout for the batch
+    rows, cols = np.nonzero(mask)
     return meas.y[..., rows, cols, :]
 
 
 def grid_cos_view() -> np.ndarray:
     """``cos θv`` of the 6561 UBO direction pairs (illumination-major)."""
-    return np.cos(np.deg2rad(pair_grid()[2]))
+    return np.cos(np.deg2rad(aj.pair_grid()[2]))
 
 
 def log_relative(x, ref, cos_v, eps):
@@ -172,8 +168,8 @@ def _per_position(v, channels):
 
 
 def fit_pca_prior(
-    train_tables, train_samples, layout: Measurements, *, n_components: int | None, channels: str = "joint",
-    eps: float = NIELSEN_EPS, basis_at: str = "models", alpha: float = float(np.deg2rad(15.0)),
+    train_tables, train_samples, layout: aj.Measurements, *, n_components: int | None, channels: str = "joint",
+    eps: float = NIELSEN_EPS, basis_at: str = "models", alpha: float = float(np.deg2rad(aj.PROTOCOL_ALPHA_DEG)),
     dtype=jnp.float32,
 ) -> PCAPrior:
     """Fit the PCA prior of :mod:`benchmarks.pca_peer` (steps 1–3) in float64 numpy.
@@ -248,15 +244,15 @@ def fit_pca_prior(
     )
 
 
-def interp_tables(tables, layout: Measurements, alpha) -> np.ndarray:
+def interp_tables(tables, layout: aj.Measurements, alpha) -> np.ndarray:
     """Tables ``(M, 81, 81, 3)`` at the sample positions of ``layout`` with the package's table sampling.
 
-    :func:`abrdf_jax._slices.sample_table` (periodic bilinear over both azimuths), vmapped; float64
+    :func:`abrdf_jax.sample_table` (periodic bilinear over both azimuths), vmapped; float64
     when JAX has x64 enabled. Returns ``(M, n, 3)`` in :func:`flat_samples` order.
     """
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     counts = tuple(int(c) for c in np.asarray(layout.count))
-    fn = jax.jit(jax.vmap(lambda t: sample_table(t, counts, jnp.asarray(alpha, dt), layout.pairs, dtype=dt).y))
+    fn = jax.jit(jax.vmap(lambda t: aj.sample_table(t, counts, jnp.asarray(alpha, dt), layout.pairs, dtype=dt).y))
     y = np.asarray(fn(jnp.asarray(tables, dt)), np.float64)
     rows, cols = np.nonzero(sample_mask(layout))
     return y[:, rows, cols, :]

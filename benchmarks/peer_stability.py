@@ -28,7 +28,6 @@ import jax.numpy as jnp
 import numpy as np
 
 import abrdf_jax as aj
-from abrdf_jax._slices import slice_directions
 from abrdf_jax.materials import GGX, dense_table, get_material
 from abrdf_jax.metrics import evaluate_batch
 
@@ -97,12 +96,12 @@ def main(argv=None) -> int:
         meas = aj.sample(model, config, params, as_measurements=True)
         if sigma:
             noisy = meas.y * (1 + sigma * rng.standard_normal(meas.y.shape))
-            meas = aj.Measurements(meas.t, jnp.maximum(noisy, 0.0).astype(meas.y.dtype), meas.count, meas.pairs, meas.has_axial)
+            meas = meas.replace(y=jnp.maximum(noisy, 0.0).astype(meas.y.dtype))
         name_s = f"{name}, {int(np.sum(np.asarray(meas.count)))} samples, σ={sigma:g}"
-        wi, wv = slice_directions(meas.t, meas.pairs, params.alpha.astype(meas.y.dtype))
+        wi, wv = aj.slice_directions(meas.t, meas.pairs, params.alpha.astype(meas.y.dtype))
         s, n = wi.shape[0], wi.shape[1]
         y = meas.y.reshape(s * n, 3)
-        valid = (jnp.arange(n)[None, :] < meas.count[:, None]).reshape(s * n)
+        valid = meas.mask.reshape(s * n)
         theta, loss, steps = _per_start(y, valid, wi.reshape(-1, 3), wv.reshape(-1, 3))
         tables = _grid_tables(theta, MODEL, True)
         ref = jnp.asarray(dense_table(model))[None]

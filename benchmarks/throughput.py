@@ -38,8 +38,6 @@ import jax.numpy as jnp
 import numpy as np
 
 import abrdf_jax as aj
-from abrdf_jax._slices import PROTOCOL_PAIRS, protocol_counts
-from abrdf_jax._sampling import sample_model
 from abrdf_jax.materials import default_materials
 
 from ._common import machine, write_json
@@ -71,14 +69,16 @@ def gemm_rate(m: int, k: int, n: int, dtype=jnp.float32, min_time: float = 0.5) 
 
 
 def _counts(per_slice: int | None):
-    return protocol_counts("iso102") if per_slice is None else tuple(c for _ in PROTOCOL_PAIRS for c in (0, per_slice))
+    if per_slice is None:
+        return aj.protocol_counts("iso102")
+    return tuple(c for _ in aj.PROTOCOL_PAIRS for c in (0, per_slice))
 
 
 def template(cfg: aj.Config, per_slice: int | None = None, dtype=jnp.float32) -> aj.Measurements:
     """Slice samples of one embedded analytic material on the protocol pairs (``per_slice`` per slice)."""
     mat = next(iter(default_materials().values()))
-    alpha = jnp.asarray(np.deg2rad(15.0), dtype)
-    return sample_model(mat, _counts(per_slice), alpha, cfg.pairs, dtype=dtype)
+    alpha = jnp.asarray(np.deg2rad(aj.PROTOCOL_ALPHA_DEG), dtype)
+    return aj.sample_model(mat, _counts(per_slice), alpha, cfg.pairs, dtype=dtype)
 
 
 def values(op, meas: aj.Measurements, batch: int, seed: int = 0) -> jax.Array:

@@ -31,9 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import abrdf_jax as aj
-from abrdf_jax._pipeline import _reconstruct_batch_jit
 from abrdf_jax.materials import dense_table, get_material, is_anisotropic, material_names
-from abrdf_jax.tuning import ParamSpace, Population, SelfCalibration, fit, SOLVERS
+from abrdf_jax.tuning import SOLVERS, ParamSpace, Population, SelfCalibration, fit, held_out_loss
 
 from ._common import machine, mean_metrics, merl_split, metrics_of, sample_batch, write_json, RESULTS
 
@@ -50,7 +49,7 @@ def configs(budget):
 
 def evaluate(models, ref, config, params):
     meas = sample_batch(models, config, params)
-    rec = _reconstruct_batch_jit(meas, config, params)
+    rec = aj.reconstruct_batch(meas, config, params)
     return mean_metrics(metrics_of(rec, ref))
 
 
@@ -85,8 +84,8 @@ def self_calibration(test_models, test_ref, names, config, steps, log=print):
             prob, _, _ = SelfCalibration.from_samples(meas, config, p0, space=ParamSpace(widths="per_dim", reg=True))
         data = prob.make_data(meas, p0)
         res = fit(prob, data, p0, solver="lm", max_steps=steps)
-        rec0 = _reconstruct_batch_jit(jax.tree_util.tree_map(lambda x: x[None], meas), config, p0)
-        rec1 = _reconstruct_batch_jit(jax.tree_util.tree_map(lambda x: x[None], meas), config, res.params) if res.ok else rec0
+        rec0 = aj.reconstruct_batch(jax.tree_util.tree_map(lambda x: x[None], meas), config, p0)
+        rec1 = aj.reconstruct_batch(jax.tree_util.tree_map(lambda x: x[None], meas), config, res.params) if res.ok else rec0
         m0 = mean_metrics(metrics_of(rec0, test_ref[k : k + 1]))
         m1 = mean_metrics(metrics_of(rec1, test_ref[k : k + 1]))
         rows.append({"material": name, **res.summary(), "before": m0, "after": m1})
@@ -106,13 +105,11 @@ def alpha_study(steps, quick, log=print):
     p0 = aj.Params.default(config, dtype=jnp.float32)
     prob = Population(config=config, space=ParamSpace(widths="fixed", reg=False, alpha=True))
     data = Population.make_data(stacked, ref, p0)
-    from abrdf_jax.tuning._fitting import _loss_jit
-
     grid = np.arange(5.0, 46.0, 10.0 if quick else 2.5)
     losses = []
     for a in grid:
         p = aj.Params(jnp.deg2rad(jnp.float32(a)), p0.widths, p0.reg)
-        losses.append(float(_loss_jit(prob, prob.space.init(p), dict(data, base=p))))
+        losses.append(held_out_loss(prob, data, p))
     res = fit(prob, data, p0, solver="lbfgsb", max_steps=steps)
     log(f"alpha: loss vs α {dict(zip(grid.tolist(), np.round(losses, 4).tolist()))}; tuned α {res.params.alpha_deg:.2f}° "
         f"(loss {res.loss_initial:.4f} -> {res.loss_final:.4f}, {res.status})")
@@ -157,10 +154,8 @@ def markdown(out) -> str:
             f"{', '.join(f'{w:.2f}' for w in r['widths'])} | {r['reg']:.2g} |")
     sc = out.get("selfcal") or []
     if sc:
-        d0 = np.mean([r["before"]["de76"] for r in sc])
-        d1 = np.mean([r["after"]["de76"] for r in sc])
-        l0 = np.mean([r["before"]["logerr"] for r in sc])
-        l1 = np.mean([r["after"]["logerr"] for r in sc])
+        d0, d1 = (np.mean([r[when]["de76"] for r in sc]) for when in ("before", "after"))
+        l0, l1 = (np.mean([r[when]["logerr"] for r in sc]) for when in ("before", "after"))
         better = sum(r["after"]["de76"] < r["before"]["de76"] for r in sc)
         lines += ["", f"Self-calibration (iso102, recommended, leave-one-pair-out, LM): mean ΔE76 {d0:.2f} → {d1:.2f}, "
                   f"LogErr {l0:.3f} → {l1:.3f} over {len(sc)} test materials ({better} improved)."]

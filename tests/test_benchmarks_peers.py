@@ -1,6 +1,11 @@
-"""The peers of the speed/accuracy suite: the PCA prior (``benchmarks/pca_peer.py``) and the analytic
-model fit (``benchmarks/analytic_peer.py``). No shared data needed: the package's analytic materials
-serve as the database and as the known models.
+"""The benchmarks' own peers are right: the PCA prior (``benchmarks/pca_peer.py``) and the analytic
+model fit (``benchmarks/analytic_peer.py``) of the speed/accuracy suite.
+
+Here ``benchmarks/`` is the code under test, not an oracle: nothing in the package is checked against
+it (the package's oracle is ``tests/scipy_oracle.py``). These are not smoke runs either (that is
+``test_benchmarks_smoke.py``): they check properties a peer must have for the suite's comparison to
+be fair (a training material is rebuilt from its own samples, a known GGX is recovered). No shared
+data needed: the package's analytic materials serve as the database and as the known models.
 """
 
 import jax
