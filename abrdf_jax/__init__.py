@@ -28,7 +28,7 @@ _EXPORTS = {
                 "slice_directions"),
     "_sampling": ("sample", "sample_model", "sample_table"),
     "_subspace": ("RULES", "subspace"),
-    "_rbf": ("RBFInterpolant", "SolveInfo", "fit_rbf", "fit_rbf_info", "rbf_interpolate"),
+    "_rbf": ("RBFInterpolant", "SolveInfo", "fit_rbf", "fit_rbf_info", "rbf_interpolate", "rbf_system"),
     "_params": ("Config", "Params", "PRESETS", "preset"),
     "_pipeline": ("check_finite", "infer_budget", "reconstruct", "reconstruct_batch", "solve_info"),
     "_operator": ("ReconstructionOperator", "compile_operator"),

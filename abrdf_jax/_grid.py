@@ -176,6 +176,7 @@ def centre_layout(pairs) -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 def centre_vectors(pairs, dtype):
+    """Unit vectors ``(wi, wv)``, each ``(n, 3)``, of the RBF centres of ``pairs`` (:func:`centre_layout` order)."""
     wi, wv = [], []
     for (ti, tv), (pi_, pv) in zip(pairs, centre_layout(pairs)):
         wi.append(to_vector(np.full(len(pi_), np.deg2rad(ti)), np.deg2rad(pi_)))

@@ -41,7 +41,8 @@ def subspace_values(meas: Measurements, config: Config, params: Params) -> Float
     return jnp.concatenate(vals)
 
 
-def rbf_map(fit_vals: Float[Array, "n C"], pairs, config: Config, params: Params, targets=None, keep: bool = True):
+def rbf_map(fit_vals: Float[Array, "n C"], pairs, config: Config, params: Params, targets=None, keep: bool = True,
+            guard: bool = True):
     """RBF fit at the centres of ``pairs`` and evaluation at the targets: linear in ``fit_vals``.
 
     Args:
@@ -55,7 +56,8 @@ def rbf_map(fit_vals: Float[Array, "n C"], pairs, config: Config, params: Params
     dtype = fit_vals.dtype
     wi_c, wv_c = centre_vectors(pairs, dtype)
     xc = pair_coordinates(wi_c, wv_c, config.parameterization)
-    rbf = fit_rbf(xc, fit_vals, params.widths.astype(dtype), config.kernel, params.reg.astype(dtype), config.degree)
+    rbf = fit_rbf(xc, fit_vals, params.widths.astype(dtype), config.kernel, params.reg.astype(dtype), config.degree,
+                  guard=guard)
     wi_t, wv_t = ubo_target_vectors(dtype) if targets is None else targets
     out = rbf(pair_coordinates(wi_t, wv_t, config.parameterization))
     if targets is None and keep:
@@ -63,12 +65,12 @@ def rbf_map(fit_vals: Float[Array, "n C"], pairs, config: Config, params: Params
     return out
 
 
-def _reconstruct_core(meas: Measurements, config: Config, params: Params, targets=None):
+def _reconstruct_core(meas: Measurements, config: Config, params: Params, targets=None, guard: bool = True):
     vs = value_space(config.value_space)
     eps = vs.eps(meas, config.log_eps)
     vals = subspace_values(vs.encode_samples(meas, eps), config, params)
     fit_vals = vs.encode_subspace(vals, eps)
-    out = vs.decode(rbf_map(fit_vals, meas.pairs, config, params, targets, keep=True), eps)
+    out = vs.decode(rbf_map(fit_vals, meas.pairs, config, params, targets, keep=True, guard=guard), eps)
     if targets is None:
         out = out.reshape(81, 81, out.shape[-1])
     return out
@@ -78,8 +80,8 @@ _reconstruct_jit = eqx.filter_jit(_reconstruct_core)
 
 
 @eqx.filter_jit
-def _reconstruct_batch_jit(meas, config, params, targets=None):
-    return jax.vmap(lambda m: _reconstruct_core(m, config, params, targets))(meas)
+def _reconstruct_batch_jit(meas, config, params, targets=None, guard=True):
+    return jax.vmap(lambda m: _reconstruct_core(m, config, params, targets, guard))(meas)
 
 
 def infer_budget(samples: Samples | Measurements, alpha_deg: float | None = None) -> str:
@@ -143,6 +145,7 @@ def reconstruct_batch(
     params: Params | None = None,
     *,
     targets=None,
+    guard: bool = True,
 ) -> Float[Array, "B 81 81 3"]:
     """Reconstruct many materials in one vmapped, jit-compiled call.
 
@@ -150,6 +153,8 @@ def reconstruct_batch(
         samples: a list of measurements (all with the same slices measured) or a stacked
             :class:`Measurements` with a leading material axis.
         config, params: shared by every material (see :func:`reconstruct`).
+        guard: ``False`` solves the RBF system exactly as asked, without raising λ where it is
+            singular to working precision (:mod:`abrdf_jax._rbf`, "Guard"; for the stability benchmark).
 
     Returns:
         Tables of shape ``(B, 81, 81, 3)``.
@@ -169,7 +174,7 @@ def reconstruct_batch(
         if any(m.has_axial != meas_list[0].has_axial for m in meas_list):
             raise InputError("a batch mixes isotropic (102) and anisotropic (204) measurements; split it")
         meas = stack_measurements(meas_list)
-    return _reconstruct_batch_jit(meas, config, params, targets)
+    return _reconstruct_batch_jit(meas, config, params, targets, guard)
 
 
 def solve_info(samples: Samples | Measurements, config: Config | None = None, params: Params | None = None) -> SolveInfo:

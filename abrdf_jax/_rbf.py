@@ -330,6 +330,24 @@ def fit_rbf(
     return fit_rbf_info(x, y, widths, kernel, reg, degree, guard=guard)[0]
 
 
+def rbf_system(
+    x: Float[Array, "n d"],
+    widths: Float[Array, " d"],
+    kernel: str = "gaussian",
+    reg: Float[Array, ""] | float = 0.0,
+    degree: int | None = None,
+) -> Float[Array, "N N"]:
+    """The matrix :func:`fit_rbf` factorises at ``λ = reg`` (for diagnostics: an exact condition number).
+
+    ``[[K + λI, P s], [(P s)ᵀ, 0]]`` with the polynomial block scaled to the kernel block's
+    magnitude (module docstring); ``N = n + m``, ``m`` the number of tail monomials.
+    """
+    degree = resolve_degree(kernel, degree)
+    widths = jnp.broadcast_to(jnp.asarray(widths, x.dtype), (x.shape[1],))
+    k, p, _ = _blocks(x, widths, kernel, max(degree, -1), *_centre_stats(x))
+    return _system(k, p, jnp.asarray(reg, x.dtype))
+
+
 def rbf_interpolate(x, y, xq, widths, kernel="gaussian", reg=0.0, degree=None):
     """One-shot convenience: fit at ``x`` and evaluate at ``xq``."""
     return fit_rbf(x, y, widths, kernel, reg, degree)(xq)

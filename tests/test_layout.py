@@ -89,17 +89,13 @@ def test_no_import_cycle():
     assert cycle is None, " -> ".join(cycle)
 
 
-LEFT = "issue 11, left for the next session (docs/notes.md): some benchmarks still use private names / exceed 500 lines"
-
-
-@pytest.mark.parametrize("folder", ["abrdf_jax", pytest.param("benchmarks", marks=pytest.mark.xfail(strict=True, reason=LEFT))])
+@pytest.mark.parametrize("folder", ["abrdf_jax", "benchmarks"])
 def test_no_module_over_500_lines(folder):
     long = {str(p.relative_to(ROOT)): n for p in (ROOT / folder).rglob("*.py")
             if (n := len(p.read_text().splitlines())) > MAX_LINES}
     assert not long, long
 
 
-@pytest.mark.xfail(strict=True, reason=LEFT)
 def test_no_private_names_outside_the_package():
     pattern = re.compile(r"abrdf_jax(\.[a-z]\w*)*\._\w")
     bad = []

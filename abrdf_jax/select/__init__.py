@@ -37,7 +37,7 @@ from ._select import (
     fold_data as fold_data,
     group_configs as group_configs,
     held_out_errors as held_out_errors,
-    _cv_batch_jit as held_out_errors_batch,  # noqa: F401 (a public alias: (stacked fold_data, configs, params) -> (B, G))
+    held_out_errors_batch as held_out_errors_batch,
     select_model as select_model,
     tolerance_choice as tolerance_choice,
 )

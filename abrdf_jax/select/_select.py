@@ -170,7 +170,10 @@ _cv_jit = eqx.filter_jit(_cv_core)
 
 
 @eqx.filter_jit
-def _cv_batch_jit(data, configs, params):
+def held_out_errors_batch(data, configs: tuple, params: Params):
+    """Held-out RMS log errors ``(B, G)`` of the configurations ``configs`` (one RBF group, see
+    :func:`group_configs`) for a batch of materials: ``data`` is :func:`fold_data` of each,
+    stacked along a leading axis (one layout); one compiled program for the whole batch."""
     return jax.vmap(lambda d: _cv_core(d, configs, params))(data)
 
 
