@@ -144,16 +144,6 @@ def vectors_from_half_diff(hd: Float[Array, "... 4"]) -> tuple[Float[Array, "...
     return wi, wv
 
 
-def wrap_deg(x):
-    """Angles in degrees wrapped to ``[0, 360)`` (numpy or jax arrays)."""
-    return x % 360.0
-
-
-def wrap_pi(x):
-    """Angles in radians wrapped to ``(-π, π]``."""
-    return jnp.pi - jnp.mod(jnp.pi - x, 2 * jnp.pi)
-
-
 # ------------------------------------------------------------------------------------------------
 # RBF centres and targets of a reconstruction
 

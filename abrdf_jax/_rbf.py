@@ -267,6 +267,14 @@ def _solve(k, p, s, reg, y, chol: bool, guard: bool):
     return sol[:n], sol[n:] * s, info
 
 
+def _prepared(x, widths, kernel, degree):
+    """Degree, widths ``(d,)``, centring and the scaled blocks ``(K, P, s)`` of a system."""
+    degree = resolve_degree(kernel, degree)
+    widths = jnp.broadcast_to(jnp.asarray(widths, x.dtype), (x.shape[1],))
+    shift, scale = _centre_stats(x)
+    return degree, widths, shift, scale, _blocks(x, widths, kernel, max(degree, -1), shift, scale)
+
+
 def fit_rbf_info(
     x: Float[Array, "n d"],
     y: Float[Array, "n C"],
@@ -292,11 +300,8 @@ def fit_rbf_info(
     Returns:
         ``(interpolant, info)``: the fitted :class:`RBFInterpolant` and a :class:`SolveInfo`.
     """
-    degree = resolve_degree(kernel, degree)
-    widths = jnp.broadcast_to(jnp.asarray(widths, x.dtype), (x.shape[1],))
+    degree, widths, shift, scale, (k, p, s) = _prepared(x, widths, kernel, degree)
     reg = jnp.asarray(reg, x.dtype)
-    shift, scale = _centre_stats(x)
-    k, p, s = _blocks(x, widths, kernel, max(degree, -1), shift, scale)
     chol = degree < 0 and is_positive_definite(kernel)
     coeffs, poly, info = _solve(k, p, s, reg, y, chol=chol, guard=guard)
     return RBFInterpolant(x, widths, coeffs, poly, shift, scale, kernel, degree), info
@@ -312,21 +317,8 @@ def fit_rbf(
     *,
     guard: bool = True,
 ) -> RBFInterpolant:
-    """Fit an RBF interpolant to values ``y`` at centres ``x``.
-
-    Args:
-        x: centres, shape ``(n, d)``.
-        y: values, shape ``(n, C)`` (all channels share one factorisation).
-        widths: per-dimension widths ``ℓ`` (positive), shape ``(d,)`` or scalar.
-        kernel: one of :data:`abrdf_jax._kernels.KERNELS`.
-        reg: regularisation ``λ`` added to the Gram diagonal (scipy's ``smoothing``).
-        degree: polynomial tail degree; ``None``: the kernel's minimum (-1 = none).
-        guard: raise ``λ`` when the system is singular to working precision (see
-            :func:`fit_rbf_info`, which also returns the diagnostics).
-
-    Returns:
-        The fitted :class:`RBFInterpolant`.
-    """
+    """Fit an RBF interpolant to values ``y`` at centres ``x``: :func:`fit_rbf_info` without the
+    diagnostics (same arguments)."""
     return fit_rbf_info(x, y, widths, kernel, reg, degree, guard=guard)[0]
 
 
@@ -342,9 +334,7 @@ def rbf_system(
     ``[[K + λI, P s], [(P s)ᵀ, 0]]`` with the polynomial block scaled to the kernel block's
     magnitude (module docstring); ``N = n + m``, ``m`` the number of tail monomials.
     """
-    degree = resolve_degree(kernel, degree)
-    widths = jnp.broadcast_to(jnp.asarray(widths, x.dtype), (x.shape[1],))
-    k, p, _ = _blocks(x, widths, kernel, max(degree, -1), *_centre_stats(x))
+    k, p, _ = _prepared(x, widths, kernel, degree)[-1]
     return _system(k, p, jnp.asarray(reg, x.dtype))
 
 

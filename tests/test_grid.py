@@ -2,7 +2,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import abrdf_jax as aj
-from abrdf_jax._grid import from_vector, ring_indices, vectors_from_half_diff, wrap_pi
+from abrdf_jax._grid import from_vector, ring_indices, vectors_from_half_diff
 
 
 def test_ubo_grid_layout():
@@ -65,7 +65,3 @@ def test_half_diff_round_trip(rng):
     a, b = vectors_from_half_diff(aj.half_diff(wi, wv))
     np.testing.assert_allclose(a, wi, atol=1e-10)
     np.testing.assert_allclose(b, wv, atol=1e-10)
-
-
-def test_wrap_pi():
-    np.testing.assert_allclose(wrap_pi(jnp.array([0.0, 3 * np.pi / 2, -3 * np.pi / 2])), [0, -np.pi / 2, np.pi / 2])
