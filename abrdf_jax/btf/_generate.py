@@ -22,6 +22,7 @@ from .._grid import to_vector, ubo_grid
 from .._params import Config, Params
 from .._measurements import Measurements
 from .._sampling import sample_model
+from ._store import ANGLES
 from ._surface import MIN_RASTER, FourierField, Surface, horizon_map, make_surface, raster
 from ._texel import TexelModel
 
@@ -131,19 +132,14 @@ def procedural_btf(size: int, seed: int = 0) -> ProceduralBTF:
 # --------------------------------------------------------------------------------------------
 
 
-def ubo_vectors(dtype=_F32) -> Float[Array, "81 3"]:
-    """Unit vectors of the 81 UBO2003 directions."""
-    theta, phi = ubo_grid()
-    return to_vector(jnp.asarray(np.deg2rad(theta), dtype), jnp.asarray(np.deg2rad(phi), dtype))
-
-
 def dense_texel_table(texel, dtype=_F32) -> Float[Array, "6561 3"]:
     """A texel on all 81 × 81 UBO pairs, flattened ``i * 81 + v``.
 
     The directions enter as ``(81, 1, 3)`` and ``(1, 81, 3)``: what depends on one direction
     (frames, visibility, occluder normal) is computed 81 times, not 6561 times.
     """
-    w = ubo_vectors(dtype)
+    theta, phi = ubo_grid()
+    w = to_vector(jnp.asarray(np.deg2rad(theta), dtype), jnp.asarray(np.deg2rad(phi), dtype))
     return texel(w[:, None, :], w[None, :, :]).reshape(81 * 81, 3)
 
 
@@ -151,13 +147,6 @@ def measurement_config() -> tuple[Config, Params]:
     """The slice geometry of the generated measurements: PROTOCOL aniso204, α = 15°, float32."""
     config = Config(budget="aniso204")
     return config, Params.default(config, dtype=_F32)
-
-
-def flat_order(counts) -> tuple[np.ndarray, np.ndarray]:
-    """``(slice, position)`` of each flat sample, in :meth:`Measurements.to_samples` order."""
-    s_idx = np.concatenate([np.full(c, s) for s, c in enumerate(counts)])
-    k_idx = np.concatenate([np.arange(c) for c in counts])
-    return s_idx, k_idx
 
 
 @partial(jax.jit, static_argnames=("reference", "measure", "maps"))
@@ -170,9 +159,10 @@ def _texel_chunk(btf: ProceduralBTF, idx, reference: bool = True, measure: bool 
         out["reference"] = jax.vmap(dense_texel_table)(texels)  # (n, 6561, 3)
     if measure:
         config, params = measurement_config()
-        s_idx, k_idx = flat_order(config.counts)
         meas = jax.vmap(lambda t: sample_model(t, config.counts, params.alpha, config.pairs, dtype=_F32))(texels)
-        out["measurements"] = meas.y[:, s_idx, k_idx]  # (n, 204, 3)
+        # (n, 204, 3): the valid samples, slice by slice (Measurements.to_samples order)
+        s_idx, k_idx = np.nonzero(np.arange(meas.y.shape[2]) < np.array(config.counts)[:, None])
+        out["measurements"] = meas.y[:, s_idx, k_idx]
     return out
 
 
@@ -209,8 +199,5 @@ def measurement_geometry() -> dict:
     template = sample_model(lambda wi, wv: jnp.zeros(wi.shape, _F32), config.counts, params.alpha,
                             config.pairs, dtype=_F32)
     s = Measurements.to_samples(template, alpha_deg=params.alpha_deg)
-    return dict(
-        theta_i=np.asarray(s.theta_i, float).tolist(), phi_i=np.asarray(s.phi_i, float).tolist(),
-        theta_v=np.asarray(s.theta_v, float).tolist(), phi_v=np.asarray(s.phi_v, float).tolist(),
-        alpha_deg=float(params.alpha_deg), pairs=[list(p) for p in config.pairs], budget=config.budget,
-    )
+    return {**{k: np.asarray(getattr(s, k), float).tolist() for k in ANGLES}, "alpha_deg": float(params.alpha_deg),
+            "pairs": [list(p) for p in config.pairs], "budget": config.budget}
