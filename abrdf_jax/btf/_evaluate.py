@@ -125,20 +125,20 @@ def save_error_map(values: np.ndarray, path, *, title: str = "", label: str = "Î
     import matplotlib.pyplot as plt
 
     values = np.asarray(values, float)
-    panels = [(f"{title} mean {values.mean():.2f}, p95 {np.percentile(values, 95):.2f}".strip(), values)]
-    panels += list((extra or {}).items())
+    head = f"{title} mean {values.mean():.2f}, p95 {np.percentile(values, 95):.2f}".strip()
+    panels = [(head, values), *(extra or {}).items()]
     fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 4.2), squeeze=False)
     for ax, (name, img) in zip(axes[0], panels):
         img = np.asarray(img)
         if img.ndim == 3:  # an RGB map (e.g. albedo), shown gamma-encoded
-            ax.imshow(np.clip(img / max(img.max(), 1e-6), 0, 1) ** (1 / 2.2), interpolation="nearest")
+            img = np.clip(img / max(img.max(), 1e-6), 0, 1) ** (1 / 2.2)
+            ax.imshow(img, interpolation="nearest")
         else:
             vm = vmax if img is values and vmax is not None else float(np.percentile(img, 99))
             im = ax.imshow(img, cmap="magma", vmin=0, vmax=vm, interpolation="nearest")
             fig.colorbar(im, ax=ax, fraction=0.046, label=label if img is values else "")
         ax.set_title(name, fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
+        ax.set(xticks=[], yticks=[])
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

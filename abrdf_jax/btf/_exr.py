@@ -79,14 +79,16 @@ def write_exr_pairs(store, folder, *, half: bool = True, compression: str = "zip
     folder.mkdir(exist_ok=True)
     # the angles (θi, φi, θv, φv in degrees) of the pairs a texel holds
     g = store.geometry
-    pairs = np.stack(pair_grid() if store.kind == "abrdf" else [np.asarray(g[k], float) for k in ANGLES], axis=1)
-    h, w = store.texel_shape
-    group = int(max(1, min(len(pairs), memory_limit // (store.n_texels * 3 * store.dtype.itemsize))))
+    angles = pair_grid() if store.kind == "abrdf" else [np.asarray(g[k], float) for k in ANGLES]
+    pairs, (h, w) = np.stack(angles, axis=1), store.texel_shape
+    per_pair = store.n_texels * 3 * store.dtype.itemsize
+    group = int(max(1, min(len(pairs), memory_limit // per_pair)))
     names = [pair_filename(*p) for p in pairs]
     if len(set(names)) != len(names):
         raise InputError(f"{store.path}: two pairs share an image name; angles too close to tell apart")
     with contextlib.suppress(FileNotFoundError):
         (folder / PAIRS_INDEX).unlink()  # incomplete until the new index lands
+    kw = dict(half=half, compression=compression, durable=False)
     with progress_bar("exr export", len(pairs), progress, unit="image") as bar:
         for p0 in range(0, len(pairs), group):
             p1 = min(p0 + group, len(pairs))
@@ -95,11 +97,10 @@ def write_exr_pairs(store, folder, *, half: bool = True, compression: str = "zip
                 a, b = store.chunk_range(k)
                 buf[:, a:b] = store.read_chunk(k, verify=False)[:, p0:p1].transpose(1, 0, 2)
             for j in range(p1 - p0):
-                write_rgb_exr(folder / names[p0 + j], buf[j].reshape(h, w, 3), half=half, compression=compression,
-                              durable=False)
+                write_rgb_exr(folder / names[p0 + j], buf[j].reshape(h, w, 3), **kw)
                 bar.update(1)
-    index = dict(kind=store.kind, texel_shape=[h, w], geometry=g,
-                 pairs=[dict(file=n, **dict(zip(ANGLES, map(float, p)))) for n, p in zip(names, pairs)])
+    listing = [dict(file=n, **dict(zip(ANGLES, map(float, p)))) for n, p in zip(names, pairs)]
+    index = dict(kind=store.kind, texel_shape=[h, w], geometry=g, pairs=listing)
     with atomic_write(folder / PAIRS_INDEX, "w") as f:
         json.dump(index, f)
     return len(pairs)
@@ -117,7 +118,7 @@ def _list_pairs(folder: Path) -> tuple[list[Path], np.ndarray, dict]:
             raise located(f"cannot read the pair index: {e}", index) from e
         return files, angles, dict(doc.get("geometry") or {})
     # in numeric order of (θi, φi, θv, φv)
-    found = sorted((a, p) for p in folder.iterdir() if (a := parse_pair_filename(p.name)) is not None)
+    found = sorted((a, p) for p in folder.iterdir() if (a := parse_pair_filename(p.name)))
     if not found:
         raise InputError(f"{folder}: no images named like tl030_pl000_tv030_pv000.exr and no {PAIRS_INDEX}")
     return [p for _, p in found], np.array([a for a, _ in found], float), {}
@@ -176,12 +177,13 @@ def read_exr_pairs(folder, out_store, *, chunk: int = 1024, dtype: str = "float3
         alpha = geometry.get("alpha_deg") if alpha_deg is None else alpha_deg
         alpha = float(round(float(estimate_alpha(samples)), 3) if alpha is None else alpha)
         kind, geo = "measurements", {k: angles[:, j].tolist() for j, k in enumerate(ANGLES)}
-        geo.update(alpha_deg=alpha, pairs=geometry.get("pairs", PROTOCOL_PAIRS),
-                   budget=geometry.get("budget") or infer_budget(samples, alpha_deg=alpha))
+        budget = geometry.get("budget") or infer_budget(samples, alpha_deg=alpha)
+        geo.update(alpha_deg=alpha, pairs=geometry.get("pairs", PROTOCOL_PAIRS), budget=budget)
     first = read_rgb_exr(files[0])
     h, w = first.shape[:2]
-    store = ChunkedStore.create(out_store, kind=kind, texel_shape=(h, w), item_shape=(len(files), 3), dtype=dtype,
-                                chunk=chunk, geometry=geo, attrs=dict(source=str(folder)), overwrite=overwrite)
+    kw = dict(chunk=chunk, geometry=geo, attrs=dict(source=str(folder)), overwrite=overwrite)
+    store = ChunkedStore.create(out_store, kind=kind, texel_shape=(h, w), item_shape=(len(files), 3),
+                                dtype=dtype, **kw)
     chunks_per_group = int(max(1, memory_limit // (store.chunk * len(files) * 3 * 4)))
     with progress_bar("exr import", store.n_texels, progress) as bar:
         for k0 in range(0, store.n_chunks, chunks_per_group):

@@ -84,18 +84,14 @@ class ProceduralBTF(eqx.Module):
         aniso = 1.0 + 3.0 * jax.nn.sigmoid(2.0 * f[7])
         angle = jnp.pi * jax.nn.sigmoid(1.2 * f[8])
         fill = 0.15 + 0.25 * jax.nn.sigmoid(self.fill_field(xy))
-        return TexelModel(
-            normal=self.surface.normals(xy), weights=weights, albedo=albedo, metal=metal,
-            roughness=roughness, aniso=aniso, angle=angle, fill=fill,
-            horizon=horizon_map(self.heights, xy),
-        )
+        normal, horizon = self.surface.normals(xy), horizon_map(self.heights, xy)
+        return TexelModel(normal, weights, albedo, metal, roughness, aniso, angle, fill, horizon)
 
     def maps(self, idx) -> dict[str, Array]:
         """Per-texel parameter maps of ``idx``: height, normal, class weights, albedo, ..."""
         t = self.texels(idx)
-        return dict(height=self.surface(self.positions(idx)), normal=t.normal, weights=t.weights,
-                    albedo=t.albedo, roughness=t.roughness, aniso=t.aniso, angle=t.angle, fill=t.fill,
-                    horizon=t.horizon)
+        names = ("normal", "weights", "albedo", "roughness", "aniso", "angle", "fill", "horizon")
+        return dict(height=self.surface(self.positions(idx)), **{k: getattr(t, k) for k in names})
 
 
 def procedural_btf(size: int, seed: int = 0) -> ProceduralBTF:
@@ -121,10 +117,10 @@ def procedural_btf(size: int, seed: int = 0) -> ProceduralBTF:
     fields = tuple(FourierField.random(rng, n=10, kmax=4.0 if k < 3 else 6.0) for k in range(9))
     fill_field = FourierField.random(rng, n=8, kmax=5.0)
     metal = _METAL[rng.integers(len(_METAL))]
-    palette = np.stack([_MATTE[rng.integers(len(_MATTE))], 0.3 * metal, _LACQUER[rng.integers(len(_LACQUER))]])
+    matte, lacquer = _MATTE[rng.integers(len(_MATTE))], _LACQUER[rng.integers(len(_LACQUER))]
+    palette = jnp.asarray(np.stack([matte, 0.3 * metal, lacquer]), _F32)
     heights = raster(surface, max(MIN_RASTER, 2 * size))
-    return ProceduralBTF(size, surface, heights, fields, fill_field, jnp.asarray(palette, _F32),
-                         jnp.asarray(metal, _F32))
+    return ProceduralBTF(size, surface, heights, fields, fill_field, palette, jnp.asarray(metal, _F32))
 
 
 # --------------------------------------------------------------------------------------------
@@ -149,6 +145,12 @@ def measurement_config() -> tuple[Config, Params]:
     return config, Params.default(config, dtype=_F32)
 
 
+def _measure(model) -> Measurements:
+    """The slices of :func:`measurement_config` sampled from ``model``."""
+    config, params = measurement_config()
+    return sample_model(model, config.counts, params.alpha, config.pairs, dtype=_F32)
+
+
 @partial(jax.jit, static_argnames=("reference", "measure", "maps"))
 def _texel_chunk(btf: ProceduralBTF, idx, reference: bool = True, measure: bool = True, maps: bool = False):
     texels = btf.texels(idx)
@@ -158,10 +160,10 @@ def _texel_chunk(btf: ProceduralBTF, idx, reference: bool = True, measure: bool 
     if reference:
         out["reference"] = jax.vmap(dense_texel_table)(texels)  # (n, 6561, 3)
     if measure:
-        config, params = measurement_config()
-        meas = jax.vmap(lambda t: sample_model(t, config.counts, params.alpha, config.pairs, dtype=_F32))(texels)
+        meas = jax.vmap(_measure)(texels)
         # (n, 204, 3): the valid samples, slice by slice (Measurements.to_samples order)
-        s_idx, k_idx = np.nonzero(np.arange(meas.y.shape[2]) < np.array(config.counts)[:, None])
+        counts = np.array(measurement_config()[0].counts)
+        s_idx, k_idx = np.nonzero(np.arange(meas.y.shape[2]) < counts[:, None])
         out["measurements"] = meas.y[:, s_idx, k_idx]
     return out
 
@@ -187,17 +189,15 @@ def texel_chunk(btf: ProceduralBTF, start: int, stop: int, *, reference: bool = 
     if not 0 <= start < stop <= btf.n_texels:
         raise InputError(f"texel range {start}:{stop} is outside 0:{btf.n_texels}")
     n = stop - start
-    m = max(n, pad_to or n)
-    idx = np.minimum(np.arange(start, start + m), stop - 1)
-    out = _texel_chunk(btf, jnp.asarray(idx, jnp.int32), reference=reference, measure=measure, maps=maps)
+    idx = jnp.asarray(np.minimum(np.arange(start, start + max(n, pad_to or n)), stop - 1), jnp.int32)
+    out = _texel_chunk(btf, idx, reference=reference, measure=measure, maps=maps)
     return {k: np.asarray(v[:n]) for k, v in out.items()}
 
 
 def measurement_geometry() -> dict:
     """The flat sample geometry of :func:`texel_chunk`'s measurements (degrees, per sample)."""
     config, params = measurement_config()
-    template = sample_model(lambda wi, wv: jnp.zeros(wi.shape, _F32), config.counts, params.alpha,
-                            config.pairs, dtype=_F32)
-    s = Measurements.to_samples(template, alpha_deg=params.alpha_deg)
-    return {**{k: np.asarray(getattr(s, k), float).tolist() for k in ANGLES}, "alpha_deg": float(params.alpha_deg),
-            "pairs": [list(p) for p in config.pairs], "budget": config.budget}
+    s = _measure(lambda wi, wv: jnp.zeros(wi.shape, _F32)).to_samples(alpha_deg=params.alpha_deg)
+    geometry = {k: np.asarray(getattr(s, k), float).tolist() for k in ANGLES}
+    pairs = [list(p) for p in config.pairs]
+    return dict(geometry, alpha_deg=float(params.alpha_deg), pairs=pairs, budget=config.budget)
