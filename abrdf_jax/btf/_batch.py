@@ -132,17 +132,17 @@ def reconstruct_btf(
             folder that holds something else.
     """
     t_start = time.perf_counter()
-    meas, work, config = _inputs(meas_store, config, compute_dtype)
+    meas, work, config, alpha_deg = _inputs(meas_store, config, compute_dtype)
     if meas.item_shape[1:] != (3,):
         raise InputError(f"{meas.path}: samples must be RGB, item shape is {meas.item_shape}")
     geometry = meas.geometry
     if params is None:
-        params = Params.default(config, alpha_deg=float(geometry.get("alpha_deg", 15.0)), dtype=work)
+        params = Params.default(config, alpha_deg=alpha_deg, dtype=work)
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if model not in BTF_MODELS:
         raise InputError(f"model must be 'fixed' or 'auto', got {model!r}")
-    if model == "auto" and (config.budget != "aniso204" or geometry.get("budget", "aniso204") != "aniso204"):
+    if model == "auto" and {config.budget, geometry.get("budget", "aniso204")} != {"aniso204"}:
         raise InputError("model='auto' chooses between iso102 and aniso204 per texel: it needs an aniso204 "
                          f"configuration and measurement (got {config.budget!r}); use model='fixed'")
     # The job is what the results depend on; "auto" resolves the same way every time.
@@ -194,15 +194,15 @@ def reconstruct_btf(
 
 
 def _inputs(meas_store, config, compute_dtype):
-    """The (complete) measurement store, the working dtype and the configuration (default: the
-    BTF default for the store's budget)."""
+    """The (complete) measurement store, the working dtype, the configuration (default: the BTF
+    default for the store's budget) and the slice offset α in degrees."""
     meas = open_store(meas_store, "measurements", complete=True)
     if compute_dtype not in ("float32", "float64"):
         raise InputError(f"compute_dtype must be 'float32' or 'float64', got {compute_dtype!r}")
     if compute_dtype == "float64" and not jax.config.read("jax_enable_x64"):
         raise InputError("compute_dtype='float64' needs 64-bit JAX (JAX_ENABLE_X64=1)")
     config = default_config(meas.geometry.get("budget", "aniso204")) if config is None else config
-    return meas, jnp.dtype(compute_dtype), config
+    return meas, jnp.dtype(compute_dtype), config, float(meas.geometry.get("alpha_deg", 15.0))
 
 
 def isotropy_map(meas_store, *, chunk: int = DEFAULT_CHUNK, config: Config | None = None,
@@ -220,10 +220,9 @@ def isotropy_map(meas_store, *, chunk: int = DEFAULT_CHUNK, config: Config | Non
         "fraction_isotropic": float}`` (statistic: χ²/dof; effect: RMS log variation of the axial
         slices, see :func:`abrdf_jax.select.isotropy_test`).
     """
-    meas, work, config = _inputs(meas_store, config, compute_dtype)
-    geometry = meas.geometry
+    meas, work, config, alpha_deg = _inputs(meas_store, config, compute_dtype)
     # Only the slice layout is needed (no operator): the same grouping the chunk map uses.
-    template, group = grouping(geometry, config.pairs, float(geometry.get("alpha_deg", 15.0)))
+    template, group = grouping(meas.geometry, config.pairs, alpha_deg)
     t, count = np.asarray(template.t, np.float64), np.asarray(template.count)
     g = jnp.asarray(group, work)
     test = jax.jit(lambda g, y: texel_isotropy(g, t, count, y, level=LEVEL, min_effect=MIN_EFFECT))

@@ -22,7 +22,7 @@ import numpy as np
 from .._errors import InputError
 from ..io import atomic_write
 from ._generate import GENERATOR_VERSION, measurement_geometry, procedural_btf, texel_chunk
-from ._store import ABRDF_GEOMETRY, ChunkedStore, progress_bar
+from ._store import ABRDF_GEOMETRY, ChunkedStore, make_folder, progress_bar
 
 MEASUREMENTS = "measurements"
 REFERENCE = "reference"
@@ -48,10 +48,7 @@ def generate_btf(out_dir, size: int, seed: int = 0, *, chunk: int = 1024, refere
     Returns:
         ``{"measurements": path, "reference": path or None, "maps": path or None}``.
     """
-    root = Path(out_dir)
-    if not root.parent.is_dir():
-        raise InputError(f"{root}: parent folder {root.parent} does not exist")
-    root.mkdir(exist_ok=True)
+    root = make_folder(out_dir)
     btf = procedural_btf(size, seed)
     attrs = dict(source="procedural", generator="abrdf_jax.btf.procedural_btf")
     attrs.update(generator_version=GENERATOR_VERSION, size=btf.size, seed=int(seed))

@@ -31,7 +31,7 @@ from .._grid import pair_grid
 from .._slices import PROTOCOL_PAIRS
 from ..io import atomic_write
 from ..io._exr import read_rgb_exr, write_rgb_exr
-from ._store import ABRDF_GEOMETRY, ANGLES, ChunkedStore, open_store, progress_bar
+from ._store import ABRDF_GEOMETRY, ANGLES, ChunkedStore, make_folder, open_store, progress_bar
 
 PAIRS_INDEX = "pairs.json"
 _NAME = re.compile(r"^tl(\d+(?:\.\d+)?)_pl(\d+(?:\.\d+)?)_tv(\d+(?:\.\d+)?)_pv(\d+(?:\.\d+)?)\.exr$", re.I)
@@ -73,10 +73,7 @@ def write_exr_pairs(store, folder, *, half: bool = True, compression: str = "zip
     store = open_store(store, complete=True)
     if compression not in ("zip", "none"):
         raise InputError(f"compression must be 'zip' or 'none', got {compression!r}")
-    folder = Path(folder)
-    if not folder.parent.is_dir():
-        raise InputError(f"{folder}: parent folder {folder.parent} does not exist")
-    folder.mkdir(exist_ok=True)
+    folder = make_folder(folder)
     # the angles (θi, φi, θv, φv in degrees) of the pairs a texel holds
     g = store.geometry
     angles = pair_grid() if store.kind == "abrdf" else [np.asarray(g[k], float) for k in ANGLES]

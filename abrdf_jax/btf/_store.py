@@ -67,6 +67,17 @@ def open_store(store, kind: str | None = None, complete: bool = False) -> "Chunk
     return store
 
 
+def make_folder(path) -> Path:
+    """The folder ``path``, created if needed (its parent must exist)."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise InputError(f"{path}: parent folder {path.parent} does not exist")
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{path}: exists and is not a folder")
+    path.mkdir(exist_ok=True)
+    return path
+
+
 def pad_rows(x, n: int) -> np.ndarray:
     """``x`` with its last row repeated up to ``n`` rows: one shape per batch, one compilation."""
     x = np.asarray(x)
@@ -151,7 +162,6 @@ class ChunkedStore:
             InputError: bad arguments, a parent folder that does not exist, a non-store folder
                 that is not empty, or a different store without ``overwrite``.
         """
-        path = Path(path)
         if kind not in KINDS:
             raise InputError(f"store kind must be one of {KINDS}, got {kind!r}")
         dtype = np.dtype(dtype).name
@@ -166,10 +176,7 @@ class ChunkedStore:
         manifest.update(item_shape=[int(x) for x in item_shape], dtype=dtype, chunk=int(chunk))
         manifest.update(geometry=geometry or {}, attrs=attrs or {})
         manifest = json.loads(json.dumps(manifest))  # normalise (tuples -> lists, numpy -> float)
-        if not path.parent.is_dir():
-            raise InputError(f"{path}: parent folder {path.parent} does not exist")
-        if path.exists() and not path.is_dir():
-            raise InputError(f"{path}: exists and is not a folder")
+        path = make_folder(path)
         if (path / MANIFEST).exists():
             old = cls.open(path)
             if old.manifest != manifest and not overwrite:
@@ -179,9 +186,9 @@ class ChunkedStore:
                 (path / CHUNKS).mkdir(exist_ok=True)
                 return old
             old.remove_chunks()
-        elif path.exists() and any(not _ours(p.name) for p in path.iterdir()):
+        elif any(not _ours(p.name) for p in path.iterdir()):
             raise InputError(f"{path}: folder is not empty and holds no store ({MANIFEST} missing)")
-        (path / CHUNKS).mkdir(parents=True, exist_ok=True)
+        (path / CHUNKS).mkdir(exist_ok=True)
         with atomic_write(path / MANIFEST, "w") as f:
             json.dump(manifest, f, indent=1)
         return cls(path, manifest)
