@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import sys
 import time
 
 import jax
@@ -24,10 +23,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
+from .._names import BTF_MODELS
 from .._params import Config, Params, preset
-from ._chunkfn import BACKENDS, N_PAIRS, grouping, make_chunk_fn, make_model_choice_fn, texel_isotropy
+from ..select._isotropy import LEVEL, MIN_EFFECT
+from ._chunkfn import BACKENDS, N_PAIRS, grouping, texel_isotropy
+from ._chunkfn import make_chunk_fn, make_model_choice_fn
 from ._devices import DEFAULT_BLOCK, ShardedRunner, resolve_devices
-from ._store import ChunkedStore
+from ._store import ABRDF_GEOMETRY, ChunkedStore, open_store, pad_rows, progress_bar
 
 #: Texels per chunk when none is given (about 40 MB of float16 output per chunk).
 DEFAULT_CHUNK = 1024
@@ -48,10 +50,6 @@ def default_config(budget: str = "aniso204") -> Config:
     return preset("operator", budget)
 
 
-def _as_store(store) -> ChunkedStore:
-    return store if isinstance(store, ChunkedStore) else ChunkedStore.open(store)
-
-
 def store_identity(store: ChunkedStore) -> str:
     """A digest of a store's manifest and of every chunk's checksum (its content's identity)."""
     h = hashlib.sha256(json.dumps(store.manifest, sort_keys=True).encode())
@@ -67,8 +65,8 @@ def _chunk_fn(config, params, geometry, backend, dtype, model="fixed"):
     """:func:`make_chunk_fn` (``model="auto"``: :func:`make_model_choice_fn`), remembered for the
     last few settings (building an operator costs a factorisation and a pass of the pipeline; a
     resumed or repeated run reuses it)."""
-    key = (repr(config), json.dumps(_params_doc(params)), json.dumps(geometry, sort_keys=True), backend,
-           jnp.dtype(dtype).name, model)
+    key = (repr(config), json.dumps(_params_doc(params)), json.dumps(geometry, sort_keys=True))
+    key += (backend, jnp.dtype(dtype).name, model)
     if key not in _CHUNK_FNS:
         while len(_CHUNK_FNS) >= 4:
             _CHUNK_FNS.pop(next(iter(_CHUNK_FNS)))
@@ -78,8 +76,8 @@ def _chunk_fn(config, params, geometry, backend, dtype, model="fixed"):
 
 
 def _params_doc(params: Params) -> dict:
-    return dict(alpha=float(params.alpha), widths=[float(w) for w in np.ravel(params.widths)],
-                reg=float(params.reg))
+    widths = [float(w) for w in np.ravel(params.widths)]
+    return dict(alpha=float(params.alpha), widths=widths, reg=float(params.reg))
 
 
 def reconstruct_btf(
@@ -134,70 +132,38 @@ def reconstruct_btf(
             folder that holds something else.
     """
     t_start = time.perf_counter()
-    meas = _as_store(meas_store)
-    if meas.kind != "measurements":
-        raise InputError(f"{meas.path}: is a {meas.kind} store, expected measurements")
-    bad = [k for k in range(meas.n_chunks) if not meas.is_done(k, verify=False)]
-    if bad:
-        raise InputError(f"{meas.path}: {len(bad)} of {meas.n_chunks} chunks missing or invalid (first: {bad[0]})")
+    meas, work, config, alpha_deg = _inputs(meas_store, config, compute_dtype)
     if meas.item_shape[1:] != (3,):
         raise InputError(f"{meas.path}: samples must be RGB, item shape is {meas.item_shape}")
-    if not isinstance(chunk, (int, np.integer)) or chunk < 1:
-        raise InputError(f"chunk must be a positive integer, got {chunk!r}")
-    if compute_dtype not in ("float32", "float64"):
-        raise InputError(f"compute_dtype must be 'float32' or 'float64', got {compute_dtype!r}")
-    if compute_dtype == "float64" and not jax.config.read("jax_enable_x64"):
-        raise InputError("compute_dtype='float64' needs 64-bit JAX (JAX_ENABLE_X64=1)")
-    work = jnp.dtype(compute_dtype)
     geometry = meas.geometry
-    alpha_deg = float(geometry.get("alpha_deg", 15.0))
-    if config is None:
-        config = default_config(geometry.get("budget", "aniso204"))
     if params is None:
         params = Params.default(config, alpha_deg=alpha_deg, dtype=work)
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    if model not in ("fixed", "auto"):
+    if model not in BTF_MODELS:
         raise InputError(f"model must be 'fixed' or 'auto', got {model!r}")
-    if model == "auto" and (config.budget != "aniso204" or geometry.get("budget", "aniso204") != "aniso204"):
+    if model == "auto" and {config.budget, geometry.get("budget", "aniso204")} != {"aniso204"}:
         raise InputError("model='auto' chooses between iso102 and aniso204 per texel: it needs an aniso204 "
                          f"configuration and measurement (got {config.budget!r}); use model='fixed'")
     # The job is what the results depend on; "auto" resolves the same way every time.
-    job = dict(input=store_identity(meas), config=repr(config), params=_params_doc(params),
-               backend=backend, compute_dtype=compute_dtype, model=model)
-    out = ChunkedStore.create(
-        out_store, kind="abrdf", texel_shape=meas.texel_shape, item_shape=(N_PAIRS, 3), dtype=dtype,
-        chunk=chunk, geometry=dict(grid="UBO2003-81", order="i*81+v", value="BRDF*cos(theta_i), linear RGB"),
-        attrs=dict(job=job, source=meas.attrs), overwrite=overwrite,
-    )
+    job = dict(input=store_identity(meas), config=repr(config), params=_params_doc(params))
+    job.update(backend=backend, compute_dtype=compute_dtype, model=model)
+    attrs = dict(job=job, source=meas.attrs)
+    shape = dict(texel_shape=meas.texel_shape, item_shape=(N_PAIRS, 3), dtype=dtype, chunk=chunk)
+    out = ChunkedStore.create(out_store, kind="abrdf", geometry=ABRDF_GEOMETRY, attrs=attrs,
+                              overwrite=overwrite, **shape)
     pid, nproc = jax.process_index(), jax.process_count()
     if nproc == 1:
         out.remove_temporary()
-    mine = [k for k in range(out.n_chunks) if k % nproc == pid]
-    done = set(k for k in mine if out.is_done(k, verify=True))
-    todo = [k for k in mine if k not in done]
-
+    mine = list(range(pid, out.n_chunks, nproc))
+    todo = [k for k in mine if not out.is_done(k, verify=True)]
     devices = resolve_devices(devices)
-    info = dict(chunks_done=0, chunks_skipped=len(done), backend=None, devices=len(devices),
-                first_chunk_seconds=0.0, batch=None)
+    info = dict(chunks_done=0, chunks_skipped=len(mine) - len(todo), devices=len(devices))
+    info.update(backend=None, batch=None, first_chunk_seconds=0.0)
     if todo:  # build (or reuse) the chunk map only when there is work
         chunk_fn = _chunk_fn(config, params, geometry, backend, work, model)
         runner = ShardedRunner(chunk_fn, devices, np.dtype(dtype), block)
-        batch = runner.batch_size(chunk)
-        info.update(backend=chunk_fn.backend, batch=batch)
-
-    from tqdm import tqdm
-
-    done_texels = sum(b - a for a, b in (out.chunk_range(k) for k in done))
-    bar = tqdm(total=sum(b - a for a, b in (out.chunk_range(k) for k in mine)), initial=done_texels,
-               unit="texel", desc="btf reconstruct", disable=not progress, file=sys.stderr, dynamic_ncols=True)
-
-    def padded_input(k):
-        a, b = out.chunk_range(k)
-        y = meas.read(a, b).astype(work)
-        if y.shape[0] < batch:  # repeat the last texel: one shape, one compilation
-            y = np.concatenate([y, np.repeat(y[-1:], batch - y.shape[0], axis=0)])
-        return y
+        info.update(backend=chunk_fn.backend, batch=runner.batch_size(chunk))
 
     def finish(k, pending):
         a, b = out.chunk_range(k)
@@ -205,11 +171,14 @@ def reconstruct_btf(
         info["chunks_done"] += 1
         bar.update(b - a)
 
-    try:
+    total = out.texels(mine)
+    with progress_bar("btf reconstruct", total, progress, initial=total - out.texels(todo)) as bar:
         previous = None
         for n, k in enumerate(todo):
             t0 = time.perf_counter()
-            result = runner(padded_input(k))  # asynchronous: computes while we write the last one
+            # repeat the last texel up to the batch (one shape, one compilation); asynchronous:
+            # computes while the last one is written
+            result = runner(pad_rows(meas.read(*out.chunk_range(k)).astype(work), info["batch"]))
             if n == 0:
                 result.block_until_ready()
                 info["first_chunk_seconds"] = time.perf_counter() - t0  # compilation included
@@ -218,12 +187,22 @@ def reconstruct_btf(
             previous = (k, result)
         if previous is not None:
             finish(*previous)
-    finally:
-        bar.close()
     info["seconds"] = time.perf_counter() - t_start
     if stats is not None:
         stats.update(info)
     return out
+
+
+def _inputs(meas_store, config, compute_dtype):
+    """The (complete) measurement store, the working dtype, the configuration (default: the BTF
+    default for the store's budget) and the slice offset α in degrees."""
+    meas = open_store(meas_store, "measurements", complete=True)
+    if compute_dtype not in ("float32", "float64"):
+        raise InputError(f"compute_dtype must be 'float32' or 'float64', got {compute_dtype!r}")
+    if compute_dtype == "float64" and not jax.config.read("jax_enable_x64"):
+        raise InputError("compute_dtype='float64' needs 64-bit JAX (JAX_ENABLE_X64=1)")
+    config = default_config(meas.geometry.get("budget", "aniso204")) if config is None else config
+    return meas, jnp.dtype(compute_dtype), config, float(meas.geometry.get("alpha_deg", 15.0))
 
 
 def isotropy_map(meas_store, *, chunk: int = DEFAULT_CHUNK, config: Config | None = None,
@@ -241,27 +220,15 @@ def isotropy_map(meas_store, *, chunk: int = DEFAULT_CHUNK, config: Config | Non
         "fraction_isotropic": float}`` (statistic: χ²/dof; effect: RMS log variation of the axial
         slices, see :func:`abrdf_jax.select.isotropy_test`).
     """
-    from ..select._isotropy import LEVEL, MIN_EFFECT
-
-    meas = _as_store(meas_store)
-    if meas.kind != "measurements":
-        raise InputError(f"{meas.path}: is a {meas.kind} store, expected measurements")
-    work = jnp.dtype(compute_dtype)
-    geometry = meas.geometry
-    config = default_config(geometry.get("budget", "aniso204")) if config is None else config
+    meas, work, config, alpha_deg = _inputs(meas_store, config, compute_dtype)
     # Only the slice layout is needed (no operator): the same grouping the chunk map uses.
-    template, group = grouping(geometry, config.pairs, float(geometry.get("alpha_deg", 15.0)))
+    template, group = grouping(meas.geometry, config.pairs, alpha_deg)
     t, count = np.asarray(template.t, np.float64), np.asarray(template.count)
     g = jnp.asarray(group, work)
     test = jax.jit(lambda g, y: texel_isotropy(g, t, count, y, level=LEVEL, min_effect=MIN_EFFECT))
-    parts = [[], [], []]
-    for a in range(0, meas.n_texels, chunk):
-        b = min(a + chunk, meas.n_texels)
-        y = meas.read(a, b).astype(work)
-        if y.shape[0] < chunk and meas.n_texels > chunk:  # one shape, one compilation
-            y = np.concatenate([y, np.repeat(y[-1:], chunk - y.shape[0], axis=0)])
-        for part, v in zip(parts, test(g, y)):
-            part.append(np.asarray(v)[: b - a])
-    shape = tuple(meas.texel_shape)
-    iso, stat, eff = (np.concatenate(p).reshape(shape) for p in parts)
+    n, parts = meas.n_texels, []
+    for a in range(0, n, chunk):
+        y = pad_rows(meas.read(a, min(a + chunk, n)).astype(work), min(chunk, n))
+        parts.append([np.asarray(v)[: n - a] for v in test(g, y)])
+    iso, stat, eff = (np.concatenate(p).reshape(meas.texel_shape) for p in zip(*parts))
     return dict(isotropic=iso, statistic=stat, effect=eff, fraction_isotropic=float(iso.mean()))

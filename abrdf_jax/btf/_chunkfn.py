@@ -28,24 +28,15 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import InputError
-from .._params import Config, Params, preset
 from .._measurements import Measurements, Samples, group_slices
 from .._names import BTF_BACKENDS as BACKENDS
 from .._operator import compile_operator
+from .._params import Config, Params, preset
 from .._pipeline import reconstruct_batch
+from ..select._isotropy import LEVEL, MIN_EFFECT, isotropy_batch
+from ._store import ANGLES
+
 N_PAIRS = 81 * 81
-
-
-def geometry_samples(geometry: dict) -> Samples:
-    """The sample directions of a measurement store's geometry (values zero)."""
-    try:
-        cols = [np.asarray(geometry[k], float) for k in ("theta_i", "phi_i", "theta_v", "phi_v")]
-    except KeyError as e:
-        raise InputError(f"measurement geometry lacks {e.args[0]!r}") from None
-    n = len(cols[0])
-    if n == 0 or any(len(c) != n for c in cols):
-        raise InputError("measurement geometry: theta_i, phi_i, theta_v, phi_v must have one equal, non-zero length")
-    return Samples(*cols, np.zeros((n, 3)))
 
 
 def grouping(geometry: dict, pairs, alpha_deg: float) -> tuple[Measurements, np.ndarray]:
@@ -55,23 +46,30 @@ def grouping(geometry: dict, pairs, alpha_deg: float) -> tuple[Measurements, np.
         ``(template, G)``: ``template`` holds ``t``, ``count``, ``pairs``, ``has_axial`` (its
         values are zero); ``G`` has shape ``(S * nmax, n)`` with ``y_slices = G @ y_flat``.
     """
-    base = geometry_samples(geometry)
-    n = len(base)
+    try:
+        angles = [np.asarray(geometry[k], float) for k in ANGLES]
+    except KeyError as e:
+        raise InputError(f"measurement geometry lacks {e.args[0]!r}") from None
+    n = len(angles[0])
+    if n == 0 or any(len(c) != n for c in angles):
+        raise InputError("measurement geometry: theta_i, phi_i, theta_v, phi_v must have one equal, non-zero length")
     cols = []
-    template = None
-    for j0 in range(0, n, 3):
-        rgb = np.zeros((n, 3))
+    for j0 in range(0, n, 3):  # three unit samples at a time, one per channel: entries 0 or 1
         width = min(3, n - j0)
+        rgb = np.zeros((n, 3))
         rgb[j0 + np.arange(width), np.arange(width)] = 1.0
-        s = Samples(base.theta_i, base.phi_i, base.theta_v, base.phi_v, rgb)
-        meas, _ = group_slices(s, alpha_deg, pairs=pairs, dtype=np.float32)  # entries 0 or 1
-        y = np.asarray(meas.y)
-        cols.extend(y[..., c].reshape(-1) for c in range(width))
-        if template is None:
-            template = meas
-    g = np.stack(cols, axis=1)
-    template = template.replace(y=jnp.zeros_like(template.y))
-    return template, g
+        meas, _ = group_slices(Samples(*angles, rgb), alpha_deg, pairs=pairs, dtype=np.float32)
+        cols.extend(np.asarray(meas.y)[..., c].reshape(-1) for c in range(width))
+    return meas.replace(y=jnp.zeros_like(meas.y)), np.stack(cols, axis=1)
+
+
+def _alpha_deg(geometry: dict, params: Params) -> float:
+    return float(geometry.get("alpha_deg", np.rad2deg(float(params.alpha))))
+
+
+def _slice_values(group, t_shape, y):
+    """Flat samples ``y`` ``(C, n, 3)`` to slice values ``(C, S, nmax, 3)`` (``y_slices = G @ y``)."""
+    return jnp.einsum("pn,cnk->cpk", group.astype(y.dtype), y).reshape(y.shape[0], *t_shape, 3)
 
 
 class ChunkFunction(eqx.Module):
@@ -89,18 +87,12 @@ class ChunkFunction(eqx.Module):
     operator: object = None
     source: Array | None = None  # operator input k is flat sample source[k]
 
-    @property
-    def n_samples(self) -> int:
-        return self.group.shape[1]
-
     def measurements(self, y: Float[Array, "C n 3"]) -> Measurements:
         """Flat samples to a stacked :class:`Measurements` (leading texel axis)."""
-        c = y.shape[0]
-        s, nmax = self.template.t.shape
-        ys = jnp.einsum("pn,cnk->cpk", self.group.astype(y.dtype), y).reshape(c, s, nmax, 3)
-        t = jnp.broadcast_to(self.template.t.astype(y.dtype), (c, s, nmax))
-        count = jnp.broadcast_to(self.template.count, (c, s))
-        return Measurements(t, ys, count, self.template.pairs, self.template.has_axial)
+        (c, *_), tm = y.shape, self.template
+        t = jnp.broadcast_to(tm.t.astype(y.dtype), (c, *tm.t.shape))
+        count = jnp.broadcast_to(tm.count, (c, *tm.count.shape))
+        return tm.replace(y=_slice_values(self.group, tm.t.shape, y), t=t, count=count)
 
     def __call__(self, y: Float[Array, "C n 3"]) -> Float[Array, "C 6561 3"]:
         if self.backend == "operator":
@@ -133,8 +125,7 @@ def make_chunk_fn(config: Config, params: Params, geometry: dict, backend: str =
     """
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    alpha = float(geometry.get("alpha_deg", np.rad2deg(float(params.alpha))))
-    template, group = grouping(geometry, config.pairs, alpha)
+    template, group = grouping(geometry, config.pairs, _alpha_deg(geometry, params))
     if config.budget == "aniso204" and not template.has_axial:
         raise InputError("Config(budget='aniso204') needs axial slices, but the measurement geometry has none")
     template, params = template.astype(dtype), params.astype(dtype)
@@ -145,7 +136,8 @@ def make_chunk_fn(config: Config, params: Params, geometry: dict, backend: str =
         except InputError as e:
             why = f"the operator does not apply: {e}"
         if operator is not None:
-            rows = group[np.asarray(operator.index)]  # (n_in, n): which flat sample feeds each input
+            # (n_in, n): which flat sample feeds each input
+            rows = group[np.asarray(operator.index)]
             if not np.all((rows == 0) | (rows == 1)) or not np.all(rows.sum(axis=1) == 1):
                 operator, why = None, "repeated sample angles are averaged (not a plain gather)"
             else:
@@ -153,17 +145,15 @@ def make_chunk_fn(config: Config, params: Params, geometry: dict, backend: str =
         if operator is None and backend == "operator":
             raise InputError(f"backend='operator': {why}")
     chosen = "operator" if operator is not None else "pipeline"
-    return ChunkFunction(chosen, config, params, template, jnp.asarray(group, dtype), operator, source)
+    group = jnp.asarray(group, dtype)
+    return ChunkFunction(chosen, config, params, template, group, operator, source)
 
 
-def texel_isotropy(group, t, count, y, *, level: float, min_effect: float):
+def texel_isotropy(group, t, count, y, *, level: float = LEVEL, min_effect: float = MIN_EFFECT):
     """The isotropy test of every texel: flat samples ``y`` ``(C, n, 3)`` put into the slice layout
     ``(t, count)`` by the grouping matrix ``group`` (:func:`grouping`), then
     :func:`abrdf_jax.select._isotropy.isotropy_batch`. Returns ``(isotropic, statistic, effect)``."""
-    from ..select._isotropy import isotropy_batch
-
-    s, nmax = t.shape
-    ys = jnp.einsum("pn,cnk->cpk", group.astype(y.dtype), y).reshape(y.shape[0], s, nmax, 3)
+    ys = _slice_values(group, t.shape, y)
     return isotropy_batch(ys, t, count, level=level, min_effect=min_effect)
 
 
@@ -190,14 +180,10 @@ class ModelChoiceChunkFunction(eqx.Module):
     def backend(self) -> str:
         return f"{self.aniso.backend}+choice"
 
-    @property
-    def n_samples(self) -> int:
-        return self.aniso.n_samples
-
     def isotropic(self, y: Float[Array, "C n 3"]):
         """``(isotropic, statistic, effect)`` per texel of flat samples ``y`` (the test's outputs)."""
-        return texel_isotropy(self.aniso.group, np.asarray(self.t), np.asarray(self.count), y,
-                              level=self.level, min_effect=self.min_effect)
+        t, count = np.asarray(self.t), np.asarray(self.count)
+        return texel_isotropy(self.aniso.group, t, count, y, level=self.level, min_effect=self.min_effect)
 
     def __call__(self, y: Float[Array, "C n 3"]) -> Float[Array, "C 6561 3"]:
         iso = self.isotropic(y)[0]
@@ -206,8 +192,8 @@ class ModelChoiceChunkFunction(eqx.Module):
 
 def make_model_choice_fn(config: Config, params: Params, geometry: dict, backend: str = "auto",
                          dtype=jnp.float32, *, iso_config: Config | None = None,
-                         iso_params: Params | None = None, level: float | None = None,
-                         min_effect: float | None = None) -> ModelChoiceChunkFunction:
+                         iso_params: Params | None = None, level: float = LEVEL,
+                         min_effect: float = MIN_EFFECT) -> ModelChoiceChunkFunction:
     """Build the per-texel model-choice map (see :class:`ModelChoiceChunkFunction`).
 
     Args:
@@ -222,19 +208,14 @@ def make_model_choice_fn(config: Config, params: Params, geometry: dict, backend
         InputError: the anisotropic configuration is not ``aniso204`` or the geometry has no
             axial slice (nothing to test).
     """
-    from ..select._isotropy import LEVEL, MIN_EFFECT
-
     if config.budget != "aniso204":
         raise InputError(f"model='auto' chooses between iso102 and aniso204 per texel; the configuration's "
                          f"budget is {config.budget!r} (use model='fixed')")
     aniso = make_chunk_fn(config, params, geometry, backend, dtype)
-    if iso_config is None:
-        iso_config = preset("operator", "iso102")
+    iso_config = preset("operator", "iso102") if iso_config is None else iso_config
     if iso_params is None:
-        alpha = float(geometry.get("alpha_deg", np.rad2deg(float(params.alpha))))
-        iso_params = Params.default(iso_config, alpha_deg=alpha, dtype=dtype)
+        iso_params = Params.default(iso_config, alpha_deg=_alpha_deg(geometry, params), dtype=dtype)
     iso = make_chunk_fn(iso_config, iso_params, geometry, backend, dtype)
     t = tuple(tuple(float(v) for v in row) for row in np.asarray(aniso.template.t, np.float64))
     count = tuple(int(c) for c in np.asarray(aniso.template.count))
-    return ModelChoiceChunkFunction(aniso, iso, t, count, LEVEL if level is None else float(level),
-                                    MIN_EFFECT if min_effect is None else float(min_effect))
+    return ModelChoiceChunkFunction(aniso, iso, t, count, float(level), float(min_effect))

@@ -107,8 +107,7 @@ def _sharded_jit(devices: tuple, block: int, out_dtype: str):
     key = (devices, block, out_dtype)
     if key not in _JITS:
         mesh = Mesh(np.asarray(devices), (AXIS,))
-        data = NamedSharding(mesh, PartitionSpec(AXIS))
-        replicated = NamedSharding(mesh, PartitionSpec())
+        data, replicated = NamedSharding(mesh, PartitionSpec(AXIS)), NamedSharding(mesh, PartitionSpec())
         fn = jax.jit(partial(_run, mesh=mesh, block=block, out_dtype=np.dtype(out_dtype)), static_argnums=0,
                      in_shardings=(replicated, data), out_shardings=data)
         _JITS[key] = (fn, data, replicated)
@@ -133,33 +132,24 @@ class ShardedRunner:
     def __init__(self, chunk_fn, devices, out_dtype, block: int = DEFAULT_BLOCK):
         if not isinstance(block, (int, np.integer)) or block < 1:
             raise InputError(f"block must be a positive integer, got {block!r}")
-        self.devices = list(devices)
-        self.block = int(block)
+        self.devices, self.block = list(devices), int(block)
         self._out_dtype = np.dtype(out_dtype).name
         arrays, self._static = eqx.partition(chunk_fn, eqx.is_array)
-        mesh = Mesh(np.asarray(self.devices), (AXIS,))
-        self._arrays = jax.device_put(arrays, NamedSharding(mesh, PartitionSpec()))
-
-    @property
-    def n_devices(self) -> int:
-        return len(self.devices)
-
-    def local_block(self, chunk: int) -> int:
-        """Texels per block for a chunk of ``chunk`` texels: ``block``, or less for a small chunk."""
-        return min(self.block, -(-chunk // self.n_devices))
+        self._arrays = jax.device_put(arrays, _sharded_jit(tuple(self.devices), self.block, self._out_dtype)[2])
 
     def batch_size(self, chunk: int) -> int:
-        """The padded batch of a chunk: the next multiple of ``devices × local_block(chunk)``."""
-        step = self.n_devices * self.local_block(chunk)
+        """The padded batch of a chunk: the next multiple of ``devices × b``, with ``b`` the
+        block or, for a small chunk, ``ceil(chunk / devices)``."""
+        step = len(self.devices) * min(self.block, -(-chunk // len(self.devices)))
         return -(-chunk // step) * step
 
     def __call__(self, y: np.ndarray):
         """Dispatch one padded batch ``(B, n, 3)`` (from :meth:`batch_size`); returns a (still
         computing) JAX array."""
-        per_device, rem = divmod(y.shape[0], self.n_devices)
+        per_device, rem = divmod(y.shape[0], len(self.devices))
         block = min(self.block, per_device)
         if rem or block == 0 or per_device % block:
-            raise ValueError(f"batch of {y.shape[0]} texels is not a multiple of {self.n_devices} devices "
+            raise ValueError(f"batch of {y.shape[0]} texels is not a multiple of {len(self.devices)} devices "
                              f"x blocks of {block}; pad it to batch_size()")
         run, data, _ = _sharded_jit(tuple(self.devices), block, self._out_dtype)
         return run(self._static, self._arrays, jax.device_put(y, data))

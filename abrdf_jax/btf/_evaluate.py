@@ -10,7 +10,7 @@ import numpy as np
 
 from .._errors import InputError
 from ..metrics._metrics import _de76_pairs, _log_error_from_y, _mean_over_pairs, expose, srgb_to_lab, tonemap
-from ._store import ChunkedStore
+from ._store import open_store, pad_rows
 
 METRICS = ("de76", "logerr")
 
@@ -26,16 +26,9 @@ def _one_texel(recs, ref, names):
     e = expose(ref)
     y_ref = ref * e
     lab_ref = srgb_to_lab(tonemap(y_ref)) if "de76" in names else None
-    out = []
-    for rec in recs:
-        y, same = rec * e, rec == ref
-        res = {}
-        if "de76" in names:
-            res["de76"] = _mean_over_pairs(_de76_pairs(srgb_to_lab(tonemap(y)), lab_ref), same)
-        if "logerr" in names:
-            res["logerr"] = _log_error_from_y(y, y_ref, same)
-        out.append(res)
-    return out
+    metric = dict(de76=lambda y, same: _mean_over_pairs(_de76_pairs(srgb_to_lab(tonemap(y)), lab_ref), same),
+                  logerr=lambda y, same: _log_error_from_y(y, y_ref, same))
+    return [{k: metric[k](rec * e, rec == ref) for k in names} for rec in recs]
 
 
 @partial(jax.jit, static_argnames="names")
@@ -43,16 +36,12 @@ def _chunk_metrics(recs, ref, names):
     return jax.vmap(lambda r, f: _one_texel(r, f, names))(recs, ref)
 
 
-def _open(store) -> ChunkedStore:
-    return store if isinstance(store, ChunkedStore) else ChunkedStore.open(store)
-
-
 def _reader(x):
     """``(n_texels, texel_shape or None, read(a, b))`` of an array or a store."""
     if isinstance(x, np.ndarray):
         return len(x), None, lambda a, b: x[a:b]
-    s = _open(x)
-    return s.n_texels, s.texel_shape, lambda a, b: s.read(a, b)
+    s = open_store(x)
+    return s.n_texels, s.texel_shape, s.read
 
 
 def texel_metrics_many(recs: dict, ref, metrics=METRICS, batch: int = 256) -> dict[str, dict[str, np.ndarray]]:
@@ -92,15 +81,10 @@ def texel_metrics_many(recs: dict, ref, metrics=METRICS, batch: int = 256) -> di
     batch = max(1, min(batch, n))
     out = {key: {k: np.empty(n) for k in names} for key in recs}
 
-    def padded(x, b, a):
-        x = np.asarray(x, np.float32)
-        return x if b - a == batch else np.concatenate([x, np.repeat(x[-1:], batch - (b - a), 0)])
-
     for a in range(0, n, batch):
         b = min(a + batch, n)
-        y = padded(read_ref(a, b), b, a)  # repeat the last texel: one shape, one compilation
-        xs = [padded(read(a, b), b, a) for read in readers.values()]
-        vals = _chunk_metrics([jnp.asarray(x) for x in xs], jnp.asarray(y), names)
+        y, *xs = (jnp.asarray(pad_rows(np.asarray(read(a, b), np.float32), batch)) for read in (read_ref, *readers.values()))
+        vals = _chunk_metrics(xs, y, names)
         for key, v in zip(readers, vals):
             for k in names:
                 out[key][k][a:b] = np.asarray(v[k])[: b - a]
@@ -108,20 +92,8 @@ def texel_metrics_many(recs: dict, ref, metrics=METRICS, batch: int = 256) -> di
 
 
 def texel_metrics(rec, ref, metrics=METRICS[:1], batch: int = 256) -> dict[str, np.ndarray]:
-    """PROTOCOL metrics of every texel, as ``(rows, columns)`` maps.
-
-    Each texel is one material: exposed by its own reference (PROTOCOL.md), compared over its 6561
-    direction pairs.
-
-    Args:
-        rec: the reconstruction (an ``"abrdf"`` store or its folder), or an array ``(T, 6561, 3)``.
-        ref: the dense reference, same layout (a store gives the map its shape).
-        metrics: names among ``"de76"``, ``"logerr"``.
-        batch: texels evaluated per call (one compilation for any size).
-
-    Returns:
-        ``{name: (rows, columns) float64 map}`` (``(1, T)`` when neither input is a store).
-    """
+    """PROTOCOL metrics of every texel of one reconstruction: :func:`texel_metrics_many` of
+    ``{"rec": rec}``, i.e. ``{metric: (rows, columns) float64 map}``."""
     return texel_metrics_many({"rec": rec}, ref, metrics, batch)["rec"]
 
 
@@ -131,8 +103,7 @@ def mean_fill(meas, start: int = 0, stop: int | None = None) -> np.ndarray:
     Returns:
         ``(n, 6561, 3)`` float32.
     """
-    store = _open(meas)
-    y = store.read(start, stop).astype(np.float32)
+    y = open_store(meas).read(start, stop).astype(np.float32)
     return np.broadcast_to(y.mean(axis=1, keepdims=True), (y.shape[0], 81 * 81, 3)).copy()
 
 
@@ -154,20 +125,20 @@ def save_error_map(values: np.ndarray, path, *, title: str = "", label: str = "Î
     import matplotlib.pyplot as plt
 
     values = np.asarray(values, float)
-    panels = [(f"{title} mean {values.mean():.2f}, p95 {np.percentile(values, 95):.2f}".strip(), values)]
-    panels += list((extra or {}).items())
+    head = f"{title} mean {values.mean():.2f}, p95 {np.percentile(values, 95):.2f}".strip()
+    panels = [(head, values), *(extra or {}).items()]
     fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 4.2), squeeze=False)
     for ax, (name, img) in zip(axes[0], panels):
         img = np.asarray(img)
         if img.ndim == 3:  # an RGB map (e.g. albedo), shown gamma-encoded
-            ax.imshow(np.clip(img / max(img.max(), 1e-6), 0, 1) ** (1 / 2.2), interpolation="nearest")
+            img = np.clip(img / max(img.max(), 1e-6), 0, 1) ** (1 / 2.2)
+            ax.imshow(img, interpolation="nearest")
         else:
             vm = vmax if img is values and vmax is not None else float(np.percentile(img, 99))
             im = ax.imshow(img, cmap="magma", vmin=0, vmax=vm, interpolation="nearest")
             fig.colorbar(im, ax=ax, fraction=0.046, label=label if img is values else "")
         ax.set_title(name, fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
+        ax.set(xticks=[], yticks=[])
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -22,20 +22,19 @@ from __future__ import annotations
 import contextlib
 import json
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError, located
 from .._grid import pair_grid
+from .._slices import PROTOCOL_PAIRS
 from ..io import atomic_write
 from ..io._exr import read_rgb_exr, write_rgb_exr
-from ._store import ChunkedStore
+from ._store import ABRDF_GEOMETRY, ANGLES, ChunkedStore, make_folder, open_store, progress_bar
 
 PAIRS_INDEX = "pairs.json"
 _NAME = re.compile(r"^tl(\d+(?:\.\d+)?)_pl(\d+(?:\.\d+)?)_tv(\d+(?:\.\d+)?)_pv(\d+(?:\.\d+)?)\.exr$", re.I)
-_UBO_GEOMETRY = dict(grid="UBO2003-81", order="i*81+v", value="BRDF*cos(theta_i), linear RGB")
 
 
 def _fmt(angle: float) -> str:
@@ -56,14 +55,6 @@ def parse_pair_filename(name: str) -> tuple[float, float, float, float] | None:
     return None if m is None else tuple(float(g) for g in m.groups())
 
 
-def store_pairs(store: ChunkedStore) -> np.ndarray:
-    """Angles ``(P, 4)`` (θi, φi, θv, φv in degrees) of the pairs a store holds per texel."""
-    if store.kind == "abrdf":
-        return np.stack(pair_grid(), axis=1)
-    g = store.geometry
-    return np.stack([np.asarray(g[k], float) for k in ("theta_i", "phi_i", "theta_v", "phi_v")], axis=1)
-
-
 def write_exr_pairs(store, folder, *, half: bool = True, compression: str = "zip",
                     memory_limit: int = 1 << 30, progress: bool = False) -> int:
     """Write a chunked store as one EXR image per direction pair (see the module docstring).
@@ -79,28 +70,23 @@ def write_exr_pairs(store, folder, *, half: bool = True, compression: str = "zip
     Returns:
         The number of images written.
     """
-    store = store if isinstance(store, ChunkedStore) else ChunkedStore.open(store)
+    store = open_store(store, complete=True)
     if compression not in ("zip", "none"):
         raise InputError(f"compression must be 'zip' or 'none', got {compression!r}")
-    bad = [k for k in range(store.n_chunks) if not store.is_done(k, verify=False)]
-    if bad:
-        raise InputError(f"{store.path}: {len(bad)} chunks missing or invalid (first: {bad[0]}); finish it first")
-    folder = Path(folder)
-    if not folder.parent.is_dir():
-        raise InputError(f"{folder}: parent folder {folder.parent} does not exist")
-    folder.mkdir(exist_ok=True)
-    pairs = store_pairs(store)
-    h, w = store.texel_shape
+    folder = make_folder(folder)
+    # the angles (θi, φi, θv, φv in degrees) of the pairs a texel holds
+    g = store.geometry
+    angles = pair_grid() if store.kind == "abrdf" else [np.asarray(g[k], float) for k in ANGLES]
+    pairs, (h, w) = np.stack(angles, axis=1), store.texel_shape
     per_pair = store.n_texels * 3 * store.dtype.itemsize
     group = int(max(1, min(len(pairs), memory_limit // per_pair)))
     names = [pair_filename(*p) for p in pairs]
     if len(set(names)) != len(names):
         raise InputError(f"{store.path}: two pairs share an image name; angles too close to tell apart")
-    from tqdm import tqdm
-
     with contextlib.suppress(FileNotFoundError):
         (folder / PAIRS_INDEX).unlink()  # incomplete until the new index lands
-    with tqdm(total=len(pairs), unit="image", desc="exr export", disable=not progress, file=sys.stderr) as bar:
+    kw = dict(half=half, compression=compression, durable=False)
+    with progress_bar("exr export", len(pairs), progress, unit="image") as bar:
         for p0 in range(0, len(pairs), group):
             p1 = min(p0 + group, len(pairs))
             buf = np.empty((p1 - p0, store.n_texels, 3), store.dtype)
@@ -108,12 +94,10 @@ def write_exr_pairs(store, folder, *, half: bool = True, compression: str = "zip
                 a, b = store.chunk_range(k)
                 buf[:, a:b] = store.read_chunk(k, verify=False)[:, p0:p1].transpose(1, 0, 2)
             for j in range(p1 - p0):
-                write_rgb_exr(folder / names[p0 + j], buf[j].reshape(h, w, 3), half=half, compression=compression,
-                              durable=False)
+                write_rgb_exr(folder / names[p0 + j], buf[j].reshape(h, w, 3), **kw)
                 bar.update(1)
-    index = dict(kind=store.kind, texel_shape=[h, w], geometry=store.geometry,
-                 pairs=[dict(file=n, theta_i=float(p[0]), phi_i=float(p[1]), theta_v=float(p[2]),
-                             phi_v=float(p[3])) for n, p in zip(names, pairs)])
+    listing = [dict(file=n, **dict(zip(ANGLES, map(float, p)))) for n, p in zip(names, pairs)]
+    index = dict(kind=store.kind, texel_shape=[h, w], geometry=g, pairs=listing)
     with atomic_write(folder / PAIRS_INDEX, "w") as f:
         json.dump(index, f)
     return len(pairs)
@@ -126,16 +110,15 @@ def _list_pairs(folder: Path) -> tuple[list[Path], np.ndarray, dict]:
         try:
             doc = json.loads(index.read_text(encoding="utf-8"))
             files = [folder / e["file"] for e in doc["pairs"]]
-            angles = np.array([[e[k] for k in ("theta_i", "phi_i", "theta_v", "phi_v")] for e in doc["pairs"]], float)
+            angles = np.array([[e[k] for k in ANGLES] for e in doc["pairs"]], float)
         except (OSError, ValueError, KeyError, TypeError) as e:
             raise located(f"cannot read the pair index: {e}", index) from e
         return files, angles, dict(doc.get("geometry") or {})
-    found = sorted((a, p) for p in folder.iterdir() if (a := parse_pair_filename(p.name)) is not None)
-    files = [p for _, p in found]
-    angles = [a for a, _ in found]  # in numeric order of (θi, φi, θv, φv)
-    if not files:
+    # in numeric order of (θi, φi, θv, φv)
+    found = sorted((a, p) for p in folder.iterdir() if (a := parse_pair_filename(p.name)))
+    if not found:
         raise InputError(f"{folder}: no images named like tl030_pl000_tv030_pv000.exr and no {PAIRS_INDEX}")
-    return files, np.asarray(angles, float), {}
+    return [p for _, p in found], np.array([a for a, _ in found], float), {}
 
 
 def _match_ubo(angles: np.ndarray) -> np.ndarray | None:
@@ -180,36 +163,26 @@ def read_exr_pairs(folder, out_store, *, chunk: int = 1024, dtype: str = "float3
     for f in files:
         if not f.is_file():
             raise InputError(f"{f}: listed in {PAIRS_INDEX} but missing")
-    first = read_rgb_exr(files[0])
-    h, w = first.shape[:2]
     order = _match_ubo(angles)
     if order is not None:
-        files = [files[i] for i in order]
-        store = ChunkedStore.create(out_store, kind="abrdf", texel_shape=(h, w), item_shape=(len(files), 3),
-                                    dtype=dtype, chunk=chunk, geometry=_UBO_GEOMETRY,
-                                    attrs=dict(source=str(folder)), overwrite=overwrite)
+        files, kind, geo = [files[i] for i in order], "abrdf", ABRDF_GEOMETRY
     else:
-        from .._measurements import Samples
-        from .._measurements import estimate_alpha
+        from .._measurements import Samples, estimate_alpha
         from .._pipeline import infer_budget
 
-        if alpha_deg is None:
-            alpha_deg = geometry.get("alpha_deg")
         samples = Samples(*angles.T, np.zeros((len(angles), 3)))
-        if alpha_deg is None:
-            alpha_deg = round(float(estimate_alpha(samples)), 3)
-        geo = dict(theta_i=angles[:, 0].tolist(), phi_i=angles[:, 1].tolist(), theta_v=angles[:, 2].tolist(),
-                   phi_v=angles[:, 3].tolist(), alpha_deg=float(alpha_deg),
-                   pairs=geometry.get("pairs", [[30.0, 30.0], [30.0, 75.0], [75.0, 30.0], [75.0, 75.0]]),
-                   budget=geometry.get("budget") or infer_budget(samples, alpha_deg=float(alpha_deg)))
-        store = ChunkedStore.create(out_store, kind="measurements", texel_shape=(h, w),
-                                    item_shape=(len(files), 3), dtype=dtype, chunk=chunk, geometry=geo,
-                                    attrs=dict(source=str(folder)), overwrite=overwrite)
-    per_chunk = store.chunk * len(files) * 3 * 4
-    chunks_per_group = int(max(1, memory_limit // per_chunk))
-    from tqdm import tqdm
-
-    with tqdm(total=store.n_texels, unit="texel", desc="exr import", disable=not progress, file=sys.stderr) as bar:
+        alpha = geometry.get("alpha_deg") if alpha_deg is None else alpha_deg
+        alpha = float(round(float(estimate_alpha(samples)), 3) if alpha is None else alpha)
+        kind, geo = "measurements", {k: angles[:, j].tolist() for j, k in enumerate(ANGLES)}
+        budget = geometry.get("budget") or infer_budget(samples, alpha_deg=alpha)
+        geo.update(alpha_deg=alpha, pairs=geometry.get("pairs", PROTOCOL_PAIRS), budget=budget)
+    first = read_rgb_exr(files[0])
+    h, w = first.shape[:2]
+    kw = dict(chunk=chunk, geometry=geo, attrs=dict(source=str(folder)), overwrite=overwrite)
+    store = ChunkedStore.create(out_store, kind=kind, texel_shape=(h, w), item_shape=(len(files), 3),
+                                dtype=dtype, **kw)
+    chunks_per_group = int(max(1, memory_limit // (store.chunk * len(files) * 3 * 4)))
+    with progress_bar("exr import", store.n_texels, progress) as bar:
         for k0 in range(0, store.n_chunks, chunks_per_group):
             k1 = min(k0 + chunks_per_group, store.n_chunks)
             a, b = store.chunk_range(k0)[0], store.chunk_range(k1 - 1)[1]

@@ -22,6 +22,7 @@ from .._grid import to_vector, ubo_grid
 from .._params import Config, Params
 from .._measurements import Measurements
 from .._sampling import sample_model
+from ._store import ANGLES
 from ._surface import MIN_RASTER, FourierField, Surface, horizon_map, make_surface, raster
 from ._texel import TexelModel
 
@@ -83,18 +84,14 @@ class ProceduralBTF(eqx.Module):
         aniso = 1.0 + 3.0 * jax.nn.sigmoid(2.0 * f[7])
         angle = jnp.pi * jax.nn.sigmoid(1.2 * f[8])
         fill = 0.15 + 0.25 * jax.nn.sigmoid(self.fill_field(xy))
-        return TexelModel(
-            normal=self.surface.normals(xy), weights=weights, albedo=albedo, metal=metal,
-            roughness=roughness, aniso=aniso, angle=angle, fill=fill,
-            horizon=horizon_map(self.heights, xy),
-        )
+        normal, horizon = self.surface.normals(xy), horizon_map(self.heights, xy)
+        return TexelModel(normal, weights, albedo, metal, roughness, aniso, angle, fill, horizon)
 
     def maps(self, idx) -> dict[str, Array]:
         """Per-texel parameter maps of ``idx``: height, normal, class weights, albedo, ..."""
         t = self.texels(idx)
-        return dict(height=self.surface(self.positions(idx)), normal=t.normal, weights=t.weights,
-                    albedo=t.albedo, roughness=t.roughness, aniso=t.aniso, angle=t.angle, fill=t.fill,
-                    horizon=t.horizon)
+        names = ("normal", "weights", "albedo", "roughness", "aniso", "angle", "fill", "horizon")
+        return dict(height=self.surface(self.positions(idx)), **{k: getattr(t, k) for k in names})
 
 
 def procedural_btf(size: int, seed: int = 0) -> ProceduralBTF:
@@ -120,21 +117,15 @@ def procedural_btf(size: int, seed: int = 0) -> ProceduralBTF:
     fields = tuple(FourierField.random(rng, n=10, kmax=4.0 if k < 3 else 6.0) for k in range(9))
     fill_field = FourierField.random(rng, n=8, kmax=5.0)
     metal = _METAL[rng.integers(len(_METAL))]
-    palette = np.stack([_MATTE[rng.integers(len(_MATTE))], 0.3 * metal, _LACQUER[rng.integers(len(_LACQUER))]])
+    matte, lacquer = _MATTE[rng.integers(len(_MATTE))], _LACQUER[rng.integers(len(_LACQUER))]
+    palette = jnp.asarray(np.stack([matte, 0.3 * metal, lacquer]), _F32)
     heights = raster(surface, max(MIN_RASTER, 2 * size))
-    return ProceduralBTF(size, surface, heights, fields, fill_field, jnp.asarray(palette, _F32),
-                         jnp.asarray(metal, _F32))
+    return ProceduralBTF(size, surface, heights, fields, fill_field, palette, jnp.asarray(metal, _F32))
 
 
 # --------------------------------------------------------------------------------------------
 # Dense ground truth and slice measurements of a range of texels
 # --------------------------------------------------------------------------------------------
-
-
-def ubo_vectors(dtype=_F32) -> Float[Array, "81 3"]:
-    """Unit vectors of the 81 UBO2003 directions."""
-    theta, phi = ubo_grid()
-    return to_vector(jnp.asarray(np.deg2rad(theta), dtype), jnp.asarray(np.deg2rad(phi), dtype))
 
 
 def dense_texel_table(texel, dtype=_F32) -> Float[Array, "6561 3"]:
@@ -143,7 +134,8 @@ def dense_texel_table(texel, dtype=_F32) -> Float[Array, "6561 3"]:
     The directions enter as ``(81, 1, 3)`` and ``(1, 81, 3)``: what depends on one direction
     (frames, visibility, occluder normal) is computed 81 times, not 6561 times.
     """
-    w = ubo_vectors(dtype)
+    theta, phi = ubo_grid()
+    w = to_vector(jnp.asarray(np.deg2rad(theta), dtype), jnp.asarray(np.deg2rad(phi), dtype))
     return texel(w[:, None, :], w[None, :, :]).reshape(81 * 81, 3)
 
 
@@ -153,11 +145,10 @@ def measurement_config() -> tuple[Config, Params]:
     return config, Params.default(config, dtype=_F32)
 
 
-def flat_order(counts) -> tuple[np.ndarray, np.ndarray]:
-    """``(slice, position)`` of each flat sample, in :meth:`Measurements.to_samples` order."""
-    s_idx = np.concatenate([np.full(c, s) for s, c in enumerate(counts)])
-    k_idx = np.concatenate([np.arange(c) for c in counts])
-    return s_idx, k_idx
+def _measure(model) -> Measurements:
+    """The slices of :func:`measurement_config` sampled from ``model``."""
+    config, params = measurement_config()
+    return sample_model(model, config.counts, params.alpha, config.pairs, dtype=_F32)
 
 
 @partial(jax.jit, static_argnames=("reference", "measure", "maps"))
@@ -169,10 +160,11 @@ def _texel_chunk(btf: ProceduralBTF, idx, reference: bool = True, measure: bool 
     if reference:
         out["reference"] = jax.vmap(dense_texel_table)(texels)  # (n, 6561, 3)
     if measure:
-        config, params = measurement_config()
-        s_idx, k_idx = flat_order(config.counts)
-        meas = jax.vmap(lambda t: sample_model(t, config.counts, params.alpha, config.pairs, dtype=_F32))(texels)
-        out["measurements"] = meas.y[:, s_idx, k_idx]  # (n, 204, 3)
+        meas = jax.vmap(_measure)(texels)
+        # (n, 204, 3): the valid samples, slice by slice (Measurements.to_samples order)
+        counts = np.array(measurement_config()[0].counts)
+        s_idx, k_idx = np.nonzero(np.arange(meas.y.shape[2]) < counts[:, None])
+        out["measurements"] = meas.y[:, s_idx, k_idx]
     return out
 
 
@@ -197,20 +189,15 @@ def texel_chunk(btf: ProceduralBTF, start: int, stop: int, *, reference: bool = 
     if not 0 <= start < stop <= btf.n_texels:
         raise InputError(f"texel range {start}:{stop} is outside 0:{btf.n_texels}")
     n = stop - start
-    m = max(n, pad_to or n)
-    idx = np.minimum(np.arange(start, start + m), stop - 1)
-    out = _texel_chunk(btf, jnp.asarray(idx, jnp.int32), reference=reference, measure=measure, maps=maps)
+    idx = jnp.asarray(np.minimum(np.arange(start, start + max(n, pad_to or n)), stop - 1), jnp.int32)
+    out = _texel_chunk(btf, idx, reference=reference, measure=measure, maps=maps)
     return {k: np.asarray(v[:n]) for k, v in out.items()}
 
 
 def measurement_geometry() -> dict:
     """The flat sample geometry of :func:`texel_chunk`'s measurements (degrees, per sample)."""
     config, params = measurement_config()
-    template = sample_model(lambda wi, wv: jnp.zeros(wi.shape, _F32), config.counts, params.alpha,
-                            config.pairs, dtype=_F32)
-    s = Measurements.to_samples(template, alpha_deg=params.alpha_deg)
-    return dict(
-        theta_i=np.asarray(s.theta_i, float).tolist(), phi_i=np.asarray(s.phi_i, float).tolist(),
-        theta_v=np.asarray(s.theta_v, float).tolist(), phi_v=np.asarray(s.phi_v, float).tolist(),
-        alpha_deg=float(params.alpha_deg), pairs=[list(p) for p in config.pairs], budget=config.budget,
-    )
+    s = _measure(lambda wi, wv: jnp.zeros(wi.shape, _F32)).to_samples(alpha_deg=params.alpha_deg)
+    geometry = {k: np.asarray(getattr(s, k), float).tolist() for k in ANGLES}
+    pairs = [list(p) for p in config.pairs]
+    return dict(geometry, alpha_deg=float(params.alpha_deg), pairs=pairs, budget=config.budget)

@@ -26,21 +26,26 @@ import contextlib
 import io
 import json
 import os
+import sys
 import zlib
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
-from .._names import STORE_DTYPES
+from .._names import STORE_DTYPES as DTYPES
 from ..io import atomic_write
 
 FORMAT = "abrdf_jax.btf-store"
 VERSION = 1
 KINDS = ("measurements", "abrdf")
-DTYPES = STORE_DTYPES
 MANIFEST = "manifest.json"
 CHUNKS = "chunks"
+CORRUPT = "checksum mismatch (corrupt data)"
+#: The per-sample angle keys of a measurement geometry (degrees).
+ANGLES = ("theta_i", "phi_i", "theta_v", "phi_v")
+#: The geometry of an ``"abrdf"`` store: the 81 × 81 UBO2003 pairs.
+ABRDF_GEOMETRY = dict(grid="UBO2003-81", order="i*81+v", value="BRDF*cos(theta_i), linear RGB")
 
 
 def _ours(name: str) -> bool:
@@ -49,63 +54,66 @@ def _ours(name: str) -> bool:
     return name == CHUNKS or (name.startswith(f".{MANIFEST}.") and name.endswith(".tmp"))
 
 
-def _chunk_name(k: int) -> str:
-    return f"c{k:06d}"
+def open_store(store, kind: str | None = None, complete: bool = False) -> "ChunkedStore":
+    """``store`` (a :class:`ChunkedStore` or its folder), checked to be of ``kind`` and, with
+    ``complete``, to have every chunk (markers and sizes; no checksums)."""
+    store = store if isinstance(store, ChunkedStore) else ChunkedStore.open(store)
+    if kind is not None and store.kind != kind:
+        raise InputError(f"{store.path}: is a {store.kind} store, expected {kind}")
+    bad = [k for k in range(store.n_chunks) if complete and not store.is_done(k, verify=False)]
+    if bad:
+        raise InputError(f"{store.path}: {len(bad)} of {store.n_chunks} chunks missing or invalid "
+                         f"(first: {bad[0]}); finish it first")
+    return store
+
+
+def make_folder(path) -> Path:
+    """The folder ``path``, created if needed (its parent must exist)."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise InputError(f"{path}: parent folder {path.parent} does not exist")
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{path}: exists and is not a folder")
+    path.mkdir(exist_ok=True)
+    return path
+
+
+def pad_rows(x, n: int) -> np.ndarray:
+    """``x`` with its last row repeated up to ``n`` rows: one shape per batch, one compilation."""
+    x = np.asarray(x)
+    return x if len(x) >= n else np.concatenate([x, np.repeat(x[-1:], n - len(x), axis=0)])
+
+
+def progress_bar(desc: str, total: int, enabled: bool, **kw):
+    """The tqdm bar of a streamed job (on stderr; ``kw``: ``unit`` (default texel), ``initial``)."""
+    from tqdm import tqdm
+
+    kw.setdefault("unit", "texel")
+    return tqdm(total=total, desc=desc, disable=not enabled, file=sys.stderr, dynamic_ncols=True, **kw)
 
 
 class ChunkedStore:
     """A chunked per-texel array on disk (see the module docstring for the layout).
 
     Open one with :meth:`open` or make one with :meth:`create`; read with :meth:`read_chunk`,
-    :meth:`read` or iterate :meth:`chunk_ranges`; write with :meth:`write_chunk`.
+    :meth:`read` or iterate :meth:`chunk_ranges`; write with :meth:`write_chunk`. The manifest's
+    facts are attributes: ``kind``, ``texel_shape`` ``(rows, columns)``, ``n_texels``,
+    ``item_shape``, ``shape``, ``dtype``, ``chunk`` (texels per chunk), ``n_chunks``,
+    ``geometry``, ``attrs``.
     """
 
     def __init__(self, path: Path, manifest: dict):
-        self.path = Path(path)
-        self.manifest = manifest
-
-    # ---------------------------------------------------------------- manifest facts
-
-    @property
-    def kind(self) -> str:
-        return self.manifest["kind"]
-
-    @property
-    def texel_shape(self) -> tuple[int, int]:
-        return tuple(self.manifest["texel_shape"])
-
-    @property
-    def n_texels(self) -> int:
-        h, w = self.texel_shape
-        return h * w
-
-    @property
-    def item_shape(self) -> tuple[int, ...]:
-        return tuple(self.manifest["item_shape"])
-
-    @property
-    def shape(self) -> tuple[int, ...]:
-        return (self.n_texels, *self.item_shape)
-
-    @property
-    def dtype(self) -> np.dtype:
-        return np.dtype(self.manifest["dtype"])
-
-    @property
-    def chunk(self) -> int:
-        return int(self.manifest["chunk"])
-
-    @property
-    def n_chunks(self) -> int:
-        return -(-self.n_texels // self.chunk)
-
-    @property
-    def geometry(self) -> dict:
-        return self.manifest.get("geometry", {})
-
-    @property
-    def attrs(self) -> dict:
-        return self.manifest.get("attrs", {})
+        self.path, self.manifest = Path(path), manifest
+        self.kind = manifest["kind"]
+        self.texel_shape = tuple(int(x) for x in manifest["texel_shape"])
+        self.item_shape = tuple(int(x) for x in manifest["item_shape"])
+        self.dtype = np.dtype(manifest["dtype"])
+        self.chunk = int(manifest["chunk"])
+        self.geometry = manifest.get("geometry", {})
+        self.attrs = manifest.get("attrs", {})
+        self.n_texels = self.texel_shape[0] * self.texel_shape[1]
+        self.shape = (self.n_texels, *self.item_shape)
+        self.n_chunks = -(-self.n_texels // self.chunk)
 
     def chunk_range(self, k: int) -> tuple[int, int]:
         """Texel range ``[start, stop)`` of chunk ``k``."""
@@ -116,8 +124,12 @@ class ChunkedStore:
     def chunk_ranges(self) -> list[tuple[int, int]]:
         return [self.chunk_range(k) for k in range(self.n_chunks)]
 
+    def texels(self, chunks) -> int:
+        """How many texels the chunks ``chunks`` hold."""
+        return sum(b - a for a, b in map(self.chunk_range, chunks))
+
     def _files(self, k: int) -> tuple[Path, Path]:
-        base = self.path / CHUNKS / _chunk_name(k)
+        base = self.path / CHUNKS / f"c{k:06d}"
         return base.with_suffix(".npy"), base.with_suffix(".json")
 
     def __repr__(self) -> str:
@@ -150,7 +162,6 @@ class ChunkedStore:
             InputError: bad arguments, a parent folder that does not exist, a non-store folder
                 that is not empty, or a different store without ``overwrite``.
         """
-        path = Path(path)
         if kind not in KINDS:
             raise InputError(f"store kind must be one of {KINDS}, got {kind!r}")
         dtype = np.dtype(dtype).name
@@ -161,28 +172,22 @@ class ChunkedStore:
             raise InputError(f"texel_shape must be (rows, columns) >= 1, got {texel_shape}")
         if not isinstance(chunk, (int, np.integer)) or chunk < 1:
             raise InputError(f"chunk must be a positive integer, got {chunk!r}")
-        manifest = dict(format=FORMAT, version=VERSION, kind=kind, texel_shape=texel_shape,
-                        item_shape=[int(x) for x in item_shape], dtype=dtype, chunk=int(chunk),
-                        geometry=geometry or {}, attrs=attrs or {})
+        manifest = dict(format=FORMAT, version=VERSION, kind=kind, texel_shape=texel_shape)
+        manifest.update(item_shape=[int(x) for x in item_shape], dtype=dtype, chunk=int(chunk))
+        manifest.update(geometry=geometry or {}, attrs=attrs or {})
         manifest = json.loads(json.dumps(manifest))  # normalise (tuples -> lists, numpy -> float)
-        if not path.parent.is_dir():
-            raise InputError(f"{path}: parent folder {path.parent} does not exist")
-        if path.exists() and not path.is_dir():
-            raise InputError(f"{path}: exists and is not a folder")
+        path = make_folder(path)
         if (path / MANIFEST).exists():
             old = cls.open(path)
+            if old.manifest != manifest and not overwrite:
+                raise InputError(f"{path}: holds a different {old.kind} store (other data or settings); "
+                                 "choose another folder or overwrite it")
             if old.manifest == manifest:
                 (path / CHUNKS).mkdir(exist_ok=True)
                 return old
-            if not overwrite:
-                raise InputError(
-                    f"{path}: holds a different {old.kind} store (other data or settings); "
-                    "choose another folder or overwrite it"
-                )
             old.remove_chunks()
-        elif path.exists() and any(not _ours(p.name) for p in path.iterdir()):
+        elif any(not _ours(p.name) for p in path.iterdir()):
             raise InputError(f"{path}: folder is not empty and holds no store ({MANIFEST} missing)")
-        path.mkdir(exist_ok=True)
         (path / CHUNKS).mkdir(exist_ok=True)
         with atomic_write(path / MANIFEST, "w") as f:
             json.dump(manifest, f, indent=1)
@@ -195,8 +200,7 @@ class ChunkedStore:
         Raises:
             InputError: no store at ``path`` or an unreadable or foreign manifest.
         """
-        path = Path(path)
-        mf = path / MANIFEST
+        mf = Path(path) / MANIFEST
         if not mf.is_file():
             raise InputError(f"{path}: not a chunked store ({MANIFEST} not found)")
         try:
@@ -207,43 +211,38 @@ class ChunkedStore:
             raise InputError(f"{mf}: not an {FORMAT} manifest")
         if manifest.get("version") != VERSION:
             raise InputError(f"{mf}: store version {manifest.get('version')!r}; this reader knows {VERSION}")
-        missing = [k for k in ("kind", "texel_shape", "item_shape", "dtype", "chunk") if k not in manifest]
-        if missing:
-            raise InputError(f"{mf}: manifest lacks {', '.join(missing)}")
-        return cls(path, manifest)
+        try:
+            return cls(path, manifest)
+        except (KeyError, TypeError, ValueError) as e:
+            raise InputError(f"{mf}: manifest lacks or garbles {e}") from e
+
+    def _remove(self, prefixes, suffixes) -> int:
+        folder = self.path / CHUNKS
+        names = os.listdir(folder) if folder.is_dir() else []
+        n = 0
+        for name in sorted(names, key=lambda n: not n.endswith(".json")):  # markers first
+            if name.startswith(prefixes) and name.endswith(suffixes):
+                with contextlib.suppress(FileNotFoundError):
+                    (folder / name).unlink()
+                    n += 1
+        return n
 
     def remove_chunks(self) -> None:
         """Delete every chunk, marker and stray temporary file (markers first)."""
-        folder = self.path / CHUNKS
-        if not folder.is_dir():
-            return
-        names = sorted(os.listdir(folder), key=lambda n: not n.endswith(".json"))
-        for name in names:
-            if name.startswith(("c", ".c")) and name.endswith((".npy", ".json", ".tmp")):
-                with contextlib.suppress(FileNotFoundError):
-                    (folder / name).unlink()
+        self._remove(("c", ".c"), (".npy", ".json", ".tmp"))
 
     def remove_temporary(self) -> int:
         """Delete stray temporary files of interrupted writes; returns how many.
 
         Only safe when no other process writes to this store at the same time.
         """
-        folder = self.path / CHUNKS
-        n = 0
-        if folder.is_dir():
-            for name in os.listdir(folder):
-                if name.startswith(".c") and name.endswith(".tmp"):
-                    with contextlib.suppress(FileNotFoundError):
-                        (folder / name).unlink()
-                        n += 1
-        return n
+        return self._remove(".c", ".tmp")
 
     # ---------------------------------------------------------------- chunks
 
     def _expected_marker(self, k: int) -> dict:
-        start, stop = self.chunk_range(k)
-        return dict(index=k, start=start, stop=stop, shape=[stop - start, *self.item_shape],
-                    dtype=self.dtype.name)
+        a, b = self.chunk_range(k)
+        return dict(index=k, start=a, stop=b, shape=[b - a, *self.item_shape], dtype=self.dtype.name)
 
     def _marker(self, k: int) -> dict | None:
         _, marker = self._files(k)
@@ -268,10 +267,8 @@ class ChunkedStore:
             return "data file missing"
         if size != m.get("bytes"):
             return f"data file has {size} bytes, marker says {m.get('bytes')}"
-        if verify:
-            crc = zlib.crc32(data.read_bytes())
-            if crc != m.get("crc32"):
-                return "checksum mismatch (corrupt data)"
+        if verify and zlib.crc32(data.read_bytes()) != m.get("crc32"):
+            return CORRUPT
         return "done"
 
     def is_done(self, k: int, verify: bool = True) -> bool:
@@ -287,12 +284,7 @@ class ChunkedStore:
 
     def verify(self) -> dict[int, str]:
         """``{chunk: problem}`` for every chunk that is not done (empty when all are valid)."""
-        out = {}
-        for k in range(self.n_chunks):
-            s = self.chunk_status(k, verify=True)
-            if s != "done":
-                out[k] = s
-        return out
+        return {k: s for k in range(self.n_chunks) if (s := self.chunk_status(k, verify=True)) != "done"}
 
     def write_chunk(self, k: int, values) -> None:
         """Write chunk ``k`` atomically, then its marker.
@@ -340,11 +332,11 @@ class ChunkedStore:
         """
         data, _ = self._files(k)
         status = self.chunk_status(k, verify=False)
+        raw = data.read_bytes() if status == "done" else b""
+        if verify and status == "done" and zlib.crc32(raw) != self._marker(k).get("crc32"):
+            status = CORRUPT
         if status != "done":
             raise InputError(f"{data}: chunk {k} of {self.path} is not valid: {status}")
-        raw = data.read_bytes()
-        if verify and zlib.crc32(raw) != self._marker(k).get("crc32"):
-            raise InputError(f"{data}: chunk {k} of {self.path} is not valid: checksum mismatch (corrupt data)")
         try:
             arr = np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
         except Exception as e:  # noqa: BLE001 - numpy raises several types on a bad header
@@ -359,11 +351,8 @@ class ChunkedStore:
         stop = self.n_texels if stop is None else stop
         if not 0 <= start <= stop <= self.n_texels:
             raise InputError(f"{self.path}: texel range {start}:{stop} outside 0:{self.n_texels}")
-        parts = []
-        for k in range(start // self.chunk, -(-stop // self.chunk)):
-            a, b = self.chunk_range(k)
-            arr = self.read_chunk(k, verify)
-            parts.append(arr[max(start, a) - a:min(stop, b) - a])
-        if not parts:
-            return np.zeros((0, *self.item_shape), self.dtype)
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+        c = self.chunk
+        parts = [self.read_chunk(k, verify)[max(start - k * c, 0):stop - k * c] for k in range(start // c, -(-stop // c))]
+        if len(parts) == 1:
+            return parts[0]
+        return np.concatenate(parts) if parts else np.zeros((0, *self.item_shape), self.dtype)

@@ -130,10 +130,8 @@ def make_surface(rng: np.random.Generator) -> Surface:
     gw = rng.uniform(0.06, 0.14, 2)
     gd = rng.uniform(1.0, 1.6, 2) * gw / np.hypot(gk[:, 0], gk[:, 1])
     f = lambda a: jnp.asarray(a, _F32)  # noqa: E731
-    surf = Surface(
-        waves, f(0.02), f(np.concatenate(centres)), f(np.concatenate(radii)), f(np.concatenate(heights)),
-        f(gk), f(rng.uniform(0, 1, 2)), f(gw), f(gd), f(1.0),
-    )
+    bumps = [f(np.concatenate(x)) for x in (centres, radii, heights)]
+    surf = Surface(waves, f(0.02), *bumps, f(gk), f(rng.uniform(0, 1, 2)), f(gw), f(gd), f(1.0))
     # Calibrate: RMS slope over a 128² grid of the patch.
     g = np.linspace(0, 1, 128, endpoint=False) + 0.5 / 128
     xy = jnp.asarray(np.stack(np.meshgrid(g, g), -1).reshape(-1, 2), _F32)

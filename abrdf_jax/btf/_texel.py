@@ -116,11 +116,12 @@ class TexelModel(eqx.Module):
         rho = self.diffuse_albedo().astype(dt)
         # The glossy lobes are colourless (scalar parameters): evaluate them once, not per
         # channel, and colour them afterwards; every diffuse part is one Lambertian term.
-        ward = Ward(diffuse=0.0, specular=1.0, alpha_x=ax, alpha_y=ay, rotation=self.angle)(wi_l, wv_l)
-        ggx = GGX(diffuse=0.0, specular_f0=LACQUER_F0, alpha_x=ax, alpha_y=ay,
-                  rotation=self.angle)(wi_l, wv_l)
+        lobe = dict(alpha_x=ax, alpha_y=ay, rotation=self.angle)
+        ward = Ward(diffuse=0.0, specular=1.0, **lobe)(wi_l, wv_l)
+        ggx = GGX(diffuse=0.0, specular_f0=LACQUER_F0, **lobe)(wi_l, wv_l)
         lam = Lambertian(albedo=rho)(wi_l, wv_l)
-        base = lam + w[1] * self.metal.astype(dt) * ward[..., :1] + w[2] * ggx[..., :1]  # f_mix (n·wi)
+        # f_mix (n·wi)
+        base = lam + w[1] * self.metal.astype(dt) * ward[..., :1] + w[2] * ggx[..., :1]
         rho = rho / jnp.pi
         v_l = visibility(self.horizon, wi, np.deg2rad(SHADOW_SOFTNESS_DEG))[..., None]
         v_v = visibility(self.horizon, wv, np.deg2rad(MASK_SOFTNESS_DEG))[..., None]
@@ -129,7 +130,8 @@ class TexelModel(eqx.Module):
         l_self = base * v_l + fill * rho * cos_n * (1 - v_l)
         phi_v = jnp.arctan2(wv[..., 1], wv[..., 0])
         eta = horizon_at(self.horizon, phi_v)
-        n_occ = jnp.stack([jnp.sin(eta) * jnp.cos(phi_v), jnp.sin(eta) * jnp.sin(phi_v), jnp.cos(eta)], -1)
+        sin_eta = jnp.sin(eta)
+        n_occ = jnp.stack([sin_eta * jnp.cos(phi_v), sin_eta * jnp.sin(phi_v), jnp.cos(eta)], -1)
         cos_occ = jnp.maximum(jnp.sum(n_occ * wi, axis=-1, keepdims=True), 0.0)
         l_occ = rho * cos_occ * (fill + (1 - fill) * v_l)
         out = v_v * l_self + (1 - v_v) * l_occ
