@@ -23,6 +23,8 @@ from .._names import check_registry
 PROG = "abrdf-jax"
 #: Format tag of the model record written beside a reconstruction (``OUT.model.json``).
 MODEL_FORMAT = "abrdf_jax.model/1"
+#: The protocol's metrics (``abrdf_jax.metrics.evaluate`` keys) and their labels, in print order.
+METRICS = {"de76": "dE76", "de2000": "dE2000", "rmse8": "RMSE8", "psnr": "PSNR", "logerr": "LogErr"}
 
 #: What each preset is, for ``--help`` and the model record (``abrdf_jax.preset(NAME, budget)``).
 PRESET_HELP = {
@@ -101,8 +103,13 @@ def positive(name: str):
     return parse
 
 
+def say(message: str) -> None:
+    """``abrdf-jax: MESSAGE`` on stderr."""
+    print(f"{PROG}: {message}", file=sys.stderr)
+
+
 def warn(message: str) -> None:
-    print(f"{PROG}: warning: {message}", file=sys.stderr)
+    say(f"warning: {message}")
 
 
 def progress(total: int, desc: str, disable: bool):
@@ -259,8 +266,7 @@ def warn_negative(path: Path, samples) -> None:
     import numpy as np
 
     rgb = np.asarray(samples.rgb)
-    neg = rgb < 0
-    neg = neg.any(axis=1)
+    neg = (rgb < 0).any(axis=1)
     if neg.any():
         warn(f"{path}: {int(neg.sum())} of {len(rgb)} samples have negative values (min "
              f"{rgb.min():.3g}, first in data row {int(np.argmax(neg)) + 1}); kept as measured, "

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 from pathlib import Path
 
 from .._errors import InputError
@@ -235,8 +234,8 @@ def _reconstruct_folder(items, choices: list[dict], targets: list[Path], out: Pa
     print(f"{out}: wrote {n - len(failed)} tables ({budgets}; models {common.summary(choices)})")
     print(f"model record: {common.save_model_record(out, choices, True)}")
     for msg in failed:
-        print(f"{common.PROG}: error: {msg}", file=sys.stderr)
+        common.say(f"error: {msg}")
     if failed:
-        print(f"{common.PROG}: error: {len(failed)} of {n} reconstructions were not finite; no "
-              "table was written for them", file=sys.stderr)
+        common.say(f"error: {len(failed)} of {n} reconstructions were not finite; no table was "
+                   "written for them")
     return 2 if failed else 0
