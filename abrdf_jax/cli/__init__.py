@@ -15,12 +15,11 @@ does not touch an existing one.
 from __future__ import annotations
 
 import argparse
-import sys
 import traceback
 
 from .._errors import InputError
 from . import btf, demo, evaluate, fit, materials, reconstruct, sample
-from ._common import PROG, verbose_parent, version
+from ._common import PROG, say, verbose_parent, version
 
 #: The subcommands, in ``--help`` order.
 SUBCOMMANDS = (reconstruct, sample, evaluate, demo, materials, fit, btf)
@@ -28,14 +27,11 @@ SUBCOMMANDS = (reconstruct, sample, evaluate, demo, materials, fit, btf)
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``abrdf-jax`` argument parser (imports no JAX)."""
-    p = argparse.ArgumentParser(
-        prog=PROG, parents=[verbose_parent()],
-        description="Reconstruct a material's full ABRDF (81x81 light x view directions, RGB) from "
-        "sparse slice measurements (Filip, ICPR 2012).",
-    )
+    about = "Reconstruct a material's full ABRDF (81x81 light x view directions, RGB) from sparse "
+    about += "slice measurements (Filip, ICPR 2012)."
+    p = argparse.ArgumentParser(prog=PROG, parents=[verbose_parent()], description=about)
     p.add_argument("--version", action="version", version=f"%(prog)s {version()}")
-    sub = p.add_subparsers(dest="command", metavar="COMMAND")
-    sub.required = True
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for module in SUBCOMMANDS:
         module.register(sub)
     return p
@@ -51,7 +47,7 @@ def _user_error(exc: BaseException) -> str | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit status (0, 2 bad input, 1 internal error, 130 interrupted)."""
+    """Run the command line; returns the exit status (see the module docstring)."""
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -60,16 +56,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
+        say("interrupted")
         return 130
     except Exception as e:  # noqa: BLE001 - the boundary: every exception ends here, sorted below
         message = _user_error(e)
         if message is None:
             traceback.print_exc()
-            print(f"{PROG}: internal error ({type(e).__name__}: {e}); this is a bug, not bad input: please "
-                  f"report it with the traceback above, the command line and '{PROG} {version()}'", file=sys.stderr)
+            say(f"internal error ({type(e).__name__}: {e}); this is a bug, not bad input: please "
+                f"report it with the traceback above, the command line and '{PROG} {version()}'")
             return 1
         if getattr(args, "verbose", False):
             traceback.print_exc()
-        print(f"{PROG}: error: {message}", file=sys.stderr)
+        say(f"error: {message}")
         return 2

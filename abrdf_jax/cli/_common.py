@@ -13,6 +13,7 @@ import json
 import math
 import os
 import sys
+from collections import Counter
 from pathlib import Path
 from typing import NamedTuple
 
@@ -22,6 +23,8 @@ from .._names import check_registry
 PROG = "abrdf-jax"
 #: Format tag of the model record written beside a reconstruction (``OUT.model.json``).
 MODEL_FORMAT = "abrdf_jax.model/1"
+#: The protocol's metrics (``abrdf_jax.metrics.evaluate`` keys) and their labels, in print order.
+METRICS = {"de76": "dE76", "de2000": "dE2000", "rmse8": "RMSE8", "psnr": "PSNR", "logerr": "LogErr"}
 
 #: What each preset is, for ``--help`` and the model record (``abrdf_jax.preset(NAME, budget)``).
 PRESET_HELP = {
@@ -35,8 +38,10 @@ check_registry("PRESETS", PRESET_HELP)
 def preset_help(default: str | None) -> str:
     """The ``--preset`` help text, the same in every command."""
     kinds = "; ".join(f"{name}: {text}" for name, text in PRESET_HELP.items())
-    return (f"named configuration abrdf_jax.preset(NAME, budget), the same in reconstruct, fit and btf "
-            f"reconstruct ({kinds})" + (f"; default {default}" if default else ""))
+    return (
+        "named configuration abrdf_jax.preset(NAME, budget), the same in reconstruct, fit and "
+        f"btf reconstruct ({kinds})" + (f"; default {default}" if default else "")
+    )
 
 
 def version() -> str:
@@ -58,6 +63,32 @@ def verbose_parent() -> argparse.ArgumentParser:
     return p
 
 
+def command(sub, name: str, func, help: str, description: str | None = None):
+    """Add subcommand ``name`` (with ``-v``) to ``sub``, run by ``func(args)`` (``None``: a group)."""
+    p = sub.add_parser(name, parents=[verbose_parent()], help=help, description=description)
+    if func is not None:
+        p.set_defaults(func=func)
+    return p
+
+
+def adder(p, helps: dict):
+    """``p.add_argument`` whose ``help`` defaults to ``helps[the option's last name]``: each
+    command keeps its help texts in one table and each option on one line."""
+
+    def add(*names, **kw):
+        return p.add_argument(*names, **{"help": helps.get(names[-1]), **kw})
+
+    return add
+
+
+def budget_flags(p, anisotropic: bool = True) -> None:
+    """``--isotropic`` (and ``--anisotropic``): force the budget instead of reading it off the data."""
+    g = p.add_mutually_exclusive_group() if anisotropic else p
+    g.add_argument("--isotropic", action="store_true", help="use only the diagonal slices (iso102)")
+    if anisotropic:
+        g.add_argument("--anisotropic", action="store_true", help="use all 8 slices (aniso204)")
+
+
 def positive(name: str):
     """An argparse ``type=`` for an integer ``>= 1``, named ``name`` in its message."""
     def parse(text):
@@ -72,8 +103,21 @@ def positive(name: str):
     return parse
 
 
+def say(message: str) -> None:
+    """``abrdf-jax: MESSAGE`` on stderr."""
+    print(f"{PROG}: {message}", file=sys.stderr)
+
+
 def warn(message: str) -> None:
-    print(f"{PROG}: warning: {message}", file=sys.stderr)
+    say(f"warning: {message}")
+
+
+def progress(total: int, desc: str, disable: bool):
+    """A ``tqdm`` progress bar over files, on stderr."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="file", file=sys.stderr, disable=disable,
+                dynamic_ncols=True)
 
 
 # --------------------------------------------------------------------------------------------
@@ -84,7 +128,8 @@ def warn(message: str) -> None:
 def check_output_file(path: Path, suffixes: tuple[str, ...], what: str) -> Path:
     """Fail before any work when ``path`` cannot be an output of the given kind."""
     if path.suffix.lower() not in suffixes:
-        raise InputError(f"{path}: unknown {what} extension {path.suffix or '(none)'!r}; use {' or '.join(suffixes)}")
+        use = " or ".join(suffixes)
+        raise InputError(f"{path}: unknown {what} extension {path.suffix or '(none)'!r}; use {use}")
     parent = path.parent
     if not parent.is_dir():
         raise InputError(f"{path}: output folder {parent} does not exist")
@@ -96,14 +141,10 @@ def check_output_file(path: Path, suffixes: tuple[str, ...], what: str) -> Path:
 
 
 def check_json_output(path: Path) -> Path:
-    """A parameter file name (``.json``) in an existing folder."""
+    """A parameter file name (``.json``) in an existing, writable folder."""
     if path.suffix.lower() != ".json":
         raise InputError(f"{path}: parameter files are JSON; use a .json name")
-    if not path.parent.is_dir():
-        raise InputError(f"{path}: output folder {path.parent} does not exist")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, expected a file name")
-    return path
+    return check_output_file(path, (".json",), "parameter file")
 
 
 def expand_inputs(inputs: list[str]) -> tuple[list[Path], bool]:
@@ -119,9 +160,11 @@ def expand_inputs(inputs: list[str]) -> tuple[list[Path], bool]:
         p = Path(name)
         if p.is_dir():
             folder_mode = True
-            found = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in MEASUREMENT_SUFFIXES)
+            found = sorted(q for q in p.iterdir() if q.suffix.lower() in MEASUREMENT_SUFFIXES)
+            found = [q for q in found if q.is_file()]
             if not found:
-                raise InputError(f"{p}: folder holds no {'/'.join(MEASUREMENT_SUFFIXES)} measurement files")
+                kinds = "/".join(MEASUREMENT_SUFFIXES)
+                raise InputError(f"{p}: folder holds no {kinds} measurement files")
             files.extend(found)
         else:
             if not p.exists():
@@ -202,22 +245,15 @@ def params_for(budget: str, alpha_deg: float, preset: str = "recommended", param
 
         config, params, _ = load_params(params_file)
         if config.budget != budget:
-            raise InputError(
-                f"{params_file}: parameters were fitted for {config.budget}, but the measurement is {budget}; "
-                f"fit for {budget} or pass --{'isotropic' if config.budget == 'iso102' else 'anisotropic'}"
-            )
+            flag = "isotropic" if config.budget == "iso102" else "anisotropic"
+            raise InputError(f"{params_file}: parameters were fitted for {config.budget}, but the "
+                             f"measurement is {budget}; fit for {budget} or pass --{flag}")
         import jax.numpy as jnp
 
-        alpha = jnp.asarray(aj.Params.default(config, alpha_deg=alpha_deg).alpha, params.alpha.dtype)
-        return config, aj.Params(alpha, params.widths, params.reg)
+        alpha = aj.Params.default(config, alpha_deg=alpha_deg).alpha
+        return config, aj.Params(jnp.asarray(alpha, params.alpha.dtype), params.widths, params.reg)
     config = aj.preset(preset, budget)
     return config, aj.Params.default(config, alpha_deg=alpha_deg)
-
-
-def check_preset_or_params(args) -> None:
-    """``--preset`` and ``--params`` both fix the configuration: give one."""
-    if getattr(args, "preset", None) is not None and getattr(args, "params", None) is not None:
-        raise InputError(f"--preset {args.preset} and --params {args.params} both fix the configuration; give one")
 
 
 # --------------------------------------------------------------------------------------------
@@ -230,11 +266,11 @@ def warn_negative(path: Path, samples) -> None:
     import numpy as np
 
     rgb = np.asarray(samples.rgb)
-    neg = rgb < 0
+    neg = (rgb < 0).any(axis=1)
     if neg.any():
-        row = int(np.argmax(neg.any(axis=1)))
-        warn(f"{path}: {int(neg.any(axis=1).sum())} of {len(rgb)} samples have negative values (min "
-             f"{rgb.min():.3g}, first in data row {row + 1}); kept as measured, the reconstruction is clamped at 0")
+        warn(f"{path}: {int(neg.sum())} of {len(rgb)} samples have negative values (min "
+             f"{rgb.min():.3g}, first in data row {int(np.argmax(neg)) + 1}); kept as measured, "
+             "the reconstruction is clamped at 0")
 
 
 def warn_guard(path: Path, meas, config, params, params_file) -> None:
@@ -251,8 +287,9 @@ def warn_guard(path: Path, meas, config, params, params_file) -> None:
     info = aj.solve_info(meas, config, params)
     if int(info.retries) or not bool(info.ok):
         state = "raised" if bool(info.ok) else "raised, still ill-conditioned"
-        warn(f"{path}: the RBF system is singular to working precision at the requested regularisation; "
-             f"regularisation {state} to {float(info.reg):.3g} (condition ~{float(info.cond):.2g})")
+        warn(f"{path}: the RBF system is singular to working precision at the requested "
+             f"regularisation; regularisation {state} to {float(info.reg):.3g} (condition "
+             f"~{float(info.cond):.2g})")
 
 
 # --------------------------------------------------------------------------------------------
@@ -260,29 +297,22 @@ def warn_guard(path: Path, meas, config, params, params_file) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def model_choice(where: Path, name, config, params, how: str, reason: str, extra: dict | None = None) -> dict:
+def model_choice(where: Path, name, config, params, how: str, reason: str, extra=None) -> dict:
     """One input's model: ``{"name", "config", "params", "record"}`` (``record``: its JSON entry)."""
     from ..io._paramfile import params_to_dict
 
     p = params_to_dict(config, params)
-    rec = {"input": str(where), "model": name, "how": how, "config": p["config"], "params": p["params"],
-           "reason": reason}
-    rec.update(extra or {})
+    rec = {"input": str(where), "model": name, "how": how, "config": p["config"]}
+    rec |= {"params": p["params"], "reason": reason, **(extra or {})}
     return {"name": name, "config": config, "params": params, "record": rec}
 
 
-def model_json_path(out: Path, folder_mode: bool) -> Path:
-    """Where the model record goes: ``OUT.model.json`` beside the output file or folder."""
-    out = Path(out)
-    if folder_mode:
-        return out.parent / (out.name.rstrip("/") + ".model.json")
-    return out.with_name(out.stem + ".model.json")
-
-
-def save_model_record(path: Path, choices: list[dict], folder_mode: bool) -> Path:
-    """Write the model record(s) atomically."""
+def save_model_record(out: Path, choices: list[dict], folder_mode: bool) -> Path:
+    """Write the model record(s) atomically to ``OUT.model.json``, beside the output file or folder."""
     from ..io import atomic_write
 
+    out = Path(out)
+    path = out.parent / ((out.name if folder_mode else out.stem) + ".model.json")
     doc = {"format": MODEL_FORMAT}
     if folder_mode:
         doc["inputs"] = [c["record"] for c in choices]
@@ -323,8 +353,5 @@ def describe(choice: dict) -> list[str]:
 
 def summary(choices: list[dict]) -> str:
     """``"iso x2, aniso-crossing x1"``: how often each model was used."""
-    counts: dict = {}
-    for c in choices:
-        name = c["record"]["model"] or "parameter file"
-        counts[name] = counts.get(name, 0) + 1
+    counts = Counter(c["record"]["model"] or "parameter file" for c in choices)
     return ", ".join(f"{n} x{k}" for n, k in counts.items())

@@ -24,6 +24,42 @@ from . import _common as common
 #: The configuration without ``--preset``/``--params``: linear in the log of the samples, so the
 #: whole reconstruction is one matrix (``abrdf_jax.btf.reconstruct_btf``'s operator backend).
 DEFAULT_PRESET = "operator"
+#: The ``--help`` texts: each command's and each option's (an option's own text, where it differs
+#: between commands, is given in place).
+HELP = {
+    "btf": "whole BTFs: generate, reconstruct, import/export EXR, evaluate",
+    "generate": "a procedural BTF with dense ground truth and slice measurements",
+    "reconstruct": "measurement store -> chunked ABRDF store",
+    "import": "folder of per-pair EXR images -> chunked store",
+    "export": "chunked store -> one EXR image per direction pair",
+    "evaluate": "per-texel accuracy against a dense reference store",
+    "--quiet": "no progress bar",
+    "--size": "texels per side",
+    "--chunk": "texels per chunk",
+    "--no-reference": "skip the dense ground truth",
+    "--dtype": "output values",
+    "--preset": "a " + common.preset_help(DEFAULT_PRESET) + " (one matrix product per chunk; "
+    "recommended and paper run the pipeline)",
+    "--params": "fitted configuration and parameters ('abrdf-jax fit'; instead of --preset)",
+    "--model": "auto: per texel, the isotropy test picks the diagonal-only or the anisotropic "
+    "model (two matrix products per chunk); fixed: one model for every texel (default)",
+    "--devices": "shard over the first N local devices",
+    "hosts": "several hosts (jax.distributed; the stores on a shared file system)",
+    "--distributed": "initialise jax.distributed from the environment",
+    "--coordinator": "address of process 0",
+    "--float32": "32-bit channels (default 16-bit half)",
+    "--no-compression": "uncompressed (faster, larger)",
+    "--png": "save the ΔE76 map",
+}
+DESCRIPTION = {
+    "btf": "Spatially varying data: one ABRDF per texel, streamed through chunked stores (see "
+    "docs/btf.md).",
+    "generate": "Generate a procedural BTF (height field, per-texel materials, shadowing and "
+    "masking) into DIR: measurements/ (204 slice samples per texel), reference/ (81x81 per "
+    "texel) and maps.npz.",
+    "reconstruct": "Reconstruct every texel's 81x81 ABRDF. Resumable: rerun the same command "
+    "after an interruption and finished chunks are kept.",
+}
 
 
 def _init_distributed(args) -> None:
@@ -39,13 +75,13 @@ def cmd_generate(args) -> int:
     from abrdf_jax import btf
 
     t0 = time.perf_counter()
-    paths = btf.generate_btf(args.output, args.size, args.seed, chunk=args.chunk,
-                             reference=not args.no_reference, reference_dtype=args.reference_dtype,
-                             progress=not args.quiet, overwrite=args.overwrite)
+    opts = dict(chunk=args.chunk, reference=not args.no_reference, overwrite=args.overwrite)
+    opts |= dict(reference_dtype=args.reference_dtype, progress=not args.quiet)
+    paths = btf.generate_btf(args.output, args.size, args.seed, **opts)
     n = args.size * args.size
     what = "measurements" + ("" if args.no_reference else " and dense reference")
-    print(f"{args.output}: {args.size}x{args.size} texels ({n}), seed {args.seed}: {what} "
-          f"in {time.perf_counter() - t0:.1f} s")
+    print(f"{args.output}: {args.size}x{args.size} texels ({n}), seed {args.seed}: {what} in "
+          f"{time.perf_counter() - t0:.1f} s")
     if args.exr_dir:
         count = btf.write_exr_pairs(paths["measurements"], args.exr_dir, progress=not args.quiet)
         print(f"{args.exr_dir}: {count} measurement images (one per sample direction pair)")
@@ -53,7 +89,7 @@ def cmd_generate(args) -> int:
 
 
 def _config_params(args, store):
-    """Configuration and float32 parameters: a parameter file or ``abrdf_jax.preset`` (default operator)."""
+    """Configuration and float32 parameters: a parameter file or a preset (default operator)."""
     import jax.numpy as jnp
 
     geometry = store.geometry
@@ -64,7 +100,9 @@ def _config_params(args, store):
 
 
 def cmd_reconstruct(args) -> int:
-    common.check_preset_or_params(args)
+    if args.preset is not None and args.params is not None:
+        raise InputError(f"--preset {args.preset} and --params {args.params} both fix the "
+                         "configuration; give one")
     _init_distributed(args)
     from abrdf_jax import btf
 
@@ -72,8 +110,8 @@ def cmd_reconstruct(args) -> int:
     if not src.exists():
         raise InputError(f"{src}: not found")
     if src.is_dir() and any(btf.parse_pair_filename(p.name) for p in src.iterdir()):
-        raise InputError(f"{src}: a folder of per-pair EXR images; import it first: "
-                         f"abrdf-jax btf import {src} -o STORE")
+        how = f"abrdf-jax btf import {src} -o STORE"
+        raise InputError(f"{src}: a folder of per-pair EXR images; import it first: {how}")
     meas = btf.ChunkedStore.open(btf.measurement_store_of(src))
     out = Path(args.output)
     if out.exists() and not out.is_dir():
@@ -81,48 +119,48 @@ def cmd_reconstruct(args) -> int:
     import jax
 
     if args.exr_dir and jax.process_count() > 1:
-        raise InputError("--exr-dir with several processes: export once all have finished, "
-                         "with 'abrdf-jax btf export'")
+        how = "export once all have finished, with 'abrdf-jax btf export'"
+        raise InputError(f"--exr-dir with several processes: {how}")
     config, params = _config_params(args, meas)
     stats: dict = {}
-    store = btf.reconstruct_btf(meas, out, config, params, chunk=args.chunk, progress=not args.quiet,
-                                dtype=args.dtype, devices=args.devices, backend=args.backend,
-                                overwrite=args.overwrite, stats=stats, model=args.model)
-    head = (f"{out}: {store.n_texels} texels ({stats['chunks_done']} chunks computed, {stats['chunks_skipped']} "
-            f"already done) in {stats['seconds']:.1f} s")
-    if stats["chunks_done"]:
-        computed = store.n_texels * stats["chunks_done"] / store.n_chunks
-        head += (f" (about {computed / max(stats['seconds'], 1e-9):.0f} texels/s; {stats['backend']} backend, "
-                 f"{stats['devices']} device(s), {args.dtype})")
+    opts = dict(chunk=args.chunk, progress=not args.quiet, dtype=args.dtype, devices=args.devices)
+    opts |= dict(backend=args.backend, overwrite=args.overwrite, stats=stats, model=args.model)
+    store = btf.reconstruct_btf(meas, out, config, params, **opts)
+    done, seconds = stats["chunks_done"], stats["seconds"]
+    head = (f"{out}: {store.n_texels} texels ({done} chunks computed, {stats['chunks_skipped']} "
+            f"already done) in {seconds:.1f} s")
+    if done:
+        rate = store.n_texels * done / store.n_chunks / max(seconds, 1e-9)
+        head += (f" (about {rate:.0f} texels/s; {stats['backend']} backend, {stats['devices']} "
+                 f"device(s), {args.dtype})")
     print(head)
     if args.model == "auto":
-        m = btf.isotropy_map(meas, chunk=args.chunk)
-        print(f"model per texel (isotropy test of the axial slices): {100 * m['fraction_isotropic']:.1f}% "
-              f"isotropic (diagonal-only model), {100 * (1 - m['fraction_isotropic']):.1f}% anisotropic")
-    if args.exr_dir:
-        if jax.process_index() == 0:
-            t0 = time.perf_counter()
-            count = btf.write_exr_pairs(store, args.exr_dir, progress=not args.quiet)
-            print(f"{args.exr_dir}: {count} EXR images in {time.perf_counter() - t0:.1f} s")
+        iso = btf.isotropy_map(meas, chunk=args.chunk)["fraction_isotropic"]
+        print(f"model per texel (isotropy test of the axial slices): {100 * iso:.1f}% isotropic "
+              f"(diagonal-only model), {100 * (1 - iso):.1f}% anisotropic")
+    if args.exr_dir and jax.process_index() == 0:
+        t0 = time.perf_counter()
+        count = btf.write_exr_pairs(store, args.exr_dir, progress=not args.quiet)
+        print(f"{args.exr_dir}: {count} EXR images in {time.perf_counter() - t0:.1f} s")
     return 0
 
 
 def cmd_import(args) -> int:
     from abrdf_jax import btf
 
-    store = btf.read_exr_pairs(args.input, args.output, chunk=args.chunk, alpha_deg=args.alpha,
-                               overwrite=args.overwrite, progress=not args.quiet)
-    print(f"{args.output}: {store.kind} store, {store.texel_shape[0]}x{store.texel_shape[1]} texels, "
-          f"{store.item_shape[0]} pairs per texel")
+    opts = dict(alpha_deg=args.alpha, overwrite=args.overwrite, progress=not args.quiet)
+    store = btf.read_exr_pairs(args.input, args.output, chunk=args.chunk, **opts)
+    (h, w), pairs = store.texel_shape[:2], store.item_shape[0]
+    print(f"{args.output}: {store.kind} store, {h}x{w} texels, {pairs} pairs per texel")
     return 0
 
 
 def cmd_export(args) -> int:
     from abrdf_jax import btf
 
-    count = btf.write_exr_pairs(args.input, args.exr_dir, half=not args.float32,
-                                compression="none" if args.no_compression else "zip",
-                                progress=not args.quiet)
+    compression = "none" if args.no_compression else "zip"
+    opts = dict(half=not args.float32, compression=compression, progress=not args.quiet)
+    count = btf.write_exr_pairs(args.input, args.exr_dir, **opts)
     print(f"{args.exr_dir}: {count} EXR images")
     return 0
 
@@ -135,10 +173,12 @@ def cmd_evaluate(args) -> int:
     rec, ref = btf.ChunkedStore.open(args.rec), btf.ChunkedStore.open(args.ref)
     for s in (rec, ref):
         if s.kind != "abrdf":
-            raise InputError(f"{s.path}: is a {s.kind} store, expected a reconstruction or reference")
+            what = "expected a reconstruction or reference"
+            raise InputError(f"{s.path}: is a {s.kind} store, {what}")
     maps = btf.texel_metrics(rec, ref, metrics=("de76", "logerr"))
-    summary = {k: dict(mean=float(np.mean(v)), median=float(np.median(v)), p95=float(np.percentile(v, 95)),
-                       max=float(np.max(v))) for k, v in maps.items()}
+    stats = {"mean": np.mean, "median": np.median, "p95": lambda v: np.percentile(v, 95)}
+    stats["max"] = np.max
+    summary = {k: {s: float(f(v)) for s, f in stats.items()} for k, v in maps.items()}
     if args.png:
         png = Path(args.png)
         if png.suffix.lower() != ".png" or not png.parent.is_dir():
@@ -148,89 +188,70 @@ def cmd_evaluate(args) -> int:
         print(json.dumps(dict(rec=str(args.rec), ref=str(args.ref), **summary), indent=2))
     else:
         for k, v in summary.items():
-            print(f"{k:<7} mean {v['mean']:.4g}  median {v['median']:.4g}  p95 {v['p95']:.4g}  max {v['max']:.4g}")
+            print(f"{k:<7}" + "".join(f" {s} {x:.4g} " for s, x in v.items()).rstrip())
     return 0
 
 
 def register(sub) -> None:
-    """Add the ``btf`` subcommand (and its own subcommands) to the ``abrdf-jax`` parser."""
-    b = sub.add_parser("btf", parents=[common.verbose_parent()],
-                       help="whole BTFs: generate, reconstruct, import/export EXR, evaluate",
-                       description="Spatially varying data: one ABRDF per texel, streamed through "
-                       "chunked stores (see docs/btf.md).")
-    bsub = b.add_subparsers(dest="btf_command", metavar="BTF_COMMAND")
-    bsub.required = True
+    b = common.command(sub, "btf", None, HELP["btf"], DESCRIPTION["btf"])
+    bsub = b.add_subparsers(dest="btf_command", metavar="BTF_COMMAND", required=True)
+    chunk = dict(type=common.positive("--chunk"), default=1024, metavar="N")
 
-    verbose = common.verbose_parent()
+    g = common.command(bsub, "generate", cmd_generate, HELP["generate"], DESCRIPTION["generate"])
+    add = common.adder(g, HELP)
+    add("-o", "--output", required=True, metavar="DIR")
+    add("--size", required=True, type=common.positive("--size"), metavar="N")
+    add("--seed", type=int, default=0, metavar="S")
+    add("--chunk", **chunk)
+    add("--no-reference", action="store_true")
+    add("--reference-dtype", choices=STORE_DTYPES, default=STORE_DTYPES[0])
+    add("--exr-dir", metavar="DIR", help="also write the measurements as one EXR per sample pair")
+    add("--overwrite", action="store_true", help="replace a different BTF in DIR")
+    add("-q", "--quiet", action="store_true")
 
-    def shared(p):
-        p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    r = common.command(bsub, "reconstruct", cmd_reconstruct, HELP["reconstruct"],
+                       DESCRIPTION["reconstruct"])
+    add = common.adder(r, HELP)
+    add("input", metavar="MEAS_DIR", help="a measurement store or a generated BTF folder")
+    add("-o", "--output", required=True, metavar="OUT", help="output store folder")
+    add("--chunk", **chunk)
+    add("--exr-dir", metavar="DIR", help="also export one EXR image per direction pair")
+    add("--dtype", choices=STORE_DTYPES, default=STORE_DTYPES[0])
+    add("--preset", choices=PRESETS)
+    add("--params", metavar="PARAMS.json", type=Path)
+    common.budget_flags(r, anisotropic=False)
+    add("--backend", choices=BTF_BACKENDS, default=BTF_BACKENDS[0])
+    add("--model", choices=BTF_MODELS, default=BTF_MODELS[0])
+    add("--devices", type=common.positive("--devices"), metavar="N")
+    add("--overwrite", action="store_true", help="replace an output store of other settings")
+    d = common.adder(r.add_argument_group(HELP["hosts"]), HELP)
+    d("--distributed", action="store_true")
+    d("--coordinator", metavar="HOST:PORT")
+    d("--num-processes", type=common.positive("--num-processes"), metavar="N")
+    d("--process-id", type=int, metavar="K")
+    add("-q", "--quiet", action="store_true")
 
-    g = bsub.add_parser("generate", parents=[verbose],
-                        help="a procedural BTF with dense ground truth and slice measurements",
-                        description="Generate a procedural BTF (height field, per-texel materials, "
-                        "shadowing and masking) into DIR: measurements/ (204 slice samples per texel), "
-                        "reference/ (81x81 per texel) and maps.npz.")
-    g.add_argument("-o", "--output", required=True, metavar="DIR")
-    g.add_argument("--size", required=True, type=common.positive("--size"), metavar="N", help="texels per side")
-    g.add_argument("--seed", type=int, default=0, metavar="S")
-    g.add_argument("--chunk", type=common.positive("--chunk"), default=1024, metavar="N", help="texels per chunk")
-    g.add_argument("--no-reference", action="store_true", help="skip the dense ground truth")
-    g.add_argument("--reference-dtype", choices=STORE_DTYPES, default=STORE_DTYPES[0])
-    g.add_argument("--exr-dir", metavar="DIR", help="also write the measurements as one EXR per sample pair")
-    g.add_argument("--overwrite", action="store_true", help="replace a different BTF in DIR")
-    shared(g)
-    g.set_defaults(func=cmd_generate)
+    i = common.command(bsub, "import", cmd_import, HELP["import"])
+    add = common.adder(i, HELP)
+    add("input", metavar="EXR_DIR")
+    add("-o", "--output", required=True, metavar="STORE")
+    add("--chunk", **chunk)
+    add("--alpha", type=float, metavar="DEG", help="slice offset (default: pairs.json or estimated)")
+    add("--overwrite", action="store_true")
+    add("-q", "--quiet", action="store_true")
 
-    r = bsub.add_parser("reconstruct", parents=[verbose], help="measurement store -> chunked ABRDF store",
-                        description="Reconstruct every texel's 81x81 ABRDF. Resumable: rerun the same "
-                        "command after an interruption and finished chunks are kept.")
-    r.add_argument("input", metavar="MEAS_DIR", help="a measurement store or a generated BTF folder")
-    r.add_argument("-o", "--output", required=True, metavar="OUT", help="output store folder")
-    r.add_argument("--chunk", type=common.positive("--chunk"), default=1024, metavar="N", help="texels per chunk")
-    r.add_argument("--exr-dir", metavar="DIR", help="also export one EXR image per direction pair")
-    r.add_argument("--dtype", choices=STORE_DTYPES, default=STORE_DTYPES[0], help="output values")
-    r.add_argument("--preset", choices=PRESETS, default=None,
-                   help="a " + common.preset_help(DEFAULT_PRESET)
-                   + " (one matrix product per chunk; recommended and paper run the pipeline)")
-    r.add_argument("--params", metavar="PARAMS.json", type=Path,
-                   help="fitted configuration and parameters ('abrdf-jax fit'; instead of --preset)")
-    r.add_argument("--isotropic", action="store_true", help="use only the diagonal slices (iso102)")
-    r.add_argument("--backend", choices=BTF_BACKENDS, default=BTF_BACKENDS[0])
-    r.add_argument("--model", choices=BTF_MODELS, default=BTF_MODELS[0],
-                   help="auto: per texel, the isotropy test picks the diagonal-only or the anisotropic model "
-                        "(two matrix products per chunk); fixed: one model for every texel (default)")
-    r.add_argument("--devices", type=common.positive("--devices"), metavar="N", help="shard over the first N local devices")
-    r.add_argument("--overwrite", action="store_true", help="replace an output store of other settings")
-    d = r.add_argument_group("several hosts (jax.distributed; the stores on a shared file system)")
-    d.add_argument("--distributed", action="store_true", help="initialise jax.distributed from the environment")
-    d.add_argument("--coordinator", metavar="HOST:PORT", help="address of process 0")
-    d.add_argument("--num-processes", type=common.positive("--num-processes"), metavar="N")
-    d.add_argument("--process-id", type=int, metavar="K")
-    shared(r)
-    r.set_defaults(func=cmd_reconstruct)
+    e = common.command(bsub, "export", cmd_export, HELP["export"])
+    add = common.adder(e, HELP)
+    add("input", metavar="STORE")
+    add("--exr-dir", required=True, metavar="DIR")
+    add("--float32", action="store_true")
+    add("--no-compression", action="store_true")
+    add("-q", "--quiet", action="store_true")
 
-    i = bsub.add_parser("import", parents=[verbose], help="folder of per-pair EXR images -> chunked store")
-    i.add_argument("input", metavar="EXR_DIR")
-    i.add_argument("-o", "--output", required=True, metavar="STORE")
-    i.add_argument("--chunk", type=common.positive("--chunk"), default=1024, metavar="N")
-    i.add_argument("--alpha", type=float, metavar="DEG", help="slice offset (default: pairs.json or estimated)")
-    i.add_argument("--overwrite", action="store_true")
-    shared(i)
-    i.set_defaults(func=cmd_import)
-
-    e = bsub.add_parser("export", parents=[verbose], help="chunked store -> one EXR image per direction pair")
-    e.add_argument("input", metavar="STORE")
-    e.add_argument("--exr-dir", required=True, metavar="DIR")
-    e.add_argument("--float32", action="store_true", help="32-bit channels (default 16-bit half)")
-    e.add_argument("--no-compression", action="store_true", help="uncompressed (faster, larger)")
-    shared(e)
-    e.set_defaults(func=cmd_export)
-
-    v = bsub.add_parser("evaluate", parents=[verbose], help="per-texel accuracy against a dense reference store")
-    v.add_argument("rec", metavar="REC")
-    v.add_argument("ref", metavar="REF")
-    v.add_argument("--png", metavar="MAP.png", help="save the ΔE76 map")
-    v.add_argument("--json", action="store_true")
-    shared(v)
-    v.set_defaults(func=cmd_evaluate)
+    v = common.command(bsub, "evaluate", cmd_evaluate, HELP["evaluate"])
+    add = common.adder(v, HELP)
+    add("rec", metavar="REC")
+    add("ref", metavar="REF")
+    add("--png", metavar="MAP.png")
+    add("--json", action="store_true")
+    add("-q", "--quiet", action="store_true")

@@ -9,6 +9,7 @@ model at the protocol's exact angles.
 from __future__ import annotations
 
 import functools
+import itertools
 import sys
 import time
 from pathlib import Path
@@ -21,83 +22,44 @@ from . import _common as common
 N_ISOTROPIC = 2
 N_ANISOTROPIC = 3
 PREFERRED = ("ggx-plastic", "ward-brushed-steel", "lambert-clay", "ashikhmin-satin", "rough-fabric")
-_COLUMNS = (("de76", "dE76", "{:7.2f}"), ("de2000", "dE2000", "{:7.2f}"), ("rmse8", "RMSE8", "{:7.2f}"),
-            ("psnr", "PSNR", "{:7.2f}"), ("logerr", "LogErr", "{:7.4f}"))
+_FORMATS = {key: "{:7.4f}" if key == "logerr" else "{:7.2f}" for key in common.METRICS}
+#: The ``--help`` texts: the command's and each option's.
+HELP = {
+    "help": "sample, reconstruct and evaluate built-in materials",
+    "description": "Sample -> reconstruct -> evaluate a few built-in materials, print a table "
+    "and save a comparison figure.",
+    "--materials": "number of materials (default: all demo ones)",
+}
 
 
-@functools.lru_cache(maxsize=1)
+@functools.cache
 def _sampler():
+    """The protocol's slice samples of a model, grouped into slices, in one compiled call
+    (eager sampling dispatches many small operations, which is slower than compiling)."""
     import equinox as eqx
 
     import abrdf_jax as aj
 
-    return eqx.filter_jit(lambda model, config, params: aj.sample(model, config, params, as_measurements=True))
-
-
-def _sample_measurements(model, config, params):
-    """The protocol's slice samples of a model, grouped into slices, in one compiled call
-    (eager sampling dispatches many small operations, which is slower than compiling)."""
-    return _sampler()(model, config, params)
-
-
-def is_isotropic(model, info=None, n: int = 64, seed: int = 0) -> bool:
-    """Whether a material model is isotropic.
-
-    Uses ``info["isotropic"]`` (or an ``isotropic`` attribute) when the material's description
-    states it; otherwise checks numerically that rotating both directions about the normal
-    leaves the value unchanged (relative tolerance 1e-3) at ``n`` random pairs.
-    """
-    flag = info.get("isotropic") if isinstance(info, dict) else getattr(info, "isotropic", None)
-    if isinstance(flag, bool):
-        return flag
-    import numpy as np
-
-    rng = np.random.default_rng(seed)
-
-    def dirs(phi_shift):
-        t = np.radians(rng_t)
-        p = np.radians(rng_p + phi_shift)
-        return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1)
-
-    rng_t = rng.uniform(5, 80, (2, n))
-    rng_p = rng.uniform(0, 360, (2, n))
-    shift = rng.uniform(20, 340)
-    a = dirs(0.0)
-    b = dirs(shift)
-    va = np.asarray(model(a[0].astype(np.float32), a[1].astype(np.float32)), dtype=np.float64)
-    vb = np.asarray(model(b[0].astype(np.float32), b[1].astype(np.float32)), dtype=np.float64)
-    scale = np.maximum(np.abs(va), np.abs(vb)).max() + 1e-12
-    return bool(np.max(np.abs(va - vb)) <= 1e-3 * scale)
+    return eqx.filter_jit(lambda m, config, params: aj.sample(m, config, params, as_measurements=True))
 
 
 def choose_materials(n_materials: int | None = None) -> list[tuple[str, object, str]]:
     """Pick the demo's materials: ``(name, model, budget)``.
 
-    Isotropic and anisotropic materials alternate, so that any ``n_materials >= 2`` shows both
-    kinds; by default :data:`N_ISOTROPIC` isotropic and :data:`N_ANISOTROPIC` anisotropic ones.
+    Isotropic and anisotropic materials (as the catalogue says) alternate, so that any
+    ``n_materials >= 2`` shows both kinds; by default :data:`N_ISOTROPIC` isotropic and
+    :data:`N_ANISOTROPIC` anisotropic ones.
     """
     from .. import materials
 
-    iso, aniso = [], []
     available = materials.default_materials()
     order = [n for n in PREFERRED if n in available] + [n for n in available if n not in PREFERRED]
-    for name in order:
-        model = available[name]
-        try:
-            info = materials.material_info(name)
-        except Exception:  # noqa: BLE001 - the numeric check decides
-            info = None
-        (iso if is_isotropic(model, info) else aniso).append((name, model))
+    iso = [(n, "iso102") for n in order if materials.material_info(n)["isotropic"]]
+    aniso = [(n, "aniso204") for n in order if not materials.material_info(n)["isotropic"]]
     if n_materials is None:
         iso, aniso = iso[:N_ISOTROPIC], aniso[:N_ANISOTROPIC]
-    chosen = []
-    for k in range(max(len(iso), len(aniso))):
-        if k < len(iso):
-            chosen.append((*iso[k], "iso102"))
-        if k < len(aniso):
-            chosen.append((*aniso[k], "aniso204"))
-    if n_materials is not None:
-        chosen = chosen[:n_materials]
+    both = [x for pair in itertools.zip_longest(iso, aniso) for x in pair if x is not None]
+    chosen = [(n, available[n], budget) for n, budget in both][:n_materials]
     if not chosen:
         raise InputError("no built-in materials to show")
     return chosen
@@ -134,7 +96,7 @@ def run_demo(
         raise InputError(f"n_materials must be at least 1, got {n_materials}")
     chosen = choose_materials(n_materials)
 
-    header = f"{'material':<22} {'budget':<9}" + "".join(f" {label:>7}" for _, label, _ in _COLUMNS)
+    header = f"{'material':<22} {'budget':<9}" + "".join(f" {x:>7}" for x in common.METRICS.values())
     print(header + f" {'seconds':>8}", file=stream)
     print("-" * (len(header) + 9), file=stream)
     rows, results = [], []
@@ -143,20 +105,19 @@ def run_demo(
         config = aj.preset("recommended", budget)
         params = aj.Params.default(config)
         reference = np.asarray(materials.dense_table(model), dtype=np.float32)
-        measured = _sample_measurements(model, config, params)
+        measured = _sampler()(model, config, params)
         t0 = time.perf_counter()
         rec = np.asarray(aj.reconstruct(measured, config, params))  # np.asarray blocks until ready
         seconds = time.perf_counter() - t0
-        first = budget not in compiled
+        mark = " " if budget in compiled else "*"
         compiled.add(budget)
         m = {k: float(v) for k, v in metrics.evaluate(rec, reference).items()}
         results.append(m)
         rows.append((name, reference, rec, m))
-        cells = "".join(" " + fmt.format(m[key]) for key, _, fmt in _COLUMNS)
-        mark = "*" if first else " "
+        cells = "".join(" " + fmt.format(m[key]) for key, fmt in _FORMATS.items())
         print(f"{name:<22} {budget:<9}{cells} {seconds:7.2f}{mark}", file=stream, flush=True)
     mean = {k: float(v) for k, v in metrics.summarize(results).items()}
-    cells = "".join(" " + fmt.format(mean[key]) for key, _, fmt in _COLUMNS)
+    cells = "".join(" " + fmt.format(mean[key]) for key, fmt in _FORMATS.items())
     print("-" * (len(header) + 9), file=stream)
     print(f"{'mean':<22} {'':<9}{cells}", file=stream)
     print("* includes JIT compilation (once per budget); metrics as in PROTOCOL.md", file=stream)
@@ -164,14 +125,9 @@ def run_demo(
 
 
 def register(sub) -> None:
-    """Add the ``demo`` subcommand to the ``abrdf-jax`` parser."""
-    d = sub.add_parser("demo", parents=[common.verbose_parent()],
-                       help="sample, reconstruct and evaluate built-in materials",
-                       description="Sample -> reconstruct -> evaluate a few built-in materials, print a "
-                       "table and save a comparison figure.")
-    d.add_argument("-o", "--output", default="abrdf_demo.png", metavar="FIGURE.png")
-    d.add_argument("--materials", type=int, metavar="N", help="number of materials (default: all demo ones)")
-    d.set_defaults(func=run)
+    add = common.adder(common.command(sub, "demo", run, HELP["help"], HELP["description"]), HELP)
+    add("-o", "--output", default="abrdf_demo.png", metavar="FIGURE.png")
+    add("--materials", type=int, metavar="N")
 
 
 def run(args) -> int:

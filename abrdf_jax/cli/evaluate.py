@@ -7,19 +7,12 @@ import math
 
 from . import _common as common
 
-#: (key of abrdf_jax.metrics.evaluate, label, unit), in print order.
-METRIC_ROWS = (("de76", "dE76", ""), ("de2000", "dE2000", ""), ("rmse8", "RMSE8", ""),
-               ("psnr", "PSNR", " dB"), ("logerr", "LogErr", ""))
-
-
 def register(sub) -> None:
-    """Add the ``evaluate`` subcommand to the ``abrdf-jax`` parser."""
-    e = sub.add_parser("evaluate", parents=[common.verbose_parent()], help="protocol metrics of a reconstruction",
-                       description="Compare a reconstructed table with a reference (PROTOCOL.md metrics).")
+    e = common.command(sub, "evaluate", run, "protocol metrics of a reconstruction",
+                       "Compare a reconstructed table with a reference (PROTOCOL.md metrics).")
     e.add_argument("rec", metavar="REC", help="reconstructed table (.npz/.exr)")
     e.add_argument("ref", metavar="REF", help="reference table (.npz/.exr); sets the exposure")
     e.add_argument("--json", action="store_true", help="print JSON (non-finite values as null)")
-    e.set_defaults(func=run)
 
 
 def run(args) -> int:
@@ -36,6 +29,6 @@ def run(args) -> int:
         print(json.dumps(doc, indent=2))
     else:
         print(f"{'metric':<8} {'value':>10}")
-        for key, label, unit in METRIC_ROWS:
-            print(f"{label:<8} {m[key]:>10.4g}{unit}")
+        for key, label in common.METRICS.items():
+            print(f"{label:<8} {m[key]:>10.4g}{' dB' if key == 'psnr' else ''}")
     return 0

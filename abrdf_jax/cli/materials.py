@@ -6,9 +6,7 @@ from . import _common as common
 
 
 def register(sub) -> None:
-    """Add the ``materials`` subcommand to the ``abrdf-jax`` parser."""
-    m = sub.add_parser("materials", parents=[common.verbose_parent()], help="list the built-in materials")
-    m.set_defaults(func=run)
+    common.command(sub, "materials", run, "list the built-in materials")
 
 
 def run(args) -> int:

@@ -17,18 +17,24 @@ MERL_SUFFIX = ".binary"
 DEFAULT_ALPHA = 15.0
 
 
+#: The ``--help`` texts: the command's and each option's.
+HELP = {
+    "help": "table or material -> measurement CSV",
+    "description": "Take the protocol's slice samples of a dense table (.npz/.exr), a MERL BRDF "
+    "file (.binary, nearest bin) or a built-in material model.",
+    "source": "TABLE.npz, TABLE.exr, a MERL FILE.binary or a material name",
+    "--budget": "iso102 (4 diagonal slices) or aniso204 (8 slices); default: iso102 for a "
+    "material known to be isotropic, else aniso204",
+    "--alpha": f"slice offset in degrees (default {DEFAULT_ALPHA:g})",
+}
+
+
 def register(sub) -> None:
-    """Add the ``sample`` subcommand to the ``abrdf-jax`` parser."""
-    s = sub.add_parser("sample", parents=[common.verbose_parent()], help="table or material -> measurement CSV",
-                       description="Take the protocol's slice samples of a dense table (.npz/.exr), "
-                       "a MERL BRDF file (.binary, nearest bin) or a built-in material model.")
-    s.add_argument("source", metavar="SOURCE", help="TABLE.npz, TABLE.exr, a MERL FILE.binary or a material name")
-    s.add_argument("-o", "--output", required=True, metavar="MEAS.csv")
-    s.add_argument("--budget", choices=BUDGETS,
-                   help="iso102 (4 diagonal slices) or aniso204 (8 slices); default: iso102 for a "
-                   "material known to be isotropic, else aniso204")
-    s.add_argument("--alpha", type=float, metavar="DEG", help=f"slice offset in degrees (default {DEFAULT_ALPHA:g})")
-    s.set_defaults(func=run)
+    add = common.adder(common.command(sub, "sample", run, HELP["help"], HELP["description"]), HELP)
+    add("source", metavar="SOURCE")
+    add("-o", "--output", required=True, metavar="MEAS.csv")
+    add("--budget", choices=BUDGETS)
+    add("--alpha", type=float, metavar="DEG")
 
 
 def _load_source(source: str):
