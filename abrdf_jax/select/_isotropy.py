@@ -43,7 +43,7 @@ import numpy as np
 from jax.scipy.special import gammaincc
 
 from .._errors import InputError
-from ..metrics._metrics import LUMA_WEIGHTS
+from ..metrics._color import LUMA_WEIGHTS
 from .._measurements import Measurements, Samples, group_slices
 
 #: Default significance level and minimum effect (RMS log variation of the axial slices).

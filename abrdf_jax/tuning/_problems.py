@@ -29,7 +29,7 @@ import numpy as np
 from jaxtyping import Array, Float, PyTree
 
 from .._errors import InputError
-from ..metrics._metrics import LUMA_WEIGHTS, srgb_to_lab, tonemap
+from ..metrics._color import LUMA_WEIGHTS, srgb_to_lab, tonemap
 from .._params import Config, Params
 from .._pipeline import _reconstruct_core, prepare
 from .._measurements import Measurements, Samples
