@@ -26,7 +26,7 @@ def _current_umask() -> int:
 
 @contextlib.contextmanager
 def atomic_write(
-    path: str | os.PathLike, mode: str = "wb", *, newline: str | None = None
+    path: str | os.PathLike, mode: str = "wb", *, newline: str | None = None, durable: bool = True
 ) -> Iterator[IO]:
     """Open a temporary file beside ``path``; move it onto ``path`` only if the block succeeds.
 
@@ -39,6 +39,9 @@ def atomic_write(
         path: the destination file (str or path-like).
         mode: ``"wb"`` (default) for bytes, ``"w"`` or ``"wt"`` for UTF-8 text.
         newline: passed to :func:`open` in text mode (``""`` to write ``"\\n"`` untranslated).
+        durable: flush and ``fsync`` the file and its folder; ``False`` only renames (for
+            thousands of files whose completion another file marks, as the BTF export's
+            ``pairs.json``).
 
     Yields:
         The open temporary file object.
@@ -63,19 +66,17 @@ def atomic_write(
             f"cannot write {path}: folder {folder} is not writable ({e.strerror})"
         ) from e
     try:
-        try:
+        # fchmod is POSIX only; mkstemp's 0o600 is still safe
+        with contextlib.suppress(AttributeError, OSError):
             os.fchmod(fd, 0o666 & ~_current_umask())
-        except (AttributeError, OSError):  # fchmod is POSIX only; mkstemp's 0o600 is still safe
-            pass
-        if "b" in mode:
-            f = os.fdopen(fd, mode)
-        else:
-            f = os.fdopen(fd, "w", encoding="utf-8", newline=newline)
+        kw = {} if "b" in mode else {"encoding": "utf-8", "newline": newline}
+        f = os.fdopen(fd, "wb" if "b" in mode else "w", **kw)
         try:
             with f:
                 yield f
-                f.flush()
-                os.fsync(f.fileno())
+                if durable:
+                    f.flush()
+                    os.fsync(f.fileno())
         except OSError as e:  # disk full, I/O error: name the file (the temp file is removed below)
             raise InputError(f"cannot write {path}: {e.strerror or e}") from e
         try:
@@ -86,21 +87,18 @@ def atomic_write(
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
-    _fsync_folder(folder)
+    if durable:
+        _fsync_folder(folder)
 
 
 def _fsync_folder(folder: Path) -> None:
     # Make the rename itself durable; not possible (nor needed) on every platform.
-    try:
+    with contextlib.suppress(OSError):
         dfd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(dfd)
-    except OSError:
-        pass
-    finally:
-        os.close(dfd)
+        try:
+            os.fsync(dfd)
+        finally:
+            os.close(dfd)
 
 
 def _check_readable(path: Path) -> None:

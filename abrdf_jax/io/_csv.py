@@ -151,6 +151,7 @@ def _take_header(text: str, path: Path, line0: int):
 
 
 _RANGES = {"theta_i": THETA_RANGE, "theta_v": THETA_RANGE, "phi_i": PHI_RANGE, "phi_v": PHI_RANGE}
+_LO, _HI = np.array([_RANGES[c] for c in _ANGLE_COLUMNS]).T  # per angle column
 
 
 def _check_values(name: str, value: float, text: str, path: Path, line: int) -> None:
@@ -209,12 +210,8 @@ def _parse_fast(text: str, index: list[int]) -> np.ndarray | None:
         return None
     if arr.shape[1] != len(CSV_COLUMNS) or not np.isfinite(arr).all():
         return None
-    theta, phi = arr[:, [0, 2]], arr[:, [1, 3]]
-    if (theta < THETA_RANGE[0]).any() or (theta > THETA_RANGE[1]).any():
-        return None
-    if (phi < PHI_RANGE[0]).any() or (phi > PHI_RANGE[1]).any():
-        return None
-    return arr
+    angles = arr[:, : len(_ANGLE_COLUMNS)]
+    return arr if ((angles >= _LO) & (angles <= _HI)).all() else None
 
 
 def _count_lines(f: BinaryIO) -> int:
@@ -334,11 +331,6 @@ def _check_units(path: Path, ti, pi, tv, pv) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def _float_text(x: float) -> str:
-    # repr gives the shortest text that reads back to the same float64.
-    return repr(float(x))
-
-
 def write_samples_csv(path: str | os.PathLike, samples: Samples) -> None:
     """Write samples as a measurement CSV file, atomically, at full float64 precision.
 
@@ -364,7 +356,7 @@ def write_samples_csv(path: str | os.PathLike, samples: Samples) -> None:
             f"({data[row, col]}); {int(bad.any(axis=1).sum())} sample(s) affected"
         )
     for k, name in enumerate(_ANGLE_COLUMNS):
-        lo, hi = THETA_RANGE if name.startswith("theta") else PHI_RANGE
+        lo, hi = _RANGES[name]
         out = (data[:, k] < lo) | (data[:, k] > hi)
         if out.any():
             row = int(np.argmax(out))
@@ -374,5 +366,5 @@ def write_samples_csv(path: str | os.PathLike, samples: Samples) -> None:
             )
     with atomic_write(path, "w", newline="") as f:
         f.write(",".join(CSV_COLUMNS) + "\n")
-        for row in data:
-            f.write(",".join(map(_float_text, row)) + "\n")
+        for row in data.tolist():  # repr: the shortest text that reads back to the same float64
+            f.write(",".join(map(repr, row)) + "\n")

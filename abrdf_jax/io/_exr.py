@@ -8,7 +8,6 @@ or truncated file reads as the same :class:`InputError` everywhere. Needs OpenEX
 
 from __future__ import annotations
 
-import contextlib
 import os
 from pathlib import Path
 
@@ -72,9 +71,7 @@ def write_rgb_exr(path: str | os.PathLike, rgb, *, half: bool = False, compressi
         half: 16-bit float channels (else 32-bit, which reads back bit for bit).
         compression: ``"zip"`` (lossless) or ``"none"``.
         comment: stored in the header.
-        durable: flush and ``fsync`` before the rename (:func:`atomic_write`); ``False`` only
-            renames a temporary file (for thousands of images whose completion another file
-            marks, as the BTF export's ``pairs.json``).
+        durable: as :func:`atomic_write`.
     """
     OpenEXR = _openexr()
     comp = {"zip": OpenEXR.ZIP_COMPRESSION, "none": OpenEXR.NO_COMPRESSION}[compression]
@@ -84,21 +81,10 @@ def write_rgb_exr(path: str | os.PathLike, rgb, *, half: bool = False, compressi
     dt = np.float16 if half else np.float32
     rgb = np.asarray(rgb)
     image = OpenEXR.File(header, {c: np.ascontiguousarray(rgb[..., k], dtype=dt) for k, c in enumerate("RGB")})
-    path = Path(path)
-    if durable:
-        with atomic_write(path, "wb") as f:
-            try:
-                image.write(f)
-            except (OSError, InputError):
-                raise
-            except Exception as e:  # noqa: BLE001 - the library raises RuntimeError and others
-                raise InputError(f"cannot write {path}: OpenEXR: {e}") from e
-        return
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        image.write(str(tmp))
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
+    with atomic_write(path, "wb", durable=durable) as f:
+        try:
+            image.write(f)
+        except (OSError, InputError):
+            raise
+        except Exception as e:  # noqa: BLE001 - the library raises RuntimeError and others
+            raise InputError(f"cannot write {path}: OpenEXR: {e}") from e

@@ -140,10 +140,7 @@ def merl_bin_indices(
     noise = 8.0 * float(np.sqrt(jnp.finfo(hd.dtype).eps))
     pd = jnp.where(td < noise, 0.0, jnp.mod(pd, jnp.pi))
     ip = jnp.floor(pd / jnp.pi * MERL_BINS[2])
-    ih = jnp.clip(ih, 0, MERL_BINS[0] - 1).astype(jnp.int32)
-    idd = jnp.clip(idd, 0, MERL_BINS[1] - 1).astype(jnp.int32)
-    ip = jnp.clip(ip, 0, MERL_BINS[2] - 1).astype(jnp.int32)
-    return ih, idd, ip
+    return tuple(jnp.clip(i, 0, n - 1).astype(jnp.int32) for i, n in zip((ih, idd, ip), MERL_BINS))
 
 
 def merl_lookup(

@@ -43,7 +43,7 @@ def params_to_dict(config: Config, params: Params, fit: dict | None = None) -> d
 
 def save_params(path, config: Config, params: Params, fit: dict | None = None) -> Path:
     """Write ``config`` and ``params`` (and the fit's provenance) to ``path`` atomically."""
-    from ._tables import atomic_write
+    from ._atomic import atomic_write
 
     path = Path(path)
     payload = json.dumps(params_to_dict(config, params, fit), indent=2)

@@ -1,4 +1,4 @@
-"""File input and output: ABRDF tables (``.npz``, ``.exr``), plus the package's I/O entry points.
+"""ABRDF tables (``.npz``, ``.exr``): reading, checking and writing.
 
 Every reader turns a malformed file into an :class:`~abrdf_jax._errors.InputError` whose message
 starts with ``path:line:`` (where a line applies), never a raw traceback from a library. Every
@@ -8,7 +8,7 @@ flushed to disk.
 
 Formats:
 
-- Measurement CSV: see :mod:`abrdf_jax.io._csv` (re-exported here).
+- Measurement CSV: see :mod:`abrdf_jax.io._csv`.
 - ABRDF table: ``table[i, v, c]``, shape ``(81, 81, 3)`` float32, as ``.npz`` (key ``abrdf``) or as
   an 81×81 RGB float EXR image whose row is the illumination index and column the view index.
 - MERL ``.binary`` files: see :mod:`abrdf_jax.io._merl`.
@@ -22,11 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import _check_readable as _check_readable
-from ._atomic import atomic_write as atomic_write
-from ._csv import CSV_COLUMNS as CSV_COLUMNS
-from ._csv import read_samples_csv as read_samples_csv
-from ._csv import write_samples_csv as write_samples_csv
+from ._atomic import _check_readable, atomic_write
 from .._errors import InputError, located
 from ._exr import read_rgb_exr, write_rgb_exr
 
@@ -35,11 +31,6 @@ TABLE_SHAPE = (81, 81, 3)
 #: Key of the table inside an ``.npz`` file.
 NPZ_KEY = "abrdf"
 _TABLE_EXTENSIONS = (".npz", ".exr")
-
-
-# --------------------------------------------------------------------------------------------
-# ABRDF tables
-# --------------------------------------------------------------------------------------------
 
 
 def _table_extension(path: Path) -> str:
@@ -52,20 +43,10 @@ def _table_extension(path: Path) -> str:
     return ext
 
 
-def _shape_message(shape: tuple, where: str) -> str:
-    hint = ""
-    if len(shape) == 4 and shape[1:] == TABLE_SHAPE:
-        hint = " (a stack of tables: select one, e.g. array[k])"
-    return f"{where}: table has shape {shape}, expected {TABLE_SHAPE}{hint}"
-
-
 def check_table(table, where: str) -> np.ndarray:
     """Finite float32 array of shape ``TABLE_SHAPE``, else an InputError starting ``where``."""
     arr = np.asarray(table)
-    if arr.shape != TABLE_SHAPE:
-        raise InputError(_shape_message(arr.shape, where))
-    if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        raise InputError(f"{where}: table has dtype {arr.dtype}, expected a real floating type")
+    _check_table_header(arr.shape, arr.dtype, where)
     with np.errstate(over="ignore"):
         arr = arr.astype(np.float32)
     bad = ~np.isfinite(arr)
@@ -144,9 +125,12 @@ def _read_npz(path: Path) -> np.ndarray:
 
 
 def _check_table_header(shape, dtype, where: str) -> None:
-    """Shape and dtype checks of :func:`_check_table`, from an array header alone."""
-    if tuple(shape) != TABLE_SHAPE:
-        raise InputError(_shape_message(tuple(shape), where))
+    """Shape and dtype checks of :func:`check_table`, from an array header alone."""
+    shape = tuple(shape)
+    if shape != TABLE_SHAPE:
+        stack = len(shape) == 4 and shape[1:] == TABLE_SHAPE
+        hint = " (a stack of tables: select one, e.g. array[k])" if stack else ""
+        raise InputError(f"{where}: table has shape {shape}, expected {TABLE_SHAPE}{hint}")
     if not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)):
         raise InputError(f"{where}: table has dtype {dtype}, expected a real floating type")
 

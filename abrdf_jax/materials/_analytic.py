@@ -131,11 +131,16 @@ class AbstractMaterial(eqx.Module):
             ``(..., 3)`` non-negative values in the dtype of the inputs, 0 below the horizon.
 
         Raises:
-            InputError: if the last axis is not 3 or the shapes do not broadcast.
+            InputError: if the last axis is not 3, the shapes do not broadcast, or the module
+                cannot be evaluated as it is (a stack of networks: :class:`NeuralBRDF`).
         """
         return self._evaluate("_abrdf", wi, wv)
 
+    def _check(self) -> None:
+        """Raise an InputError if this module cannot be evaluated as it is (default: it can)."""
+
     def _evaluate(self, method: str, wi, wv) -> Array:
+        self._check()
         wi, wv = _prepare(wi, wv)  # shape checks in Python, before tracing
         leaves = jax.tree_util.tree_leaves((self, wi, wv))
         if any(isinstance(x, jax.core.Tracer) for x in leaves):

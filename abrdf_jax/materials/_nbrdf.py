@@ -185,7 +185,7 @@ class NeuralBRDF(AbstractMaterial):
     b3: Array = eqx.field(converter=_as_float_array)
     name: str = eqx.field(static=True, default="")
 
-    def _check_single(self):
+    def _check(self):
         if self.W1.ndim != 2:
             raise InputError(
                 f"NeuralBRDF {self.name!r} holds a stack of {self.W1.shape[0]} networks; "
@@ -204,17 +204,6 @@ class NeuralBRDF(AbstractMaterial):
     def _abrdf(self, wi, wv):
         return self._brdf(wi, wv) * wi[..., 2:3]
 
-    def __call__(
-        self, wi: Float[ArrayLike, "... 3"], wv: Float[ArrayLike, "... 3"]
-    ) -> Float[Array, "... 3"]:
-        """ABRDF ``f_r(wi, wv) cos θi``, ``(..., 3)``; 0 below the horizon.
-
-        Raises:
-            InputError: on bad shapes, or if this is a stack of networks.
-        """
-        self._check_single()
-        return self._evaluate("_abrdf", wi, wv)
-
     def brdf(
         self, wi: Float[ArrayLike, "... 3"], wv: Float[ArrayLike, "... 3"]
     ) -> Float[Array, "... 3"]:
@@ -223,7 +212,6 @@ class NeuralBRDF(AbstractMaterial):
         Raises:
             InputError: on bad shapes, or if this is a stack of networks.
         """
-        self._check_single()
         return self._evaluate("_brdf", wi, wv)
 
 

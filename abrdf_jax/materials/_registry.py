@@ -19,7 +19,7 @@ import numpy as np
 from .._grid import pair_grid, to_vector
 from ._catalogue import CATALOGUE, check_name, nbrdf_name
 from ._analytic import GGX, AshikhminShirley, Lambertian, RoughStructured, Ward
-from ._nbrdf import NeuralBRDF, load_nbrdf
+from ._nbrdf import load_nbrdf
 
 # name -> constructor (the catalogue, _catalogue.CATALOGUE, says what each is)
 _MAKERS = {
@@ -44,7 +44,7 @@ _MAKERS = {
                                 rotation=math.pi / 12),
 }
 if tuple(_MAKERS) != tuple(CATALOGUE):
-    raise AssertionError("materials: _registry._MAKERS and _catalogue.CATALOGUE list different names")
+    raise AssertionError("materials: _MAKERS and _catalogue.CATALOGUE list different names")
 
 
 def default_materials() -> dict[str, eqx.Module]:
@@ -91,8 +91,6 @@ def dense_table(material, dtype=np.float32) -> np.ndarray:
     """
     if isinstance(material, str):
         material = get_material(material)
-    if isinstance(material, NeuralBRDF):
-        material._check_single()
     wide = np.dtype(dtype) == np.float64 and jax.config.read("jax_enable_x64")
     work = jnp.float64 if wide else jnp.float32
     ti, pi, tv, pv = (np.deg2rad(a) for a in pair_grid())

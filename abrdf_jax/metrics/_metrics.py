@@ -45,38 +45,14 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InputError
-from ._color import (  # noqa: F401 - re-exported by abrdf_jax.metrics
-    D65_WHITE_XYZ, D65_XY, LUMA_WEIGHTS, METRIC_KEYS, MIDDLE_GREY, SRGB_PRIMARIES_XY, SRGB_TO_XYZ, _check_table,
-    _de76_pairs, _de2000_pairs, _float_dtype, _prepare, _safe_sqrt, expose, srgb_encode, srgb_to_lab, tonemap,
-)
+from ._color import _de76_pairs, _de2000_pairs, _prepare, _safe_sqrt
+from ._color import expose, srgb_encode, srgb_to_lab, tonemap
 
-__all__ = [
-    "D65_XY",
-    "SRGB_PRIMARIES_XY",
-    "SRGB_TO_XYZ",
-    "D65_WHITE_XYZ",
-    "METRIC_KEYS",
-    "expose",
-    "tonemap",
-    "srgb_encode",
-    "srgb_to_lab",
-    "rmse8",
-    "psnr",
-    "delta_e76",
-    "delta_e2000",
-    "log_error",
-    "evaluate",
-    "evaluate_batch",
-    "summarize",
-]
+_Pairs = Float[ArrayLike, "*pairs 3"]  # rec and ref: direction pairs of one material, RGB last
+
 
 def _exposed(rec: Array, ref: Array) -> tuple[Array, Array, Array]:
-    """Exposed ``y_rec, y_ref`` and the mask ``rec == ref`` (elementwise).
-
-    Every error is forced to exactly 0 where the inputs are equal. Mathematically it is 0 there anyway,
-    but the compiler may contract ``a·e − b·e`` into ``fma(a, e, −b·e)`` on one side only and leave a
-    residue of ~1e-15; the ``where`` also makes the gradient there exactly 0.
-    """
+    """Exposed ``y_rec, y_ref`` and the mask ``rec == ref`` (elementwise; "Exact zeros" above)."""
     e = expose(ref)
     return rec * e, ref * e, rec == ref
 
@@ -105,55 +81,33 @@ def _log_error_from_y(y_rec: Array, y_ref: Array, same: Array) -> Array:
 
 
 # --------------------------------------------------------------------------------------------------
-# Public metrics.
+# Public metrics: ``rec`` and ``ref`` as in the module docstring; each raises InputError if the shapes
+# differ, RGB is not last, or there are no pairs.
 
-def rmse8(rec: Float[ArrayLike, "*pairs 3"], ref: Float[ArrayLike, "*pairs 3"]) -> Float[Array, ""]:
+
+def rmse8(rec: _Pairs, ref: _Pairs) -> Float[Array, ""]:
     """RMSE8: root mean square of ``q_ref − q_rec`` over all values, ``q = 255 · srgb_encode(t)``.
 
-    Args:
-        rec: reconstruction, shape ``(..., 3)`` (direction pairs of one material, RGB last).
-        ref: reference, same shape; it alone sets the exposure applied to both.
-
-    Returns:
-        Scalar, on the 0–255 scale (unrounded). Gradient 0 (finite) at ``rec == ref``.
-
-    Raises:
-        InputError: the shapes differ, RGB is not last, or there are no pairs.
+    Returns a scalar on the 0–255 scale (unrounded); gradient 0 (finite) at ``rec == ref``.
     """
     rec, ref = _prepare(rec, ref)
     return _rmse8_from_y(*_exposed(rec, ref))
 
 
-def psnr(rec: Float[ArrayLike, "*pairs 3"], ref: Float[ArrayLike, "*pairs 3"]) -> Float[Array, ""]:
+def psnr(rec: _Pairs, ref: _Pairs) -> Float[Array, ""]:
     """PSNR = ``20 log10(255 / RMSE8)`` dB.
 
-    Args:
-        rec: reconstruction, shape ``(..., 3)`` (direction pairs of one material, RGB last).
-        ref: reference, same shape; it alone sets the exposure applied to both.
-
-    Returns:
-        Scalar in dB; ``+inf`` exactly when RMSE8 is 0 (identical tone-mapped tables), returned
-        explicitly (not by a division by zero), with a zero gradient there.
-
-    Raises:
-        InputError: the shapes differ, RGB is not last, or there are no pairs.
+    ``+inf`` exactly when RMSE8 is 0 (identical tone-mapped tables), returned explicitly (not by a
+    division by zero), with a zero gradient there.
     """
     rec, ref = _prepare(rec, ref)
     return _psnr_from_rmse(_rmse8_from_y(*_exposed(rec, ref)))
 
 
-def delta_e76(rec: Float[ArrayLike, "*pairs 3"], ref: Float[ArrayLike, "*pairs 3"]) -> Float[Array, ""]:
+def delta_e76(rec: _Pairs, ref: _Pairs) -> Float[Array, ""]:
     """ΔE76: mean over direction pairs of the Euclidean CIELAB distance of the tone-mapped tables.
 
-    Args:
-        rec: reconstruction, shape ``(..., 3)`` (direction pairs of one material, RGB last).
-        ref: reference, same shape; it alone sets the exposure applied to both.
-
-    Returns:
-        Scalar. The distance uses a safe norm: the gradient is finite (0) where a pair matches exactly.
-
-    Raises:
-        InputError: the shapes differ, RGB is not last, or there are no pairs.
+    The distance uses a safe norm: the gradient is finite (0) where a pair matches exactly.
     """
     rec, ref = _prepare(rec, ref)
     y_rec, y_ref, same = _exposed(rec, ref)
@@ -161,20 +115,10 @@ def delta_e76(rec: Float[ArrayLike, "*pairs 3"], ref: Float[ArrayLike, "*pairs 3
     return _mean_over_pairs(de, same)
 
 
-def delta_e2000(
-    rec: Float[ArrayLike, "*pairs 3"], ref: Float[ArrayLike, "*pairs 3"]
-) -> Float[Array, ""]:
+def delta_e2000(rec: _Pairs, ref: _Pairs) -> Float[Array, ""]:
     """ΔE2000 (CIEDE2000, Sharma et al. 2005, ``kL = kC = kH = 1``): mean over direction pairs.
 
-    Args:
-        rec: reconstruction, shape ``(..., 3)`` (direction pairs of one material, RGB last).
-        ref: reference, same shape; it alone sets the exposure applied to both.
-
-    Returns:
-        Scalar. Gradients are finite at zero chroma and at identical pairs (see ``_de2000_pairs``).
-
-    Raises:
-        InputError: the shapes differ, RGB is not last, or there are no pairs.
+    Gradients are finite at zero chroma and at identical pairs (see ``_de2000_pairs``).
     """
     rec, ref = _prepare(rec, ref)
     y_rec, y_ref, same = _exposed(rec, ref)
@@ -182,20 +126,10 @@ def delta_e2000(
     return _mean_over_pairs(de, same)
 
 
-def log_error(rec: Float[ArrayLike, "*pairs 3"], ref: Float[ArrayLike, "*pairs 3"]) -> Float[Array, ""]:
+def log_error(rec: _Pairs, ref: _Pairs) -> Float[Array, ""]:
     """LogErr: mean over all values of ``|ln(1 + y_rec) − ln(1 + y_ref)|`` of the exposed, untone-mapped y.
 
-    Negative ``y`` counts as 0 here too, as in the tone mapping.
-
-    Args:
-        rec: reconstruction, shape ``(..., 3)`` (direction pairs of one material, RGB last).
-        ref: reference, same shape; it alone sets the exposure applied to both.
-
-    Returns:
-        Scalar. The gradient of ``|·|`` at 0 is 0 (finite).
-
-    Raises:
-        InputError: the shapes differ, RGB is not last, or there are no pairs.
+    Negative ``y`` counts as 0 here too, as in the tone mapping; the gradient of ``|·|`` at 0 is 0.
     """
     rec, ref = _prepare(rec, ref)
     return _log_error_from_y(*_exposed(rec, ref))
@@ -215,19 +149,11 @@ def _evaluate(rec: Array, ref: Array) -> dict[str, Array]:
 
 
 @eqx.filter_jit
-def evaluate(rec: Float[ArrayLike, "*pairs 3"], ref: Float[ArrayLike, "*pairs 3"]) -> dict[str, Array]:
+def evaluate(rec: _Pairs, ref: _Pairs) -> dict[str, Array]:
     """All protocol metrics of one material, sharing the exposure and tone mapping (jitted).
 
-    Args:
-        rec: reconstruction, shape ``(..., 3)`` (direction pairs of one material, RGB last).
-        ref: reference, same shape; it alone sets the exposure.
-
-    Returns:
-        ``{"rmse8", "psnr", "de76", "de2000", "logerr"}`` → scalar JAX arrays (see the functions of the
-        same names).
-
-    Raises:
-        InputError: the shapes differ, RGB is not last, or there are no pairs.
+    Returns ``{"rmse8", "psnr", "de76", "de2000", "logerr"}`` → scalar JAX arrays (see the functions
+    of the same names).
     """
     return _evaluate(*_prepare(rec, ref))
 
@@ -236,18 +162,9 @@ def evaluate(rec: Float[ArrayLike, "*pairs 3"], ref: Float[ArrayLike, "*pairs 3"
 def evaluate_batch(
     rec: Float[ArrayLike, "m *pairs 3"], ref: Float[ArrayLike, "m *pairs 3"]
 ) -> dict[str, Array]:
-    """:func:`evaluate` over a leading material axis (a ``vmap``; each material exposed by its own ref).
-
-    Args:
-        rec: reconstructions, shape ``(m, ..., 3)``.
-        ref: references, same shape.
-
-    Returns:
-        The keys of :func:`evaluate`, each an array of shape ``(m,)``.
-
-    Raises:
-        InputError: the shapes differ, RGB is not last, or there is no material axis / no pairs.
-    """
+    """:func:`evaluate` over a leading material axis ``m`` (a ``vmap``; each material exposed by its
+    own ref): the keys of :func:`evaluate`, each an array of shape ``(m,)``; also raises without a
+    material axis."""
     rec, ref = _prepare(rec, ref)
     if rec.ndim < 2 or rec.shape[0] == 0:
         raise InputError(f"evaluate_batch needs shape (m, ..., 3) with m >= 1; got {rec.shape}")

@@ -24,16 +24,6 @@ from ..io._tables import check_table
 from ..metrics import expose, srgb_encode, tonemap
 from .._grid import UBO_THETAS_DEG, ubo_grid
 
-__all__ = [
-    "exposure_of",
-    "abrdf_image",
-    "grid_weights",
-    "interpolate_table",
-    "render_sphere",
-    "check_figure_path",
-    "comparison_figure",
-]
-
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
 _BACKGROUND = 0.12  # display value (sRGB-encoded) of the area around a sphere
 _N = 81
@@ -48,6 +38,12 @@ _FIG_FORMATS = (".png", ".pdf", ".svg")
 def _check_table(table, name: str = "table") -> np.ndarray:
     check_table(table, name)  # shape, dtype and finite values, as every table the package reads
     return np.asarray(table, dtype=np.float64)
+
+
+def _check_positive_int(name: str, value) -> int:
+    if int(value) != value or value < 1:
+        raise InputError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
 
 
 def exposure_of(reference) -> float:
@@ -82,13 +78,9 @@ def abrdf_image(table, exposure: float | None = None, scale: int = 1) -> np.ndar
         InputError: wrong table shape, non-finite values, or ``scale < 1``.
     """
     t = _check_table(table)
-    if int(scale) != scale or scale < 1:
-        raise InputError(f"scale must be a positive integer, got {scale!r}")
-    e = exposure_of(t) if exposure is None else float(exposure)
-    img = _display(t, e)
-    if scale > 1:
-        img = np.repeat(np.repeat(img, int(scale), axis=0), int(scale), axis=1)
-    return img
+    scale = _check_positive_int("scale", scale)
+    img = _display(t, exposure_of(t) if exposure is None else float(exposure))
+    return np.repeat(np.repeat(img, scale, axis=0), scale, axis=1) if scale > 1 else img
 
 
 # --------------------------------------------------------------------------------------------
@@ -233,11 +225,7 @@ def render_sphere(
         InputError: wrong table shape, non-finite values, or ``size < 1``.
     """
     t = _check_table(table)
-    if int(size) != size or size < 1:
-        raise InputError(f"size must be a positive integer, got {size!r}")
-    if int(supersample) != supersample or supersample < 1:
-        raise InputError(f"supersample must be a positive integer, got {supersample!r}")
-    size, ss = int(size), int(supersample)
+    size, ss = _check_positive_int("size", size), _check_positive_int("supersample", supersample)
     e = exposure_of(t) if exposure is None else float(exposure)
     l_w = _direction(*light)
     c = _direction(*view)
@@ -281,11 +269,6 @@ def render_sphere(
 # --------------------------------------------------------------------------------------------
 
 
-def _atomic_bytes(path: Path, data: bytes) -> None:
-    with atomic_write(path, "wb") as f:
-        f.write(data)
-
-
 def check_figure_path(path) -> Path:
     """Validate a figure output path (extension, existing folder) before any work is done.
 
@@ -306,13 +289,9 @@ def check_figure_path(path) -> Path:
 
 
 def _caption(metrics: dict | None) -> str:
-    if not metrics:
-        return ""
-    parts = []
-    for key, label, fmt in (("de76", "ΔE76", "{:.2f}"), ("rmse8", "RMSE8", "{:.2f}"), ("psnr", "PSNR", "{:.1f} dB")):
-        if key in metrics and metrics[key] is not None:
-            parts.append(f"{label} " + fmt.format(float(metrics[key])))
-    return " / ".join(parts)
+    fields = (("de76", "ΔE76 {:.2f}"), ("rmse8", "RMSE8 {:.2f}"), ("psnr", "PSNR {:.1f} dB"))
+    m = metrics or {}
+    return " / ".join(f.format(float(m[k])) for k, f in fields if m.get(k) is not None)
 
 
 def comparison_figure(rows, path, *, light=(50.0, 135.0), sphere_size: int = 160, dpi: int = 100) -> Path:
@@ -347,13 +326,12 @@ def comparison_figure(rows, path, *, light=(50.0, 135.0), sphere_size: int = 160
     n = len(rows)
     cell, caption_h, top, bottom = 1.9, 0.35, 0.35, 0.3  # inches
     height = n * (cell + caption_h) + top + bottom
-    fig = Figure(figsize=(4 * cell + 0.5, height), dpi=dpi)
+    width = 4 * cell + 0.5
+    fig = Figure(figsize=(width, height), dpi=dpi)
     axes = fig.subplots(n, 4, squeeze=False)
-    fig.subplots_adjust(
-        left=0.5 / (4 * cell + 0.5), right=0.99, top=1 - top / height, bottom=bottom / height,
-        wspace=0.06, hspace=caption_h / cell,
-    )
-    titles = ("ABRDF reference", "ABRDF reconstruction", "sphere reference", "sphere reconstruction")
+    margins = dict(left=0.5 / width, right=0.99, top=1 - top / height, bottom=bottom / height)
+    fig.subplots_adjust(wspace=0.06, hspace=caption_h / cell, **margins)
+    heads = ("ABRDF reference", "ABRDF reconstruction", "sphere reference", "sphere reconstruction")
     for r, row in enumerate(rows):
         if len(row) != 4:
             raise InputError(f"comparison_figure: row {r} has {len(row)} items, expected (name, ref, rec, metrics)")
@@ -372,16 +350,17 @@ def comparison_figure(rows, path, *, light=(50.0, 135.0), sphere_size: int = 160
             ax.set_xticks([])
             ax.set_yticks([])
             if r == 0:
-                ax.set_title(titles[c], fontsize=8)
+                ax.set_title(heads[c], fontsize=8)
             if c == 0:
                 ax.set_ylabel(str(name), fontsize=9)
         caption = _caption(metrics)
         if caption:
             box = axes[r][0].get_position()
             fig.text(0.5, box.y0 - 0.06 / height, caption, ha="center", va="top", fontsize=8.5)
-    fig.text(0.5, 0.04 / height, "ABRDF images: rows = illumination, columns = view (UBO order)",
-             ha="center", va="bottom", fontsize=7, color="0.35")
+    note = "ABRDF images: rows = illumination, columns = view (UBO order)"
+    fig.text(0.5, 0.04 / height, note, ha="center", va="bottom", fontsize=7, color="0.35")
     buf = _io.BytesIO()
     fig.savefig(buf, format=path.suffix.lower().lstrip("."), dpi=dpi)
-    _atomic_bytes(path, buf.getvalue())
+    with atomic_write(path, "wb") as f:
+        f.write(buf.getvalue())
     return path

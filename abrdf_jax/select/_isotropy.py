@@ -43,7 +43,7 @@ import numpy as np
 from jax.scipy.special import gammaincc
 
 from .._errors import InputError
-from ..metrics._metrics import LUMA_WEIGHTS
+from ..metrics._color import LUMA_WEIGHTS
 from .._measurements import Measurements, Samples, group_slices
 
 #: Default significance level and minimum effect (RMS log variation of the axial slices).
@@ -194,8 +194,8 @@ def isotropy_test(
     Args:
         samples: measured samples (grouped here, α estimated unless ``alpha_deg``) or grouped
             :class:`Measurements`.
-        noise: relative noise of one sample (e.g. 0.03 for 3 %), if known; default: estimated
-            from the diagonal slices.
+        noise: relative noise of one sample (e.g. 0.03 for 3 %), if known; default:
+            :func:`estimate_noise`.
         level: significance level of the χ² test.
         min_effect: smallest RMS variation (log units) of the axial slices that counts as
             anisotropy worth modelling.
@@ -219,12 +219,11 @@ def isotropy_test(
     elif not isinstance(samples, Measurements):
         raise InputError(f"samples must be Samples or Measurements, got {type(samples).__name__}")
     meas = samples
-    t_, cnt = np.asarray(meas.t, np.float64), np.asarray(meas.count)
+    cnt = np.asarray(meas.count)
     logl = _log_luminance(jnp.asarray(meas.y)[None], np.asarray(meas.mask)[None], log_eps)
     floor = 1e-6  # log units: float32 rounding of constant slices stays below it
     if noise is None:
-        sigma, source = float(_noise(logl, t_, cnt, range(0, len(cnt), 2) if np.any(cnt[0::2] >= 3)
-                                     else range(1, len(cnt), 2))[0]), "estimated"
+        sigma, source = estimate_noise(meas, log_eps), "estimated"
     else:
         sigma, source = float(noise), "given"
     sigma = max(sigma, floor) if math.isfinite(sigma) else floor

@@ -68,10 +68,7 @@ def _needed(counts, errors, target):
     if target is None:
         return None
     ok = [e <= target for e in errors]
-    for i in range(len(counts)):
-        if all(ok[i:]):
-            return int(counts[i])
-    return None
+    return next((int(c) for i, c in enumerate(counts) if all(ok[i:])), None)
 
 
 def _pad(meas: Measurements, nmax: int) -> Measurements:
@@ -167,16 +164,17 @@ def sample_count_curve(
         if ref is None:
             from ..materials import dense_table
 
-            ref = jnp.asarray(dense_table(source, np.float64 if params.alpha.dtype == jnp.float64 else np.float32))
+            wide = params.alpha.dtype == jnp.float64
+            ref = jnp.asarray(dense_table(source, np.float64 if wide else np.float32))
     errors, totals = [], []
     nmax = int(8 * np.ceil(max(counts) / 8))
     for n in counts:
         if measured:
             kept, held = _thin(meas, n)
             rec_in = _pad(kept, meas.t.shape[1])
-            wi, wv = zip(*(slice_vectors(jnp.asarray(ts, meas.t.dtype), s % 2, meas.pairs[s // 2], params.alpha.astype(meas.t.dtype))
-                           for s, ts, _ in held))
-            pred = _reconstruct_jit(rec_in, config, params, (jnp.concatenate(wi), jnp.concatenate(wv)))
+            dt, a = meas.t.dtype, params.alpha.astype(meas.t.dtype)
+            dirs = [slice_vectors(jnp.asarray(ts, dt), s % 2, meas.pairs[s // 2], a) for s, ts, _ in held]
+            pred = _reconstruct_jit(rec_in, config, params, tuple(map(jnp.concatenate, zip(*dirs))))
             y = jnp.asarray(np.concatenate([ys for _, _, ys in held]), pred.dtype)
             errors.append(float(log_rms(pred, y, measurement_eps(meas, config.log_eps), True)))
             totals.append(int(np.sum(np.asarray(kept.count))))
@@ -190,4 +188,5 @@ def sample_count_curve(
             rec = _reconstruct_jit(_pad(m, nmax), config, params, None)
             errors.append(float(evaluate(rec, ref.astype(rec.dtype))[metric]))
             totals.append(int(sum(cnts)))
-    return SampleCountCurve(counts, tuple(totals), tuple(errors), metric, target, _needed(counts, errors, target), config.budget)
+    needed = _needed(counts, errors, target)
+    return SampleCountCurve(counts, tuple(totals), tuple(errors), metric, target, needed, config.budget)

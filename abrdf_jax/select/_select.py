@@ -73,20 +73,33 @@ def _rec(budget, **kw):
     return dict(budget=budget, **{**RECOMMENDED, **kw})
 
 
+# name -> settings, in complexity order (see the module docstring)
+_SETTINGS = {
+    "iso": _rec("iso102"),
+    "iso-linear": _rec("iso102", value_space="linear"),
+    "iso-gaussian": _rec("iso102", kernel="gaussian", degree=0),
+    "paper": dict(budget="iso102"),
+    "aniso-average": _rec("aniso204", rule="average"),
+    "aniso-crossing": _rec("aniso204", rule="crossing"),
+    "aniso-log": _rec("aniso204", rule="log"),
+    "aniso": _rec("aniso204"),
+    "paper-aniso": dict(budget="aniso204"),
+}
+_DESCRIPTIONS = {
+    "iso": "diagonal slices only (eq. 5); thin-plate spline on log values (recommended)",
+    "iso-linear": "diagonal slices only; thin-plate spline on linear values",
+    "iso-gaussian": "diagonal slices only; Gaussian kernel (a width) on log values",
+    "paper": "Filip 2012 as published, isotropic: Gaussian kernel on linear values",
+    "aniso-average": "all 8 slices, mean of the two slices (linear rule)",
+    "aniso-crossing": "all 8 slices, sum less the crossing value (reproduces both slices)",
+    "aniso-log": "all 8 slices, multiplicative rule (product over the crossing)",
+    "aniso": "all 8 slices, eq. (2-4) min-max stretch (filip2012); the recommended anisotropic model",
+    "paper-aniso": "Filip 2012 as published, anisotropic: eq. (2-4), Gaussian on linear values",
+}
 #: The named models, in complexity order (rank = position; see the module docstring).
 CANDIDATES: dict[str, Candidate] = {
-    c.name: c
-    for c in (
-        Candidate("iso", _rec("iso102"), 0, "diagonal slices only (eq. 5); thin-plate spline on log values (recommended)"),
-        Candidate("iso-linear", _rec("iso102", value_space="linear"), 1, "diagonal slices only; thin-plate spline on linear values"),
-        Candidate("iso-gaussian", _rec("iso102", kernel="gaussian", degree=0), 2, "diagonal slices only; Gaussian kernel (a width) on log values"),
-        Candidate("paper", dict(budget="iso102"), 3, "Filip 2012 as published, isotropic: Gaussian kernel on linear values"),
-        Candidate("aniso-average", _rec("aniso204", rule="average"), 4, "all 8 slices, mean of the two slices (linear rule)"),
-        Candidate("aniso-crossing", _rec("aniso204", rule="crossing"), 5, "all 8 slices, sum less the crossing value (reproduces both slices)"),
-        Candidate("aniso-log", _rec("aniso204", rule="log"), 6, "all 8 slices, multiplicative rule (product over the crossing)"),
-        Candidate("aniso", _rec("aniso204"), 7, "all 8 slices, eq. (2-4) min-max stretch (filip2012); the recommended anisotropic model"),
-        Candidate("paper-aniso", dict(budget="aniso204"), 8, "Filip 2012 as published, anisotropic: eq. (2-4), Gaussian on linear values"),
-    )
+    name: Candidate(name, settings, rank, _DESCRIPTIONS[name])
+    for rank, (name, settings) in enumerate(_SETTINGS.items())
 }
 #: Candidates tried by default: the budget and the subspace rule (one RBF factorisation).
 DEFAULT_ISO = ("iso",)
@@ -109,7 +122,8 @@ def candidate(name: str) -> Candidate:
 
 def _group_key(config: Config):
     """Configurations with equal keys share the RBF system (and the default parameters)."""
-    return (config.kernel, config.degree, config.value_space, config.parameterization, config.log_eps)
+    fields = ("kernel", "degree", "value_space", "parameterization", "log_eps")
+    return tuple(getattr(config, f) for f in fields)
 
 
 def fold_data(meas: Measurements, alpha, k: int = 4) -> dict:
@@ -134,7 +148,7 @@ def fold_data(meas: Measurements, alpha, k: int = 4) -> dict:
         "test_wv": jnp.stack(wvs).astype(meas.y.dtype),
         "test_y": ty.reshape(k, -1, 3),
         "test_mask": tm.reshape(k, -1),
-        "res_eps": measurement_eps(meas, Config().log_eps),  # 0.01 of the mean sample, as SelfCalibration
+        "res_eps": measurement_eps(meas, Config().log_eps),  # 1 % of the mean, as SelfCalibration
     }
 
 
@@ -144,7 +158,8 @@ def _cv_core(data: dict, configs: tuple, params: Params):
     cfg0 = configs[0]
     vs = value_space(cfg0.value_space)
     dtype = train.y.dtype
-    eps = jax.vmap(lambda m: vs.eps(m, cfg0.log_eps))(train) if vs.is_log else None  # (k, 3): each fold's own
+    # (k, 3): each fold's own ε
+    eps = jax.vmap(lambda m: vs.eps(m, cfg0.log_eps))(train) if vs.is_log else None
 
     def fold_values(m, e, c):
         return vs.encode_subspace(subspace_values(vs.encode_samples(m, e), c, params), e)
@@ -160,7 +175,8 @@ def _cv_core(data: dict, configs: tuple, params: Params):
     xq = pair_coordinates(data["test_wi"].reshape(-1, 3), data["test_wv"].reshape(-1, 3), cfg0.parameterization)
     out = rbf(xq).reshape(k, q, G, k, C)
     fold = jnp.arange(k)
-    out = out[fold, :, :, fold, :]  # fold j's own prediction at fold j's held-out samples: (k, q, G, C)
+    # fold j's own prediction at fold j's held-out samples: (k, q, G, C)
+    out = out[fold, :, :, fold, :]
     pred = vs.decode(out, None if eps is None else eps[:, None, None, :])
     mask = data["test_mask"][:, :, None, None]
     return log_rms(pred, data["test_y"][:, :, None, :], data["res_eps"], mask, axis=(0, 1, 3))

@@ -23,6 +23,7 @@ parameters, never NaN.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -116,8 +117,8 @@ def _solve(problem, solver_name, max_steps, rtol, atol, theta0, data, lo, hi):
     """The whole solve; returns (theta, steps, status code, loss at theta0, loss at theta)."""
     initial = problem.loss(theta0, data)
     run, _ = _SOLVERS[solver_name]
-    theta, steps, code = run(lambda th, d, ls: _objective(problem, th, d, ls), theta0, data, max_steps, rtol, atol,
-                             lo, hi)
+    objective = functools.partial(_objective, problem)  # (theta, data, least_squares)
+    theta, steps, code = run(objective, theta0, data, max_steps, rtol, atol, lo, hi)
     final = problem.loss(theta, data)
     return theta, steps, code, initial, final
 

@@ -29,7 +29,7 @@ import numpy as np
 from jaxtyping import Array, Float, PyTree
 
 from .._errors import InputError
-from ..metrics._metrics import LUMA_WEIGHTS, srgb_to_lab, tonemap
+from ..metrics._color import LUMA_WEIGHTS, srgb_to_lab, tonemap
 from .._params import Config, Params
 from .._pipeline import _reconstruct_core, prepare
 from .._measurements import Measurements, Samples
@@ -81,10 +81,10 @@ class ParamSpace(eqx.Module):
     def init(self, params: Params) -> dict[str, Array]:
         """Unconstrained coordinates of ``params`` (clipped into the bounds)."""
         theta = {}
-        if self.widths == "per_dim":
-            theta["log_widths"] = jnp.clip(jnp.log(params.widths), *self.log_width_bounds)
-        elif self.widths == "shared":
-            theta["log_widths"] = jnp.clip(jnp.log(jnp.exp(jnp.mean(jnp.log(params.widths))))[None], *self.log_width_bounds)
+        if self.widths != "fixed":
+            lw = jnp.log(params.widths)
+            lw = lw if self.widths == "per_dim" else jnp.mean(lw)[None]  # shared: geometric mean
+            theta["log_widths"] = jnp.clip(lw, *self.log_width_bounds)
         if self.reg:
             theta["log_reg"] = jnp.clip(jnp.log(params.reg), *self.log_reg_bounds)
         if self.alpha:
@@ -109,11 +109,9 @@ class ParamSpace(eqx.Module):
 
     def bounds(self, theta: dict[str, Array]) -> tuple[dict[str, Array], dict[str, Array]]:
         """Box bounds on ``theta`` (for ``jaxopt.LBFGSB``); α's logit gets ±12 (0.0006% of the range)."""
-        lo, hi = {}, {}
-        for k, v in theta.items():
-            b = {"log_widths": self.log_width_bounds, "log_reg": self.log_reg_bounds, "alpha": (-12.0, 12.0)}[k]
-            lo[k], hi[k] = jnp.full_like(v, b[0]), jnp.full_like(v, b[1])
-        return lo, hi
+        box = dict(log_widths=self.log_width_bounds, log_reg=self.log_reg_bounds, alpha=(-12.0, 12.0))
+        lo = {k: jnp.full_like(v, box[k][0]) for k, v in theta.items()}
+        return lo, {k: jnp.full_like(v, box[k][1]) for k, v in theta.items()}
 
 
 class AbstractProblem(eqx.Module):

@@ -18,15 +18,15 @@ def _optimistix(kind: str):
     def run(objective, theta0, data, max_steps, rtol, atol, lo, hi):
         import optimistix as optx
 
+        tol, opts = dict(rtol=rtol, atol=atol), dict(args=data, max_steps=max_steps, throw=False)
         if kind in ("lm", "gn"):
-            solver = (optx.LevenbergMarquardt if kind == "lm" else optx.GaussNewton)(rtol=rtol, atol=atol)
-            sol = optx.least_squares(lambda th, d: objective(th, d, True), solver, theta0, args=data,
-                                     max_steps=max_steps, throw=False)
+            solver = (optx.LevenbergMarquardt if kind == "lm" else optx.GaussNewton)(**tol)
+            sol = optx.least_squares(lambda th, d: objective(th, d, True), solver, theta0, **opts)
         else:
-            sol = optx.minimise(lambda th, d: objective(th, d, False), optx.BFGS(rtol=rtol, atol=atol), theta0,
-                                args=data, max_steps=max_steps, throw=False)
+            sol = optx.minimise(lambda th, d: objective(th, d, False), optx.BFGS(**tol), theta0, **opts)
         steps = sol.stats["num_steps"]
-        code = jnp.where(sol.result == optx.RESULTS.successful, 0, jnp.where(steps >= max_steps, 1, 2))
+        ok = sol.result == optx.RESULTS.successful
+        code = jnp.where(ok, 0, jnp.where(steps >= max_steps, 1, 2))
         return sol.value, steps, code
 
     return run
@@ -39,10 +39,8 @@ def _jaxopt(kind: str):
         def fun(th, d):
             return objective(th, d, False)
 
-        if kind == "lbfgs":
-            theta, state = jaxopt.LBFGS(fun=fun, maxiter=max_steps, tol=atol, jit=True).run(theta0, data)
-        else:
-            theta, state = jaxopt.LBFGSB(fun=fun, maxiter=max_steps, tol=atol, jit=True).run(theta0, (lo, hi), data)
+        make, bounds = (jaxopt.LBFGS, ()) if kind == "lbfgs" else (jaxopt.LBFGSB, ((lo, hi),))
+        theta, state = make(fun=fun, maxiter=max_steps, tol=atol, jit=True).run(theta0, *bounds, data)
         steps = state.iter_num
         return theta, steps, jnp.where(state.error <= atol, 0, jnp.where(steps >= max_steps, 1, 2))
 
