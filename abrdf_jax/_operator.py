@@ -90,23 +90,27 @@ class ReconstructionOperator(eqx.Module):
         return self.matrix.dtype
 
     def compact(self, values) -> Float[Array, "... n_in C"]:
-        """The valid sample values of measurements, in the operator's input order.
+        """The valid sample values of measurements (a :class:`Measurements`, or its ``y``
+        ``(..., S, nmax, C)``) in the operator's input order, ``(..., n_in, C)``: what
+        :meth:`__call__` accepts fastest."""
+        x, lead, full = self._inputs(values)
+        return _to_compact(self, x, full).reshape(*lead, self.n_inputs, x.shape[-1])
 
-        Args:
-            values: a :class:`Measurements` (one, or stacked with a leading material axis) or
-                its ``y`` array ``(..., S, nmax, C)``.
-
-        Returns:
-            ``(..., n_in, C)`` values (what :meth:`__call__` accepts fastest).
-        """
+    def _inputs(self, values):
+        """``(x, lead, full)``: values flattened to one batch axis, the leading shape, and whether
+        they are in the slice layout ``(S, nmax)`` (else compact ``(n_in,)``)."""
         if isinstance(values, Measurements):
             self._check_layout(values)
             values = values.y
-        y = jnp.asarray(values)
+        x = jnp.asarray(values)
         s, nmax = self.t.shape
-        if y.ndim < 3 or y.shape[-3:-1] != (s, nmax):
-            raise InputError(f"values must have shape (..., {s}, {nmax}, C), got {y.shape}")
-        return y.reshape(*y.shape[:-3], s * nmax, y.shape[-1])[..., self.index, :]
+        if x.ndim >= 3 and x.shape[-3:-1] == (s, nmax):
+            lead, full = x.shape[:-3], True
+        elif x.ndim >= 2 and x.shape[-2] == self.n_inputs:
+            lead, full = x.shape[:-2], False
+        else:
+            raise InputError(f"values must have shape (..., {s}, {nmax}, C) or (..., {self.n_inputs}, C), got {x.shape}")
+        return x.reshape(-1, *x.shape[len(lead):]), lead, full
 
     def _check_layout(self, meas: Measurements) -> None:
         if meas.pairs != self.pairs:
@@ -140,18 +144,8 @@ class ReconstructionOperator(eqx.Module):
         Raises:
             InputError: for a shape or a measurement layout that does not fit the template.
         """
-        if isinstance(values, Measurements):
-            self._check_layout(values)
-            values = values.y
-        x = jnp.asarray(values)
-        s, nmax = self.t.shape
-        if x.ndim >= 3 and x.shape[-3:-1] == (s, nmax):
-            lead, full = x.shape[:-3], True
-        elif x.ndim >= 2 and x.shape[-2] == self.n_inputs:
-            lead, full = x.shape[:-2], False
-        else:
-            raise InputError(f"values must have shape (..., {s}, {nmax}, C) or (..., {self.n_inputs}, C), got {x.shape}")
-        x = x.reshape(-1, *x.shape[len(lead):]).astype(self.dtype)
+        x, lead, full = self._inputs(values)
+        x = x.astype(self.dtype)
         out = _apply(self, x, full)
         return out.reshape(*lead, *out.shape[1:])
 
