@@ -29,7 +29,7 @@ def sample_model(model, counts, alpha, pairs=PROTOCOL_PAIRS, dtype=jnp.float32) 
     t, count = protocol_parameters(counts, dtype=dtype)
     wi, wv = slice_directions(t, pairs, jnp.asarray(alpha, dtype))
     y = model(wi, wv)
-    valid = (jnp.arange(t.shape[1])[None, :] < count[:, None])[..., None]
+    valid = (jnp.arange(t.shape[1], dtype=count.dtype)[None, :] < count[:, None])[..., None]
     y = jnp.where(valid, y, 0.0).astype(dtype)
     return Measurements(t, y, count, tuple(pairs), any(c > 0 for c in counts[0::2]))
 
@@ -59,7 +59,7 @@ def sample_table(table, counts, alpha, pairs=PROTOCOL_PAIRS, dtype=jnp.float32) 
         a, b = wi_[:, None], wv_[:, None]
         ys.append((1 - a) * ((1 - b) * v00 + b * v01) + a * ((1 - b) * v10 + b * v11))
     y = jnp.stack(ys)
-    valid = (jnp.arange(t.shape[1])[None, :] < count[:, None])[..., None]
+    valid = (jnp.arange(t.shape[1], dtype=count.dtype)[None, :] < count[:, None])[..., None]
     y = jnp.where(valid, y, 0.0)
     return Measurements(t, y, count, tuple(pairs), any(c > 0 for c in counts[0::2]))
 
