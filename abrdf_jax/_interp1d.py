@@ -26,7 +26,7 @@ METHODS = INTERP_METHODS
 def _neighbours(t, n, tq):
     """Indices of the knots left/right of each query and their unwrapped angles."""
     nmax = t.shape[0]
-    valid = jnp.arange(nmax) < n
+    valid = jnp.arange(nmax, dtype=jnp.asarray(n).dtype) < n
     tk = jnp.where(valid, t, jnp.inf)
     j = jnp.searchsorted(tk, tq, side="right")  # knots <= tq, in [0, n]
     jl = jnp.where(j == 0, n - 1, j - 1)

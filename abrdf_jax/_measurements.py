@@ -77,7 +77,8 @@ class Measurements(eqx.Module):
     @property
     def mask(self):
         """``(..., S, nmax)`` bool: which entries are samples (the rest is padding)."""
-        return jnp.arange(self.t.shape[-1]) < self.count[..., None]
+        index = jnp.broadcast_to(jnp.arange(self.t.shape[-1], dtype=self.count.dtype), self.t.shape)
+        return index < self.count[..., None]
 
     def replace(self, **fields) -> "Measurements":
         """A copy with some fields replaced (``t``, ``y``, ``count``, ``pairs``, ``has_axial``)."""

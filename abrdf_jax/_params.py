@@ -140,6 +140,13 @@ def preset(name: str, budget: str = "iso102", **overrides) -> "Config":
 
 
 
+def _strong_array(x):
+    """``jnp.asarray`` without JAX's weak type, which is part of the compile cache key: ``Params(0.2,
+    ...)`` from Python floats and ``Params.default()`` then share one compile."""
+    x = jnp.asarray(x)
+    return x.astype(x.dtype)
+
+
 class Params(eqx.Module):
     """Continuous parameters: traced, differentiable, never a recompile.
 
@@ -149,9 +156,9 @@ class Params(eqx.Module):
         reg: RBF regularisation λ (added to the Gram diagonal).
     """
 
-    alpha: Float[Array, ""] = eqx.field(converter=jnp.asarray)
-    widths: Float[Array, " 4"] = eqx.field(converter=jnp.asarray)
-    reg: Float[Array, ""] = eqx.field(converter=jnp.asarray)
+    alpha: Float[Array, ""] = eqx.field(converter=_strong_array)
+    widths: Float[Array, " 4"] = eqx.field(converter=_strong_array)
+    reg: Float[Array, ""] = eqx.field(converter=_strong_array)
 
     @classmethod
     def default(cls, config: Config | None = None, alpha_deg: float = PROTOCOL_ALPHA_DEG, dtype=None) -> "Params":

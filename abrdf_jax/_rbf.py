@@ -68,8 +68,8 @@ def _exponents(dim: int, degree: int) -> list[tuple[int, ...]]:
 def _poly(x, shift, scale, degree):
     if degree < 0:
         return jnp.zeros((x.shape[0], 0), x.dtype)
-    z = (x - shift) / scale
-    cols = [jnp.prod(z ** jnp.asarray(e, x.dtype), axis=-1) for e in _exponents(x.shape[1], degree)]
+    z = (x - shift[None]) / scale[None]
+    cols = [jnp.prod(z ** jnp.asarray(e, x.dtype)[None], axis=-1) for e in _exponents(x.shape[1], degree)]
     return jnp.stack(cols, axis=-1)
 
 

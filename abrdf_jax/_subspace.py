@@ -55,9 +55,9 @@ def _slice_at(t, y, n, tq, interp):
 
 
 def _masked_extreme(y, n, fn):
-    valid = (jnp.arange(y.shape[0]) < n)[:, None]
+    valid = (jnp.arange(y.shape[0], dtype=jnp.asarray(n).dtype) < n)[:, None]
     fill = jnp.inf if fn is jnp.min else -jnp.inf
-    return fn(jnp.where(valid, y, fill), axis=0)
+    return fn(jnp.where(valid, y, fill), axis=0, keepdims=True)
 
 
 class _Slices:
@@ -85,8 +85,8 @@ class _Slices:
         tc = jnp.stack([self.alpha, self.alpha + jnp.pi])
         zero = 0.0 * self.alpha
         return 0.25 * (
-            jnp.sum(periodic_interp(self.ta, self.ya, self.na, tc, self.interp), axis=0)
-            + jnp.sum(periodic_interp(self.td, self.yd, self.nd, jnp.stack([zero, zero + jnp.pi]), self.interp), axis=0)
+            jnp.sum(periodic_interp(self.ta, self.ya, self.na, tc, self.interp), axis=0, keepdims=True)
+            + jnp.sum(periodic_interp(self.td, self.yd, self.nd, jnp.stack([zero, zero + jnp.pi]), self.interp), axis=0, keepdims=True)
         )
 
 
@@ -142,10 +142,11 @@ def _crossing(sl: _Slices):
 
 @_rule("log", linear=False, description="a * b / c: multiplicative")
 def _log(sl: _Slices):
-    valid_a = (jnp.arange(sl.ya.shape[0]) < sl.na)[:, None]
-    valid_d = (jnp.arange(sl.yd.shape[0]) < sl.nd)[:, None]
-    total = jnp.sum(jnp.abs(jnp.where(valid_a, sl.ya, 0.0)), 0) + jnp.sum(jnp.abs(jnp.where(valid_d, sl.yd, 0.0)), 0)
-    eps = sl.log_eps * total / jnp.maximum(sl.na + sl.nd, 1) + jnp.finfo(sl.yd.dtype).tiny ** 0.5
+    valid_a = (jnp.arange(sl.ya.shape[0], dtype=jnp.asarray(sl.na).dtype) < sl.na)[:, None]
+    valid_d = (jnp.arange(sl.yd.shape[0], dtype=jnp.asarray(sl.nd).dtype) < sl.nd)[:, None]
+    total = (jnp.sum(jnp.abs(jnp.where(valid_a, sl.ya, 0.0)), 0, keepdims=True)
+             + jnp.sum(jnp.abs(jnp.where(valid_d, sl.yd, 0.0)), 0, keepdims=True))
+    eps = sl.log_eps * total / jnp.maximum(sl.na + sl.nd, 1).astype(total.dtype) + jnp.finfo(sl.yd.dtype).tiny ** 0.5
 
     def lg(x):
         return jnp.log(jnp.maximum(x, 0.0) + eps)

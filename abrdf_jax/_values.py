@@ -50,7 +50,7 @@ class ValueSpace:
     def decode(self, out, eps):
         """RBF output back to ABRDF values, clamped at 0."""
         if self.is_log:
-            out = jnp.exp(out) - eps
+            out = jnp.exp(out) - jnp.broadcast_to(eps, out.shape)
         return jnp.maximum(out, 0.0)
 
 
@@ -74,11 +74,11 @@ def value_eps(mean_abs, log_eps: float, dtype):
 def measurement_eps(meas: Measurements, log_eps: float) -> Float[Array, " C"]:
     """ε of a measurement: :func:`value_eps` of the mean absolute valid sample, per channel."""
     total = jnp.sum(jnp.where(meas.mask[..., None], jnp.abs(meas.y), 0.0), axis=(-3, -2))
-    mean = total / jnp.maximum(jnp.sum(meas.count, axis=-1), 1)[..., None]
+    mean = total / jnp.maximum(jnp.sum(meas.count, axis=-1), 1)[..., None].astype(total.dtype)
     return value_eps(mean, log_eps, meas.y.dtype)
 
 
 def log_values(x, eps):
     """``ln(max(x, 0) + ε)``: the values the RBF sees in the log value spaces."""
-    return jnp.log(jnp.maximum(x, 0.0) + eps)
+    return jnp.log(jnp.maximum(x, 0.0) + jnp.broadcast_to(eps, x.shape))  # eps: (C,) or (B, 1, C)
 

@@ -1,4 +1,4 @@
-"""Shared test set-up: float64 for the numerical tests, the shared data folder, seeds."""
+"""Shared test set-up: float64, strict promotion for the numerical core, the shared data folder, seeds."""
 
 import os
 import sys
@@ -15,9 +15,27 @@ sys.path.insert(0, str(REPO))  # for tests.scipy_oracle and the benchmarks that 
 DATA_DIR = Path(os.environ.get("ABRDF_DATA", REPO.parent / "shared" / "data"))
 SEED = int(os.environ.get("ABRDF_TEST_SEED", "0"))
 
+# Test modules of the numerical core: they run with strict dtype promotion (no silent float32 ->
+# float64 or int -> float mixing) and rank promotion raising (no silent broadcasting of a missing
+# axis), so an implicit cast or broadcast in the package fails here instead of costing precision.
+STRICT_MODULES = {
+    "test_transforms", "test_subspace", "test_interp1d", "test_rbf", "test_grid", "test_pipeline",
+    "test_operator",
+}
+
 
 def pytest_report_header(config):
     return [f"abrdf_jax test seed: {SEED} (override with ABRDF_TEST_SEED)", f"data: {DATA_DIR}"]
+
+
+@pytest.fixture(autouse=True)
+def _strict_promotion(request):
+    """Strict dtype and rank promotion for the modules in :data:`STRICT_MODULES`."""
+    if request.module.__name__.rpartition(".")[2] not in STRICT_MODULES:
+        yield
+        return
+    with jax.numpy_dtype_promotion("strict"), jax.numpy_rank_promotion("raise"):
+        yield
 
 
 @pytest.fixture
