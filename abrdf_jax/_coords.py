@@ -41,7 +41,9 @@ class Parameterization:
 PARAMETERIZATIONS: dict[str, Parameterization] = {
     p.name: p
     for p in (
-        Parameterization("onion", _onion, 0.6, "[αi, βi, αv, βv] (Havran et al. 2010; the paper's)"),
+        Parameterization(
+            "onion", _onion, 0.6, "[αi, βi, αv, βv] (Havran et al. 2010; the paper's)"
+        ),
         Parameterization("spherical", _spherical, 0.6, "[θi, φi, θv, φv]"),
         Parameterization("halfdiff", half_diff, 0.6, "[θh, φh, θd, φd] (Rusinkiewicz 1998)"),
     )
@@ -54,6 +56,8 @@ def parameterization(name: str) -> Parameterization:
     return lookup(PARAMETERIZATIONS, name, "parameterization")
 
 
-def pair_coordinates(wi: Float[Array, "q 3"], wv: Float[Array, "q 3"], name: str) -> Float[Array, "q 4"]:
+def pair_coordinates(
+    wi: Float[Array, "q 3"], wv: Float[Array, "q 3"], name: str
+) -> Float[Array, "q 4"]:
     """Coordinates of direction pairs for the RBF in parameterization ``name``."""
     return parameterization(name).fn(wi, wv)

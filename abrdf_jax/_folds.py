@@ -39,22 +39,40 @@ def sample_folds(meas: Measurements, k: int):
     ntest = -(-nmax // k)
     for j in range(k):
         tt, yy, cc = np.zeros_like(t), np.zeros_like(y), np.zeros(S, np.int32)
-        et, ey, em = np.zeros((S, ntest), t.dtype), np.zeros((S, ntest, 3), y.dtype), np.zeros((S, ntest), bool)
+        et, ey, em = (
+            np.zeros((S, ntest), t.dtype),
+            np.zeros((S, ntest, 3), y.dtype),
+            np.zeros((S, ntest), bool),
+        )
         for s in range(S):
             n = int(cnt[s])
             idx = np.arange(n)
             held = idx[idx % k == j]
             kept = idx[idx % k != j]
             if n and len(kept) < 3:
-                raise InputError(f"folds='samples' with k={k}: slice {s} has only {n} samples; use fewer folds")
+                raise InputError(
+                    f"folds='samples' with k={k}: slice {s} has only {n} samples; use fewer folds"
+                )
             tt[s, : len(kept)], yy[s, : len(kept)], cc[s] = t[s, kept], y[s, kept], len(kept)
             if n:
-                et[s, : len(held)], ey[s, : len(held)], em[s, : len(held)] = t[s, held], y[s, held], True
+                et[s, : len(held)], ey[s, : len(held)], em[s, : len(held)] = (
+                    t[s, held],
+                    y[s, held],
+                    True,
+                )
         train_t.append(tt), train_y.append(yy), train_c.append(cc)
         test_t.append(et), test_y.append(ey), test_m.append(em)
-    train = meas.replace(t=jnp.asarray(np.stack(train_t)), y=jnp.asarray(np.stack(train_y)),
-                         count=jnp.asarray(np.stack(train_c)))
-    return train, jnp.asarray(np.stack(test_t)), jnp.asarray(np.stack(test_y)), jnp.asarray(np.stack(test_m))
+    train = meas.replace(
+        t=jnp.asarray(np.stack(train_t)),
+        y=jnp.asarray(np.stack(train_y)),
+        count=jnp.asarray(np.stack(train_c)),
+    )
+    return (
+        train,
+        jnp.asarray(np.stack(test_t)),
+        jnp.asarray(np.stack(test_y)),
+        jnp.asarray(np.stack(test_m)),
+    )
 
 
 def held_out_directions(test_t, pairs, alpha):
@@ -63,7 +81,9 @@ def held_out_directions(test_t, pairs, alpha):
     Slice ``s`` is the axial (even) or diagonal (odd) slice of ``pairs[s // 2]``; ``alpha`` in
     radians (traced: differentiable).
     """
-    wi, wv = zip(*(slice_vectors(test_t[s], s % 2, pairs[s // 2], alpha) for s in range(test_t.shape[0])))
+    wi, wv = zip(
+        *(slice_vectors(test_t[s], s % 2, pairs[s // 2], alpha) for s in range(test_t.shape[0]))
+    )
     return jnp.concatenate(wi), jnp.concatenate(wv)
 
 

@@ -134,7 +134,9 @@ def half_diff(wi: Float[Array, "... 3"], wv: Float[Array, "... 3"]) -> Float[Arr
     return jnp.stack([th, ph, td, pd], axis=-1)
 
 
-def vectors_from_half_diff(hd: Float[Array, "... 4"]) -> tuple[Float[Array, "... 3"], Float[Array, "... 3"]]:
+def vectors_from_half_diff(
+    hd: Float[Array, "... 4"],
+) -> tuple[Float[Array, "... 3"], Float[Array, "... 3"]]:
     """Inverse of :func:`half_diff`: ``(θh, φh, θd, φd)`` to ``(wi, wv)`` unit vectors."""
     th, ph, td, pd = hd[..., 0], hd[..., 1], hd[..., 2], hd[..., 3]
     d = to_vector(td, pd)

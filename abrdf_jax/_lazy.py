@@ -6,7 +6,9 @@ from __future__ import annotations
 import importlib
 
 
-def lazy_exports(package: str, namespace: dict, exports: dict[str, tuple[str, ...]], subpackages=()):
+def lazy_exports(
+    package: str, namespace: dict, exports: dict[str, tuple[str, ...]], subpackages=()
+):
     """``(__getattr__, __dir__, __all__)`` for ``package`` whose globals are ``namespace``."""
     where = {name: mod for mod, names in exports.items() for name in names}
     public = sorted([*where, *subpackages])

@@ -37,7 +37,9 @@ class Samples(eqx.Module):
         n = np.shape(self.theta_i)
         for name in ("phi_i", "theta_v", "phi_v"):
             if np.shape(getattr(self, name)) != n:
-                raise InputError(f"Samples.{name} has shape {np.shape(getattr(self, name))}, expected {n}")
+                raise InputError(
+                    f"Samples.{name} has shape {np.shape(getattr(self, name))}, expected {n}"
+                )
         if np.shape(self.rgb) != (*n, 3):
             raise InputError(f"Samples.rgb has shape {np.shape(self.rgb)}, expected {(*n, 3)}")
 
@@ -45,12 +47,18 @@ class Samples(eqx.Module):
         return int(np.shape(self.theta_i)[0])
 
     def to_numpy(self) -> "Samples":
-        return Samples(*(np.asarray(x) for x in (self.theta_i, self.phi_i, self.theta_v, self.phi_v, self.rgb)))
+        return Samples(
+            *(np.asarray(x) for x in (self.theta_i, self.phi_i, self.theta_v, self.phi_v, self.rgb))
+        )
 
     @staticmethod
     def concatenate(parts: "list[Samples]") -> "Samples":
-        return Samples(*(jnp.concatenate([getattr(p, f) for p in parts]) for f in
-                         ("theta_i", "phi_i", "theta_v", "phi_v", "rgb")))
+        return Samples(
+            *(
+                jnp.concatenate([getattr(p, f) for p in parts])
+                for f in ("theta_i", "phi_i", "theta_v", "phi_v", "rgb")
+            )
+        )
 
 
 class Measurements(eqx.Module):
@@ -94,8 +102,12 @@ class Measurements(eqx.Module):
     def select_slices(self, pair_indices) -> "Measurements":
         """The measurement restricted to some elevation pairs (both slices of each)."""
         rows = np.asarray([r for p in pair_indices for r in (2 * p, 2 * p + 1)])
-        return self.replace(t=self.t[..., rows, :], y=self.y[..., rows, :, :], count=self.count[..., rows],
-                            pairs=tuple(self.pairs[p] for p in pair_indices))
+        return self.replace(
+            t=self.t[..., rows, :],
+            y=self.y[..., rows, :, :],
+            count=self.count[..., rows],
+            pairs=tuple(self.pairs[p] for p in pair_indices),
+        )
 
     def to_samples(self, alpha_deg: float = PROTOCOL_ALPHA_DEG) -> Samples:
         """Flatten to a :class:`Samples` list (numpy), e.g. to write a measurement CSV."""
@@ -168,7 +180,9 @@ def group_slices(
     s = samples.to_numpy()
     if alpha_deg is None:
         alpha_deg = estimate_alpha(s)
-    ti, pi_, tv, pv, rgb = (np.asarray(x, float) for x in (s.theta_i, s.phi_i, s.theta_v, s.phi_v, s.rgb))
+    ti, pi_, tv, pv, rgb = (
+        np.asarray(x, float) for x in (s.theta_i, s.phi_i, s.theta_v, s.phi_v, s.rgb)
+    )
 
     def close(a, b):
         d = (a - b + 180.0) % 360.0 - 180.0
@@ -210,11 +224,19 @@ def group_slices(
         t[k, : len(a)] = np.deg2rad(a)
         y[k, : len(a)] = v
     meas = Measurements(
-        jnp.asarray(t, dtype), jnp.asarray(y, dtype), jnp.asarray(counts, jnp.int32),
-        tuple(tuple(float(x) for x in p) for p in pairs), any(c > 0 for c in counts[0::2]),
+        jnp.asarray(t, dtype),
+        jnp.asarray(y, dtype),
+        jnp.asarray(counts, jnp.int32),
+        tuple(tuple(float(x) for x in p) for p in pairs),
+        any(c > 0 for c in counts[0::2]),
     )
-    report = dict(alpha_deg=float(alpha_deg), n_used=int(used.sum()), n_off_slice=int((~used).sum()),
-                  counts=counts, dropped_pairs=[tuple(float(x) for x in p) for k, p in enumerate(all_pairs) if k in empty])
+    report = dict(
+        alpha_deg=float(alpha_deg),
+        n_used=int(used.sum()),
+        n_off_slice=int((~used).sum()),
+        counts=counts,
+        dropped_pairs=[tuple(float(x) for x in p) for k, p in enumerate(all_pairs) if k in empty],
+    )
     return meas, report
 
 
@@ -256,5 +278,3 @@ def stack_measurements(items: list[Measurements]) -> Measurements:
         pairs,
         any(m.has_axial for m in items),
     )
-
-

@@ -9,8 +9,15 @@ name cannot be added to one and forgotten in the other.
 from __future__ import annotations
 
 BUDGETS = ("iso102", "aniso204")
-KERNELS = ("gaussian", "inverse_multiquadric", "inverse_quadratic", "multiquadric", "thin_plate_spline", "cubic",
-           "linear")
+KERNELS = (
+    "gaussian",
+    "inverse_multiquadric",
+    "inverse_quadratic",
+    "multiquadric",
+    "thin_plate_spline",
+    "cubic",
+    "linear",
+)
 RULES = ("filip2012", "average", "crossing", "log", "diagonal")
 PARAMETERIZATIONS = ("onion", "spherical", "halfdiff")
 VALUE_SPACES = ("linear", "log", "logsamples")
@@ -18,8 +25,17 @@ INTERP_METHODS = ("linear", "cubic")
 #: Named configurations (``abrdf_jax.preset``); the same meaning in every command.
 PRESETS = ("recommended", "paper", "operator")
 #: Named models of the automatic model choice (``abrdf_jax.select.CANDIDATES``), in complexity order.
-MODELS = ("iso", "iso-linear", "iso-gaussian", "paper", "aniso-average", "aniso-crossing", "aniso-log", "aniso",
-          "paper-aniso")
+MODELS = (
+    "iso",
+    "iso-linear",
+    "iso-gaussian",
+    "paper",
+    "aniso-average",
+    "aniso-crossing",
+    "aniso-log",
+    "aniso",
+    "paper-aniso",
+)
 SOLVERS = ("lm", "gn", "bfgs", "lbfgs", "lbfgsb")
 FOLD_KINDS = ("pairs", "samples")
 LOSSES = ("lab", "log", "lab+log")
@@ -49,4 +65,6 @@ def check_registry(kind: str, keys) -> None:
     """Fail at import when a registry's keys differ from the names listed here for ``kind``."""
     names = globals()[kind]
     if tuple(keys) != names:
-        raise AssertionError(f"registry {kind} has {tuple(keys)}, but abrdf_jax._names.{kind} lists {names}")
+        raise AssertionError(
+            f"registry {kind} has {tuple(keys)}, but abrdf_jax._names.{kind} lists {names}"
+        )

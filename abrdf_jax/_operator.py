@@ -109,25 +109,35 @@ class ReconstructionOperator(eqx.Module):
         elif x.ndim >= 2 and x.shape[-2] == self.n_inputs:
             lead, full = x.shape[:-2], False
         else:
-            raise InputError(f"values must have shape (..., {s}, {nmax}, C) or (..., {self.n_inputs}, C), got {x.shape}")
-        return x.reshape(-1, *x.shape[len(lead):]), lead, full
+            raise InputError(
+                f"values must have shape (..., {s}, {nmax}, C) or (..., {self.n_inputs}, C), got {x.shape}"
+            )
+        return x.reshape(-1, *x.shape[len(lead) :]), lead, full
 
     def _check_layout(self, meas: Measurements) -> None:
         if meas.pairs != self.pairs:
-            raise InputError(f"measurement pairs {meas.pairs} differ from the operator's {self.pairs}")
+            raise InputError(
+                f"measurement pairs {meas.pairs} differ from the operator's {self.pairs}"
+            )
         if meas.t.shape[-2:] != self.t.shape:
-            raise InputError(f"measurement slices have shape {meas.t.shape[-2:]}, the operator expects {self.t.shape}")
+            raise InputError(
+                f"measurement slices have shape {meas.t.shape[-2:]}, the operator expects {self.t.shape}"
+            )
         if isinstance(meas.t, jax.core.Tracer) or isinstance(meas.count, jax.core.Tracer):
             return  # under a user's jit: the caller vouches for the layout
         count = np.asarray(meas.count).reshape(-1, self.count.shape[0])
         if not np.all(count == np.asarray(self.count)[None]):
-            raise InputError("measurement sample counts differ from the operator's template; compile a new operator")
+            raise InputError(
+                "measurement sample counts differ from the operator's template; compile a new operator"
+            )
         t = np.asarray(meas.t).reshape(-1, *self.t.shape)
         valid = np.arange(self.t.shape[1])[None, :] < np.asarray(self.count)[:, None]
         tol = 1e-5 if t.dtype == np.float32 or self.t.dtype == jnp.float32 else 1e-9
         if not np.all(np.abs(np.where(valid[None], t - np.asarray(self.t)[None], 0.0)) <= tol):
-            raise InputError("measurement slice positions differ from the operator's template (another α or "
-                             "sampling?); compile a new operator")
+            raise InputError(
+                "measurement slice positions differ from the operator's template (another α or "
+                "sampling?); compile a new operator"
+            )
 
     def __call__(self, values) -> Float[Array, "... 81 81 C"]:
         """Reconstruct from measurements or sample values with one matrix product per batch.
@@ -178,12 +188,18 @@ def _apply(op: ReconstructionOperator, x, full: bool):
     x = _to_compact(op, x, full)
     b, n_in, c = x.shape
     # ε from the valid samples of each material, as the pipeline's (B, 1, C)
-    eps = value_eps(jnp.mean(jnp.abs(x), axis=1), cfg.log_eps, x.dtype)[:, None, :] if vs.is_log else None
+    eps = (
+        value_eps(jnp.mean(jnp.abs(x), axis=1), cfg.log_eps, x.dtype)[:, None, :]
+        if vs.is_log
+        else None
+    )
     if op.stage == "single":
         z = log_values(x, eps) if vs.log_samples else x  # single stage: never log after the rule
     else:
         s, nmax = op.t.shape
-        full_y = jnp.zeros((b, s * nmax, c), x.dtype).at[:, op.index, :].set(x).reshape(b, s, nmax, c)
+        full_y = (
+            jnp.zeros((b, s * nmax, c), x.dtype).at[:, op.index, :].set(x).reshape(b, s, nmax, c)
+        )
         template = Measurements(op.t.astype(x.dtype), full_y[0], op.count, op.pairs, op.has_axial)
         p = op.params.astype(x.dtype)
 
@@ -199,16 +215,35 @@ def _apply(op: ReconstructionOperator, x, full: bool):
 
 
 @eqx.filter_jit
-def _build(t, count, index, params: Params, config: Config, pairs, has_axial, targets, grid_wi, grid_wv,
-           stage: str, dtype):
+def _build(
+    t,
+    count,
+    index,
+    params: Params,
+    config: Config,
+    pairs,
+    has_axial,
+    targets,
+    grid_wi,
+    grid_wv,
+    stage: str,
+    dtype,
+):
     TRACE_COUNT["build"] += 1
     params = params.astype(dtype)
     if stage == "single":
         s, nmax = t.shape
         n_in = index.shape[0]
         # Unit sample vectors as n_in value columns: one pass through the pipeline's linear part.
-        unit = jnp.zeros((s * nmax, n_in), dtype).at[index, jnp.arange(n_in)].set(1.0).reshape(s, nmax, n_in)
-        vals = subspace_values(Measurements(t.astype(dtype), unit, count, pairs, has_axial), config, params)
+        unit = (
+            jnp.zeros((s * nmax, n_in), dtype)
+            .at[index, jnp.arange(n_in)]
+            .set(1.0)
+            .reshape(s, nmax, n_in)
+        )
+        vals = subspace_values(
+            Measurements(t.astype(dtype), unit, count, pairs, has_axial), config, params
+        )
     else:
         n_c = sum(len(a) for a, _ in centre_layout(pairs))
         vals = jnp.eye(n_c, dtype=dtype)
@@ -259,19 +294,26 @@ def compile_operator(
     if nonlinear not in NONLINEAR_MODES:
         raise InputError(f"nonlinear must be one of {NONLINEAR_MODES}, got {nonlinear!r}")
     if config.budget == "aniso204" and not template.has_axial:
-        raise InputError("Config(budget='aniso204') needs axial slices, but the template has none; use budget='iso102'")
+        raise InputError(
+            "Config(budget='aniso204') needs axial slices, but the template has none; use budget='iso102'"
+        )
     t, count = np.asarray(template.t), np.asarray(template.count)
     if t.ndim == 3:  # a stacked template: every member must share the layout
         if not (np.all(count == count[:1]) and np.all(t == t[:1])):
-            raise InputError("the stacked template's members have different slice layouts; pass one measurement")
+            raise InputError(
+                "the stacked template's members have different slice layouts; pass one measurement"
+            )
         t, count = t[0], count[0]
     if t.ndim != 2 or count.shape != (t.shape[0],):
         raise InputError(f"template.t must have shape (S, nmax), got {template.t.shape}")
     rule_linear = get_rule(config.subspace_rule).linear
     linear = rule_linear and not value_space(config.value_space).log_subspace
     if not linear and nonlinear == "raise":
-        why = (f"rule={config.subspace_rule!r} is not linear in the samples" if not rule_linear
-               else f"value_space={config.value_space!r} takes the log after the subspace rule")
+        why = (
+            f"rule={config.subspace_rule!r} is not linear in the samples"
+            if not rule_linear
+            else f"value_space={config.value_space!r} takes the log after the subspace rule"
+        )
         raise InputError(
             f"compile_operator: {why}; use Config(rule='crossing' or 'average' or budget='iso102') with "
             f"value_space='linear' or 'logsamples', or pass nonlinear='two_stage' (slower: per-material subspace step)"
@@ -283,14 +325,37 @@ def compile_operator(
     index = np.nonzero((np.arange(nmax)[None, :] < count[:, None]).reshape(-1))[0]
     if targets is not None:
         targets = tuple(jnp.asarray(v, build_dtype) for v in targets)
-        if len(targets) != 2 or targets[0].shape != targets[1].shape or targets[0].shape[-1:] != (3,):
+        if (
+            len(targets) != 2
+            or targets[0].shape != targets[1].shape
+            or targets[0].shape[-1:] != (3,)
+        ):
             raise InputError("targets must be (wi, wv) unit vectors of equal shape (q, 3)")
     stage = "single" if linear else "two_stage"
     grid_wi, grid_wv = ubo_target_vectors(build_dtype)
-    matrix = _build(jnp.asarray(t), jnp.asarray(count), jnp.asarray(index), params, config, template.pairs,
-                    template.has_axial, targets, grid_wi, grid_wv, stage, jnp.dtype(build_dtype))
+    matrix = _build(
+        jnp.asarray(t),
+        jnp.asarray(count),
+        jnp.asarray(index),
+        params,
+        config,
+        template.pairs,
+        template.has_axial,
+        targets,
+        grid_wi,
+        grid_wv,
+        stage,
+        jnp.dtype(build_dtype),
+    )
     return ReconstructionOperator(
-        matrix.astype(dtype), jnp.asarray(index, jnp.int32), jnp.asarray(t, dtype), jnp.asarray(count, jnp.int32),
-        params.astype(dtype), config, stage, template.pairs,
-        template.has_axial, targets is None,
+        matrix.astype(dtype),
+        jnp.asarray(index, jnp.int32),
+        jnp.asarray(t, dtype),
+        jnp.asarray(count, jnp.int32),
+        params.astype(dtype),
+        config,
+        stage,
+        template.pairs,
+        template.has_axial,
+        targets is None,
     )

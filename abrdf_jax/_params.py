@@ -9,7 +9,15 @@ from jaxtyping import Array, Float
 
 from ._coords import parameterization
 from ._errors import InputError
-from ._names import BUDGETS, INTERP_METHODS, KERNELS, PARAMETERIZATIONS, PRESETS as PRESET_NAMES, RULES, VALUE_SPACES
+from ._names import (
+    BUDGETS,
+    INTERP_METHODS,
+    KERNELS,
+    PARAMETERIZATIONS,
+    PRESETS as PRESET_NAMES,
+    RULES,
+    VALUE_SPACES,
+)
 from ._names import check_registry
 from ._rbf import resolve_degree
 from ._slices import PROTOCOL_ALPHA_DEG, PROTOCOL_PAIRS, protocol_counts
@@ -62,8 +70,12 @@ class Config(eqx.Module):
             if value not in allowed:
                 raise InputError(f"Config.{name} must be one of {allowed}, got {value!r}")
         resolve_degree(self.kernel, self.degree)
-        if not self.pairs or any(len(p) != 2 or not all(0 <= float(t) < 90 for t in p) for p in self.pairs):
-            raise InputError(f"Config.pairs must be (theta_i, theta_v) pairs in [0, 90) degrees, got {self.pairs!r}")
+        if not self.pairs or any(
+            len(p) != 2 or not all(0 <= float(t) < 90 for t in p) for p in self.pairs
+        ):
+            raise InputError(
+                f"Config.pairs must be (theta_i, theta_v) pairs in [0, 90) degrees, got {self.pairs!r}"
+            )
         if not (isinstance(self.slice_count, int) and self.slice_count >= 2):
             raise InputError(f"Config.slice_count must be an int >= 2, got {self.slice_count!r}")
         if not (isinstance(self.log_eps, float) and self.log_eps > 0):
@@ -139,7 +151,6 @@ def preset(name: str, budget: str = "iso102", **overrides) -> "Config":
     return Config(budget=budget, **{**PRESETS[name], **overrides})
 
 
-
 def _strong_array(x):
     """``jnp.asarray`` without JAX's weak type, which is part of the compile cache key: ``Params(0.2,
     ...)`` from Python floats and ``Params.default()`` then share one compile."""
@@ -161,7 +172,9 @@ class Params(eqx.Module):
     reg: Float[Array, ""] = eqx.field(converter=_strong_array)
 
     @classmethod
-    def default(cls, config: Config | None = None, alpha_deg: float = PROTOCOL_ALPHA_DEG, dtype=None) -> "Params":
+    def default(
+        cls, config: Config | None = None, alpha_deg: float = PROTOCOL_ALPHA_DEG, dtype=None
+    ) -> "Params":
         """The package defaults for ``config`` (α = 15°, widths and λ chosen on the train split)."""
         config = config or Config()
         dt = dtype or jnp.zeros(()).dtype
@@ -170,7 +183,9 @@ class Params(eqx.Module):
             width, reg = TUNED_DEFAULTS[key]
         else:
             width, reg = parameterization(config.parameterization).fallback_width, FALLBACK_REG
-        return cls(jnp.asarray(np.deg2rad(alpha_deg), dt), jnp.full((4,), width, dt), jnp.asarray(reg, dt))
+        return cls(
+            jnp.asarray(np.deg2rad(alpha_deg), dt), jnp.full((4,), width, dt), jnp.asarray(reg, dt)
+        )
 
     @property
     def alpha_deg(self) -> float:
@@ -178,7 +193,11 @@ class Params(eqx.Module):
 
     def astype(self, dtype) -> "Params":
         """The parameters as arrays of ``dtype``."""
-        return Params(jnp.asarray(self.alpha, dtype), jnp.asarray(self.widths, dtype), jnp.asarray(self.reg, dtype))
+        return Params(
+            jnp.asarray(self.alpha, dtype),
+            jnp.asarray(self.widths, dtype),
+            jnp.asarray(self.reg, dtype),
+        )
 
     def with_alpha_deg(self, alpha_deg: float) -> "Params":
         """The same widths and λ at another slice offset (degrees)."""

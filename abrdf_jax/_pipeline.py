@@ -32,17 +32,31 @@ def subspace_values(meas: Measurements, config: Config, params: Params) -> Float
     for p, (pi_, pv) in enumerate(centre_layout(meas.pairs)):
         vals.append(
             subspace(
-                meas.t[2 * p], meas.y[2 * p], meas.count[2 * p],
-                meas.t[2 * p + 1], meas.y[2 * p + 1], meas.count[2 * p + 1],
-                jnp.asarray(np.deg2rad(pi_), meas.y.dtype), jnp.asarray(np.deg2rad(pv), meas.y.dtype),
-                alpha, rule=config.subspace_rule, interp=config.interp,
+                meas.t[2 * p],
+                meas.y[2 * p],
+                meas.count[2 * p],
+                meas.t[2 * p + 1],
+                meas.y[2 * p + 1],
+                meas.count[2 * p + 1],
+                jnp.asarray(np.deg2rad(pi_), meas.y.dtype),
+                jnp.asarray(np.deg2rad(pv), meas.y.dtype),
+                alpha,
+                rule=config.subspace_rule,
+                interp=config.interp,
             )
         )
     return jnp.concatenate(vals)
 
 
-def rbf_map(fit_vals: Float[Array, "n C"], pairs, config: Config, params: Params, targets=None, keep: bool = True,
-            guard: bool = True):
+def rbf_map(
+    fit_vals: Float[Array, "n C"],
+    pairs,
+    config: Config,
+    params: Params,
+    targets=None,
+    keep: bool = True,
+    guard: bool = True,
+):
     """RBF fit at the centres of ``pairs`` and evaluation at the targets: linear in ``fit_vals``.
 
     Args:
@@ -56,8 +70,15 @@ def rbf_map(fit_vals: Float[Array, "n C"], pairs, config: Config, params: Params
     dtype = fit_vals.dtype
     wi_c, wv_c = centre_vectors(pairs, dtype)
     xc = pair_coordinates(wi_c, wv_c, config.parameterization)
-    rbf = fit_rbf(xc, fit_vals, params.widths.astype(dtype), config.kernel, params.reg.astype(dtype), config.degree,
-                  guard=guard)
+    rbf = fit_rbf(
+        xc,
+        fit_vals,
+        params.widths.astype(dtype),
+        config.kernel,
+        params.reg.astype(dtype),
+        config.degree,
+        guard=guard,
+    )
     wi_t, wv_t = ubo_target_vectors(dtype) if targets is None else targets
     out = rbf(pair_coordinates(wi_t, wv_t, config.parameterization))
     if targets is None and keep:
@@ -65,12 +86,16 @@ def rbf_map(fit_vals: Float[Array, "n C"], pairs, config: Config, params: Params
     return out
 
 
-def _reconstruct_core(meas: Measurements, config: Config, params: Params, targets=None, guard: bool = True):
+def _reconstruct_core(
+    meas: Measurements, config: Config, params: Params, targets=None, guard: bool = True
+):
     vs = value_space(config.value_space)
     eps = vs.eps(meas, config.log_eps)
     vals = subspace_values(vs.encode_samples(meas, eps), config, params)
     fit_vals = vs.encode_subspace(vals, eps)
-    out = vs.decode(rbf_map(fit_vals, meas.pairs, config, params, targets, keep=True, guard=guard), eps)
+    out = vs.decode(
+        rbf_map(fit_vals, meas.pairs, config, params, targets, keep=True, guard=guard), eps
+    )
     if targets is None:
         out = out.reshape(81, 81, out.shape[-1])
     return out
@@ -91,7 +116,9 @@ def infer_budget(samples: Samples | Measurements, alpha_deg: float | None = None
     return "aniso204" if samples.has_axial else "iso102"
 
 
-def prepare(samples: Samples | Measurements, config: Config | None, params: Params | None, dtype=None):
+def prepare(
+    samples: Samples | Measurements, config: Config | None, params: Params | None, dtype=None
+):
     """Group samples into slices and resolve the defaults of ``config`` and ``params``."""
     if isinstance(samples, Samples):
         alpha = None if params is None else params.alpha_deg
@@ -107,7 +134,9 @@ def prepare(samples: Samples | Measurements, config: Config | None, params: Para
     if config is None:
         config = Config(budget="aniso204" if meas.has_axial else "iso102")
     if config.budget == "aniso204" and not meas.has_axial:
-        raise InputError("Config(budget='aniso204') needs axial slices, but the measurement has none; use budget='iso102'")
+        raise InputError(
+            "Config(budget='aniso204') needs axial slices, but the measurement has none; use budget='iso102'"
+        )
     if params is None:
         params = Params.default(config)
     return meas, config, params
@@ -172,12 +201,16 @@ def reconstruct_batch(
         config = config or items[0][1]
         params = params or items[0][2]
         if any(m.has_axial != meas_list[0].has_axial for m in meas_list):
-            raise InputError("a batch mixes isotropic (102) and anisotropic (204) measurements; split it")
+            raise InputError(
+                "a batch mixes isotropic (102) and anisotropic (204) measurements; split it"
+            )
         meas = stack_measurements(meas_list)
     return _reconstruct_batch_jit(meas, config, params, targets, guard)
 
 
-def solve_info(samples: Samples | Measurements, config: Config | None = None, params: Params | None = None) -> SolveInfo:
+def solve_info(
+    samples: Samples | Measurements, config: Config | None = None, params: Params | None = None
+) -> SolveInfo:
     """How the RBF system of a reconstruction is solved: the guard's diagnostics.
 
     The system depends on the measured elevation pairs, the configuration and the parameters,
@@ -198,7 +231,14 @@ def solve_info(samples: Samples | Measurements, config: Config | None = None, pa
 def _solve_info_jit(pairs, dtype, config, params):
     xc = pair_coordinates(*centre_vectors(pairs, dtype), config.parameterization)
     zeros = jnp.zeros((xc.shape[0], 1), dtype)
-    return fit_rbf_info(xc, zeros, params.widths.astype(dtype), config.kernel, params.reg.astype(dtype), config.degree)[1]
+    return fit_rbf_info(
+        xc,
+        zeros,
+        params.widths.astype(dtype),
+        config.kernel,
+        params.reg.astype(dtype),
+        config.degree,
+    )[1]
 
 
 def check_finite(table, where: str = "reconstruction") -> None:

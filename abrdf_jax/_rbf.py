@@ -69,7 +69,10 @@ def _poly(x, shift, scale, degree):
     if degree < 0:
         return jnp.zeros((x.shape[0], 0), x.dtype)
     z = (x - shift[None]) / scale[None]
-    cols = [jnp.prod(z ** jnp.asarray(e, x.dtype)[None], axis=-1) for e in _exponents(x.shape[1], degree)]
+    cols = [
+        jnp.prod(z ** jnp.asarray(e, x.dtype)[None], axis=-1)
+        for e in _exponents(x.shape[1], degree)
+    ]
     return jnp.stack(cols, axis=-1)
 
 
@@ -79,7 +82,9 @@ def resolve_degree(kernel: str, degree: int | None) -> int:
     if degree is None:
         return lo
     if degree < lo:
-        raise ValueError(f"kernel {kernel!r} needs a polynomial tail of degree >= {lo}, got {degree}")
+        raise ValueError(
+            f"kernel {kernel!r} needs a polynomial tail of degree >= {lo}, got {degree}"
+        )
     return degree
 
 
@@ -99,7 +104,9 @@ class RBFInterpolant(eqx.Module):
         k = kernel_fn(self.kernel)(scaled_sqdist(x, self.centres, self.widths))
         out = jnp.matmul(k, self.coeffs, precision=_HI)
         if self.degree >= 0:
-            out = out + jnp.matmul(_poly(x, self.shift, self.scale, self.degree), self.poly_coeffs, precision=_HI)
+            out = out + jnp.matmul(
+                _poly(x, self.shift, self.scale, self.degree), self.poly_coeffs, precision=_HI
+            )
         return out
 
 
@@ -161,7 +168,11 @@ def inverse_norm1_estimate(solve, n: int, dtype, steps: int = 3):
     def step(k, carry):
         x, est = carry
         w = solve(x)
-        est = jnp.where(k % 2 == 0, jnp.maximum(est, jnp.max(jnp.sum(jnp.abs(w), 0) / jnp.sum(jnp.abs(x), 0))), est)
+        est = jnp.where(
+            k % 2 == 0,
+            jnp.maximum(est, jnp.max(jnp.sum(jnp.abs(w), 0) / jnp.sum(jnp.abs(x), 0))),
+            est,
+        )
         sign = jnp.where(w >= 0, 1.0, -1.0).astype(dtype)
         unit = jax.nn.one_hot(jnp.argmax(jnp.abs(w), axis=0), n, dtype=dtype).T
         return jnp.where(k % 2 == 0, sign, unit), est
@@ -239,8 +250,12 @@ def _guarded_factor(k, p, lam, chol: bool, guard: bool):
         return fac, cond, ok, j + 1
 
     shapes = jax.eval_shape(lambda: _factorize(_system(k, p, lam), chol))
-    init = (jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), shapes),
-            jnp.asarray(jnp.inf, dtype), jnp.asarray(False), jnp.asarray(0, jnp.int32))
+    init = (
+        jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), shapes),
+        jnp.asarray(jnp.inf, dtype),
+        jnp.asarray(False),
+        jnp.asarray(0, jnp.int32),
+    )
     fac, cond, ok, j = jax.lax.while_loop(lambda st: ~st[2] & (st[3] < 2), body, init)
     retries = j - 1
     return fac, SolveInfo(jnp.where(retries > 0, lam1, lam), cond, ok, retries)

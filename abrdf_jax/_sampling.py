@@ -72,7 +72,13 @@ def _ring_weights(phi, n):
     return k0, (k0 + 1) % n, w
 
 
-def sample(source, config: Config | None = None, params: Params | None = None, *, as_measurements: bool = False):
+def sample(
+    source,
+    config: Config | None = None,
+    params: Params | None = None,
+    *,
+    as_measurements: bool = False,
+):
     """Sample the PROTOCOL slices of ``config.budget`` from a model or a dense table.
 
     Args:

@@ -51,7 +51,9 @@ TWO_PI = 2.0 * jnp.pi
 
 def _slice_at(t, y, n, tq, interp):
     """Slice value averaged over the two torus preimages ``tq`` and ``tq + π``."""
-    return 0.5 * (periodic_interp(t, y, n, tq, interp) + periodic_interp(t, y, n, tq + jnp.pi, interp))
+    return 0.5 * (
+        periodic_interp(t, y, n, tq, interp) + periodic_interp(t, y, n, tq + jnp.pi, interp)
+    )
 
 
 def _masked_extreme(y, n, fn):
@@ -63,7 +65,20 @@ def _masked_extreme(y, n, fn):
 class _Slices:
     """The two slices of one pair read at the queries; each quantity computed when a rule asks."""
 
-    def __init__(self, t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, interp, log_eps):
+    def __init__(
+        self,
+        t_axial,
+        y_axial,
+        n_axial,
+        t_diag,
+        y_diag,
+        n_diag,
+        phi_i,
+        phi_v,
+        alpha,
+        interp,
+        log_eps,
+    ):
         self.ta, self.ya, self.na = t_axial, y_axial, n_axial
         self.td, self.yd, self.nd = t_diag, y_diag, n_diag
         self.s, self.d = phi_i + phi_v, phi_i - phi_v
@@ -85,8 +100,16 @@ class _Slices:
         tc = jnp.stack([self.alpha, self.alpha + jnp.pi])
         zero = 0.0 * self.alpha
         return 0.25 * (
-            jnp.sum(periodic_interp(self.ta, self.ya, self.na, tc, self.interp), axis=0, keepdims=True)
-            + jnp.sum(periodic_interp(self.td, self.yd, self.nd, jnp.stack([zero, zero + jnp.pi]), self.interp), axis=0, keepdims=True)
+            jnp.sum(
+                periodic_interp(self.ta, self.ya, self.na, tc, self.interp), axis=0, keepdims=True
+            )
+            + jnp.sum(
+                periodic_interp(
+                    self.td, self.yd, self.nd, jnp.stack([zero, zero + jnp.pi]), self.interp
+                ),
+                axis=0,
+                keepdims=True,
+            )
         )
 
 
@@ -118,7 +141,11 @@ def _rule(name: str, *, linear: bool, needs_axial: bool = True, description: str
     return register
 
 
-@_rule("filip2012", linear=False, description="eq. (2-4): min-max stretch of a + b to the slices' range")
+@_rule(
+    "filip2012",
+    linear=False,
+    description="eq. (2-4): min-max stretch of a + b to the slices' range",
+)
 def _filip2012(sl: _Slices):
     amin, amax = _masked_extreme(sl.ya, sl.na, jnp.min), _masked_extreme(sl.ya, sl.na, jnp.max)
     dmin, dmax = _masked_extreme(sl.yd, sl.nd, jnp.min), _masked_extreme(sl.yd, sl.nd, jnp.max)
@@ -144,9 +171,13 @@ def _crossing(sl: _Slices):
 def _log(sl: _Slices):
     valid_a = (jnp.arange(sl.ya.shape[0], dtype=jnp.asarray(sl.na).dtype) < sl.na)[:, None]
     valid_d = (jnp.arange(sl.yd.shape[0], dtype=jnp.asarray(sl.nd).dtype) < sl.nd)[:, None]
-    total = (jnp.sum(jnp.abs(jnp.where(valid_a, sl.ya, 0.0)), 0, keepdims=True)
-             + jnp.sum(jnp.abs(jnp.where(valid_d, sl.yd, 0.0)), 0, keepdims=True))
-    eps = sl.log_eps * total / jnp.maximum(sl.na + sl.nd, 1).astype(total.dtype) + jnp.finfo(sl.yd.dtype).tiny ** 0.5
+    total = jnp.sum(jnp.abs(jnp.where(valid_a, sl.ya, 0.0)), 0, keepdims=True) + jnp.sum(
+        jnp.abs(jnp.where(valid_d, sl.yd, 0.0)), 0, keepdims=True
+    )
+    eps = (
+        sl.log_eps * total / jnp.maximum(sl.na + sl.nd, 1).astype(total.dtype)
+        + jnp.finfo(sl.yd.dtype).tiny ** 0.5
+    )
 
     def lg(x):
         return jnp.log(jnp.maximum(x, 0.0) + eps)
@@ -201,8 +232,19 @@ def subspace(
     # when only the diagonal one is there (docs/stability.md). Counts of at least 1 keep every
     # branch finite, so the unused one cannot put NaN into gradients.
     has_axial, has_diag = jnp.asarray(n_axial) > 0, jnp.asarray(n_diag) > 0
-    sl = _Slices(t_axial, y_axial, jnp.maximum(n_axial, 1), t_diag, y_diag, jnp.maximum(n_diag, 1),
-                 phi_i, phi_v, alpha, interp, log_eps)
+    sl = _Slices(
+        t_axial,
+        y_axial,
+        jnp.maximum(n_axial, 1),
+        t_diag,
+        y_diag,
+        jnp.maximum(n_diag, 1),
+        phi_i,
+        phi_v,
+        alpha,
+        interp,
+        log_eps,
+    )
     out = r.fn(sl)
     if not r.needs_axial:
         return out

@@ -56,7 +56,11 @@ class ValueSpace:
 
 VALUE_SPACES: dict[str, ValueSpace] = {
     v.name: v
-    for v in (ValueSpace("linear", False, False), ValueSpace("log", False, True), ValueSpace("logsamples", True, False))
+    for v in (
+        ValueSpace("linear", False, False),
+        ValueSpace("log", False, True),
+        ValueSpace("logsamples", True, False),
+    )
 }
 check_registry("VALUE_SPACES", VALUE_SPACES)
 
@@ -81,4 +85,3 @@ def measurement_eps(meas: Measurements, log_eps: float) -> Float[Array, " C"]:
 def log_values(x, eps):
     """``ln(max(x, 0) + ε)``: the values the RBF sees in the log value spaces."""
     return jnp.log(jnp.maximum(x, 0.0) + jnp.broadcast_to(eps, x.shape))  # eps: (C,) or (B, 1, C)
-

@@ -30,7 +30,9 @@ def machine() -> dict:
         "jax": jax.__version__,
         "numpy": np.__version__,
         "x64": bool(jax.config.jax_enable_x64),
-        "threads_env": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "XLA_FLAGS") if os.environ.get(k)},
+        "threads_env": {
+            k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "XLA_FLAGS") if os.environ.get(k)
+        },
     }
 
 
@@ -60,7 +62,10 @@ def mean_metrics(per: dict) -> dict:
 
 def mean_fill(meas: aj.Measurements) -> jnp.ndarray:
     """The trivial reconstruction of stacked measurements: every value is the mean of the samples (per channel)."""
-    mean = jnp.sum(jnp.where(meas.mask[..., None], meas.y, 0), axis=(1, 2)) / jnp.sum(meas.count, axis=1)[:, None]
+    mean = (
+        jnp.sum(jnp.where(meas.mask[..., None], meas.y, 0), axis=(1, 2))
+        / jnp.sum(meas.count, axis=1)[:, None]
+    )
     return jnp.broadcast_to(mean[:, None, None, :], (mean.shape[0], 81, 81, 3))
 
 

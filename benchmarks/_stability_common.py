@@ -26,7 +26,9 @@ METHODS = {
 }
 
 
-def reconstruct(config: aj.Config, meas: aj.Measurements, params: aj.Params, guard: bool = True) -> np.ndarray:
+def reconstruct(
+    config: aj.Config, meas: aj.Measurements, params: aj.Params, guard: bool = True
+) -> np.ndarray:
     """Tables ``(B, 81, 81, 3)`` of stacked measurements; ``guard=False``: the plain RBF solve."""
     return np.asarray(aj.reconstruct_batch(meas, config, params, guard=guard))
 
@@ -40,7 +42,9 @@ def params_for(config, dtype, width=None, reg=None, alpha_deg=aj.PROTOCOL_ALPHA_
 
 
 def sample_stack(models, config, params):
-    return aj.stack_measurements([aj.sample(m, config, params, as_measurements=True) for m in models])
+    return aj.stack_measurements(
+        [aj.sample(m, config, params, as_measurements=True) for m in models]
+    )
 
 
 def de76(rec, ref):
@@ -49,8 +53,11 @@ def de76(rec, ref):
     finite = np.all(np.isfinite(rec.reshape(len(rec), -1)), axis=1)
     out = np.full(len(rec), np.nan)
     if finite.any():
-        out[finite] = np.asarray(evaluate_batch(jnp.asarray(rec[finite], jnp.float32),
-                                                jnp.asarray(ref[finite], jnp.float32))["de76"])
+        out[finite] = np.asarray(
+            evaluate_batch(
+                jnp.asarray(rec[finite], jnp.float32), jnp.asarray(ref[finite], jnp.float32)
+            )["de76"]
+        )
     return out
 
 
@@ -74,16 +81,31 @@ def _info_fn(kernel, degree, guard):
 
 def solve_diag(config, dtype, width, reg, guard):
     """The guard's diagnostics (:class:`abrdf_jax.SolveInfo`) of ``config``'s RBF system, as a dict."""
-    info = _info_fn(config.kernel, config.degree, guard)(centres(config, dtype), jnp.full(4, width, dtype),
-                                                          jnp.asarray(reg, dtype))
-    return {k: float(v) if k in ("reg", "cond") else int(v) for k, v in
-            (("reg", info.reg), ("cond", info.cond), ("ok", info.ok), ("retries", info.retries))}
+    info = _info_fn(config.kernel, config.degree, guard)(
+        centres(config, dtype), jnp.full(4, width, dtype), jnp.asarray(reg, dtype)
+    )
+    return {
+        k: float(v) if k in ("reg", "cond") else int(v)
+        for k, v in (
+            ("reg", info.reg),
+            ("cond", info.cond),
+            ("ok", info.ok),
+            ("retries", info.retries),
+        )
+    }
 
 
 def exact_cond(config, width, reg):
     """Exact 1-norm condition number of the float64 system (numpy), to check the estimator."""
-    a = np.asarray(aj.rbf_system(centres(config, jnp.float64), jnp.full(4, width, jnp.float64), config.kernel,
-                                 reg, config.degree))
+    a = np.asarray(
+        aj.rbf_system(
+            centres(config, jnp.float64),
+            jnp.full(4, width, jnp.float64),
+            config.kernel,
+            reg,
+            config.degree,
+        )
+    )
     with np.errstate(all="ignore"):
         try:
             return float(np.linalg.cond(a, 1))

@@ -32,7 +32,7 @@ def _few(meas, keep):
             tt, yy = t[b, s, idx], y[b, s, idx]
             t[b, s] = 0.0
             y[b, s] = 0.0
-            t[b, s, :len(idx)], y[b, s, :len(idx)] = tt, yy
+            t[b, s, : len(idx)], y[b, s, : len(idx)] = tt, yy
             c[b, s] = len(idx)
     return with_y(meas, y, c, t)
 
@@ -40,7 +40,9 @@ def _few(meas, keep):
 def with_y(meas, y=None, count=None, t=None):
     """``meas`` with some of ``y``, ``count``, ``t`` replaced (in the measurement's dtypes)."""
     new = dict(t=t, y=y, count=count)
-    return meas.replace(**{k: jnp.asarray(v, getattr(meas, k).dtype) for k, v in new.items() if v is not None})
+    return meas.replace(
+        **{k: jnp.asarray(v, getattr(meas, k).dtype) for k, v in new.items() if v is not None}
+    )
 
 
 def run_method(name, meas, params, refs=None):
@@ -60,7 +62,11 @@ def data_edges(quick, iso_models, iso_refs, rng):
     for name, cfg in METHODS.items():
         p = params_for(cfg, dt)
         models = iso_models if cfg.budget == "iso102" else [*iso_models[:2], aniso_mat]
-        refs = iso_refs if cfg.budget == "iso102" else np.concatenate([iso_refs[:2], dense_table(aniso_mat, np.float64)[None]])
+        refs = (
+            iso_refs
+            if cfg.budget == "iso102"
+            else np.concatenate([iso_refs[:2], dense_table(aniso_mat, np.float64)[None]])
+        )
         base = sample_stack(models, cfg, p)
         y = np.asarray(base.y)
         cnt = np.asarray(base.count)
@@ -68,9 +74,14 @@ def data_edges(quick, iso_models, iso_refs, rng):
         cases = []
 
         def add(case, rec, err=None, note=""):
-            entry = dict(method=name, case=case, nonfinite=nonfinite(rec),
-                         min=float(np.nanmin(rec)) if np.isfinite(rec).any() else math.nan,
-                         max=float(np.nanmax(rec)) if np.isfinite(rec).any() else math.nan, note=note)
+            entry = dict(
+                method=name,
+                case=case,
+                nonfinite=nonfinite(rec),
+                min=float(np.nanmin(rec)) if np.isfinite(rec).any() else math.nan,
+                max=float(np.nanmax(rec)) if np.isfinite(rec).any() else math.nan,
+                note=note,
+            )
             if err is not None:
                 entry["error"] = float(np.nanmean(err)) if np.isfinite(err).any() else math.nan
             cases.append(entry)
@@ -81,7 +92,12 @@ def data_edges(quick, iso_models, iso_refs, rng):
         rec, _ = run_method(name, with_y(base, np.zeros_like(y)), p)
         add("all-zero material", rec, np.abs(rec).max(axis=(1, 2, 3)), "max |out|")
         rec, _ = run_method(name, with_y(base, np.where(valid[..., None], 0.3, 0.0)), p)
-        add("constant 0.3", rec, np.abs(rec - 0.3).max(axis=(1, 2, 3)) / 0.3, "max relative deviation")
+        add(
+            "constant 0.3",
+            rec,
+            np.abs(rec - 0.3).max(axis=(1, 2, 3)) / 0.3,
+            "max relative deviation",
+        )
         # chrome: one material in a batch of one
         cm = chrome()
         cref = dense_table(cm, np.float64)[None]
@@ -89,8 +105,13 @@ def data_edges(quick, iso_models, iso_refs, rng):
         cy = np.asarray(cmeas.y)
         rec, e = run_method(name, cmeas, p, cref)
         ratio = float(np.max(cref) / np.median(cref))
-        add("chrome-like peak", rec, e, f"ΔE76; dense max/median {ratio:.3g}, samples max/median "
-            f"{float(np.max(cy) / np.median(cy[cy > 0])):.3g}")
+        add(
+            "chrome-like peak",
+            rec,
+            e,
+            f"ΔE76; dense max/median {ratio:.3g}, samples max/median "
+            f"{float(np.max(cy) / np.median(cy[cy > 0])):.3g}",
+        )
         neg = y.copy()
         mask = valid & (rng.random(valid.shape) < 0.05)
         neg[mask] = -0.01 * np.mean(y[valid])
@@ -99,21 +120,42 @@ def data_edges(quick, iso_models, iso_refs, rng):
         bad = y.copy()
         bad[:, 1, 3, 0] = np.nan
         rec, _ = run_method(name, with_y(base, bad), p)
-        add("one NaN sample", rec, None, "non-finite values summed over the batch; the CSV reader and check_finite refuse it")
+        add(
+            "one NaN sample",
+            rec,
+            None,
+            "non-finite values summed over the batch; the CSV reader and check_finite refuse it",
+        )
         # duplicated samples through the Samples path (group_slices averages repeats)
         one = jax.tree_util.tree_map(lambda x: x[0], base)
         smp = one.to_samples().to_numpy()
-        dup = aj.Samples(*(np.concatenate([a, a]) for a in (smp.theta_i, smp.phi_i, smp.theta_v, smp.phi_v)),
-                         np.concatenate([smp.rgb, smp.rgb * 1.02]))
+        dup = aj.Samples(
+            *(np.concatenate([a, a]) for a in (smp.theta_i, smp.phi_i, smp.theta_v, smp.phi_v)),
+            np.concatenate([smp.rgb, smp.rgb * 1.02]),
+        )
         rec = np.asarray(aj.reconstruct(dup, cfg, p))[None]
-        add("every sample twice (values 2% apart)", rec, de76(rec, refs[:1]), "ΔE76, first material")
-        near = aj.Samples(*(np.concatenate([a, a + (0.01 if k == 1 else 0.0)]) for k, a in
-                            enumerate((smp.theta_i, smp.phi_i, smp.theta_v, smp.phi_v))),
-                          np.concatenate([smp.rgb, smp.rgb * 1.05]))
+        add(
+            "every sample twice (values 2% apart)", rec, de76(rec, refs[:1]), "ΔE76, first material"
+        )
+        near = aj.Samples(
+            *(
+                np.concatenate([a, a + (0.01 if k == 1 else 0.0)])
+                for k, a in enumerate((smp.theta_i, smp.phi_i, smp.theta_v, smp.phi_v))
+            ),
+            np.concatenate([smp.rgb, smp.rgb * 1.05]),
+        )
         rec = np.asarray(aj.reconstruct(near, cfg, p))[None]
-        add("samples repeated 0.01° apart (values 5% apart)", rec, de76(rec, refs[:1]), "ΔE76, first material")
+        add(
+            "samples repeated 0.01° apart (values 5% apart)",
+            rec,
+            de76(rec, refs[:1]),
+            "ΔE76, first material",
+        )
         # missing slices
-        for s_idx, what in ((0, "axial slice of pair 30/30 missing"), (1, "diagonal slice of pair 30/30 missing")):
+        for s_idx, what in (
+            (0, "axial slice of pair 30/30 missing"),
+            (1, "diagonal slice of pair 30/30 missing"),
+        ):
             if cfg.budget == "iso102" and s_idx == 0:
                 continue
             c2 = cnt.copy()
@@ -121,8 +163,15 @@ def data_edges(quick, iso_models, iso_refs, rng):
             rec, e = run_method(name, with_y(base, count=c2), p, refs)
             add(what, rec, e, "ΔE76")
         # a missing elevation pair: the configuration without (75, 75)
-        cfg3 = aj.Config(**{**{f: getattr(cfg, f) for f in ("budget", "rule", "kernel", "degree", "value_space")},
-                            "pairs": aj.PROTOCOL_PAIRS[:3]})
+        cfg3 = aj.Config(
+            **{
+                **{
+                    f: getattr(cfg, f)
+                    for f in ("budget", "rule", "kernel", "degree", "value_space")
+                },
+                "pairs": aj.PROTOCOL_PAIRS[:3],
+            }
+        )
         m3 = sample_stack(models, cfg3, p)
         rec = reconstruct(cfg3, m3, p)
         add("elevation pair 75/75 missing", rec, de76(rec, refs), "ΔE76")
@@ -136,7 +185,8 @@ def data_edges(quick, iso_models, iso_refs, rng):
         # few samples per slice
         keeps = (12, 4, 2) if quick else (24, 12, 6, 4, 3, 2)
         out["curves"].setdefault("few_samples", {"x": list(keeps)})[name] = [
-            float(np.nanmean(run_method(name, _few(base, k), p, refs)[1])) for k in keeps]
+            float(np.nanmean(run_method(name, _few(base, k), p, refs)[1])) for k in keeps
+        ]
         # noise: multiplicative Gaussian noise on every sample
         sigmas = (0.0, 0.03, 0.3) if quick else (0.0, 0.01, 0.03, 0.1, 0.3)
         seeds = 1 if quick else 2
@@ -145,7 +195,13 @@ def data_edges(quick, iso_models, iso_refs, rng):
             errs = []
             for _ in range(seeds):
                 noisy = y * (1 + sig * rng.standard_normal(y.shape))
-                errs.append(np.nanmean(run_method(name, with_y(base, np.where(valid[..., None], noisy, 0)), p, refs)[1]))
+                errs.append(
+                    np.nanmean(
+                        run_method(
+                            name, with_y(base, np.where(valid[..., None], noisy, 0)), p, refs
+                        )[1]
+                    )
+                )
             curve.append(float(np.mean(errs)))
         out["curves"].setdefault("noise", {"x": list(sigmas)})[name] = curve
         log(f"data edges {name} done")
@@ -158,8 +214,13 @@ def data_edges(quick, iso_models, iso_refs, rng):
 
 def ward(ratio, rotation_deg=0.0):
     a0 = 0.15
-    return Ward(diffuse=[0.04, 0.04, 0.045], specular=[0.30, 0.30, 0.32], alpha_x=a0 / math.sqrt(ratio),
-                alpha_y=a0 * math.sqrt(ratio), rotation=math.radians(rotation_deg))
+    return Ward(
+        diffuse=[0.04, 0.04, 0.045],
+        specular=[0.30, 0.30, 0.32],
+        alpha_x=a0 / math.sqrt(ratio),
+        alpha_y=a0 * math.sqrt(ratio),
+        rotation=math.radians(rotation_deg),
+    )
 
 
 def anisotropy(quick):
@@ -173,8 +234,12 @@ def anisotropy(quick):
     out = {"strength": {"x": list(ratios)}, "rotation": {"x": list(rots)}}
     for name, cfg in METHODS.items():
         p = params_for(cfg, dt)
-        out["strength"][name] = [float(v) for v in run_method(name, sample_stack(mats_s, cfg, p), p, ref_s)[1]]
-        out["rotation"][name] = [float(v) for v in run_method(name, sample_stack(mats_r, cfg, p), p, ref_r)[1]]
+        out["strength"][name] = [
+            float(v) for v in run_method(name, sample_stack(mats_s, cfg, p), p, ref_s)[1]
+        ]
+        out["rotation"][name] = [
+            float(v) for v in run_method(name, sample_stack(mats_r, cfg, p), p, ref_r)[1]
+        ]
     log("anisotropy done")
     return out
 
@@ -183,7 +248,9 @@ def eq4(quick):
     """Rules of the toroidal subspace as a sharper anisotropic peak dominates one slice's range."""
     dt = jnp.float32
     alphas = (0.3, 0.1, 0.03) if quick else (0.4, 0.2, 0.1, 0.05, 0.03, 0.02)
-    mats = [GGX(diffuse=[0.08, 0.1, 0.12], specular_f0=0.9, alpha_x=a, alpha_y=3 * a) for a in alphas]
+    mats = [
+        GGX(diffuse=[0.08, 0.1, 0.12], specular_f0=0.9, alpha_x=a, alpha_y=3 * a) for a in alphas
+    ]
     refs = np.stack([dense_table(m, np.float64) for m in mats])
     out = {"x_alpha": list(alphas)}
     for rule in ("filip2012", "average", "crossing", "log"):
@@ -195,11 +262,17 @@ def eq4(quick):
             valid = np.asarray(meas.mask)
             yy = np.where(valid[..., None], y, np.nan)[..., 1]
             # dynamic range of each slice (max/min, green), and the share of the largest slice
-            out["range_diag"] = [float(np.nanmax(yy[b, 1]) / np.nanmin(yy[b, 1])) for b in range(len(mats))]
-            out["range_axial"] = [float(np.nanmax(yy[b, 0]) / np.nanmin(yy[b, 0])) for b in range(len(mats))]
+            out["range_diag"] = [
+                float(np.nanmax(yy[b, 1]) / np.nanmin(yy[b, 1])) for b in range(len(mats))
+            ]
+            out["range_axial"] = [
+                float(np.nanmax(yy[b, 0]) / np.nanmin(yy[b, 0])) for b in range(len(mats))
+            ]
         out[rule] = [float(v) for v in de76(reconstruct(cfg, meas, p), refs)]
     cfg = aj.Config.recommended("iso102")
     p = params_for(cfg, dt)
-    out["iso102 (diagonal)"] = [float(v) for v in de76(reconstruct(cfg, sample_stack(mats, cfg, p), p), refs)]
+    out["iso102 (diagonal)"] = [
+        float(v) for v in de76(reconstruct(cfg, sample_stack(mats, cfg, p), p), refs)
+    ]
     log("eq4 done")
     return out

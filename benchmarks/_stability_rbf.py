@@ -14,7 +14,16 @@ import numpy as np
 
 import abrdf_jax as aj
 
-from ._stability_common import de76, exact_cond, log, nonfinite, params_for, reconstruct, sample_stack, solve_diag
+from ._stability_common import (
+    de76,
+    exact_cond,
+    log,
+    nonfinite,
+    params_for,
+    reconstruct,
+    sample_stack,
+    solve_diag,
+)
 
 
 def conditioning(quick, names, models, refs):
@@ -35,9 +44,14 @@ def conditioning(quick, names, models, refs):
                     row = dict(kernel=kernel, dtype=dname, width=w, reg=reg)
                     bare = solve_diag(cfg, dtype, w, reg, guard=False)
                     guarded = solve_diag(cfg, dtype, w, reg, guard=True)
-                    row.update(cond=bare["cond"], singular=not bare["ok"], guard_reg=guarded["reg"],
-                               guard_retries=guarded["retries"], guard_ok=bool(guarded["ok"]),
-                               guard_cond=guarded["cond"])
+                    row.update(
+                        cond=bare["cond"],
+                        singular=not bare["ok"],
+                        guard_reg=guarded["reg"],
+                        guard_retries=guarded["retries"],
+                        guard_ok=bool(guarded["ok"]),
+                        guard_cond=guarded["cond"],
+                    )
                     for tag, guard in (("guard", True), ("bare", False)):
                         if not guard and guarded["retries"] == 0:  # the guard kept λ: same solve
                             for key in ("nonfinite", "de76", "max"):
@@ -45,8 +59,16 @@ def conditioning(quick, names, models, refs):
                             continue
                         rec = reconstruct(cfg, meas, p, guard)
                         row[f"nonfinite_{tag}"] = nonfinite(rec)
-                        row[f"de76_{tag}"] = float(np.nanmean(de76(rec, refs))) if np.isfinite(rec).any() else math.nan
-                        row[f"max_{tag}"] = float(np.nanmax(np.where(np.isfinite(rec), np.abs(rec), np.nan))) if np.isfinite(rec).any() else math.nan
+                        row[f"de76_{tag}"] = (
+                            float(np.nanmean(de76(rec, refs)))
+                            if np.isfinite(rec).any()
+                            else math.nan
+                        )
+                        row[f"max_{tag}"] = (
+                            float(np.nanmax(np.where(np.isfinite(rec), np.abs(rec), np.nan)))
+                            if np.isfinite(rec).any()
+                            else math.nan
+                        )
                         if guard:
                             tables[(dname, w, reg)] = rec
                     if dname == "float64" and reg == 0.0:
@@ -55,9 +77,16 @@ def conditioning(quick, names, models, refs):
             log(f"conditioning {kernel} {dname} done")
         for row in rows:
             if row["kernel"] == kernel:
-                t32, t64 = tables[("float32", row["width"], row["reg"])], tables[("float64", row["width"], row["reg"])]
+                t32, t64 = (
+                    tables[("float32", row["width"], row["reg"])],
+                    tables[("float64", row["width"], row["reg"])],
+                )
                 scale = np.max(np.abs(t64)) if np.isfinite(t64).all() else math.nan
-                row["f32_vs_f64"] = float(np.max(np.abs(t32 - t64)) / scale) if np.isfinite(t32).all() and scale > 0 else math.nan
+                row["f32_vs_f64"] = (
+                    float(np.max(np.abs(t32 - t64)) / scale)
+                    if np.isfinite(t32).all() and scale > 0
+                    else math.nan
+                )
     return rows
 
 
@@ -75,13 +104,20 @@ def breaks(rows):
             blow = [r for r in rs if not (r["de76_bare"] <= 2 * best)]  # NaN counts as blow-up
             f32 = [r for r in rs if r.get("f32_vs_f64", 0) > 1e-2]
             fmt = lambda lst: ", ".join(f"w={r['width']:.3g}/λ={r['reg']:g}" for r in lst) or "none"  # noqa: E731
-            out.append(dict(
-                kernel=kernel, dtype=dname, best_de76=float(best),
-                singular=fmt(sing), nan_bare=fmt(nan), blowup_bare=fmt(blow),
-                blowup_guard=fmt([r for r in rs if not (r["de76_guard"] <= 2 * best)]),
-                nonfinite_guard=sum(r["nonfinite_guard"] for r in rs),
-                retries=sum(r["guard_retries"] for r in rs), guard_not_ok=sum(not r["guard_ok"] for r in rs),
-                f32_ne_f64=fmt(f32) if dname == "float32" else "",
-                max_cond=float(np.nanmax([r["cond"] for r in rs])),
-            ))
+            out.append(
+                dict(
+                    kernel=kernel,
+                    dtype=dname,
+                    best_de76=float(best),
+                    singular=fmt(sing),
+                    nan_bare=fmt(nan),
+                    blowup_bare=fmt(blow),
+                    blowup_guard=fmt([r for r in rs if not (r["de76_guard"] <= 2 * best)]),
+                    nonfinite_guard=sum(r["nonfinite_guard"] for r in rs),
+                    retries=sum(r["guard_retries"] for r in rs),
+                    guard_not_ok=sum(not r["guard_ok"] for r in rs),
+                    f32_ne_f64=fmt(f32) if dname == "float32" else "",
+                    max_cond=float(np.nanmax([r["cond"] for r in rs])),
+                )
+            )
     return out

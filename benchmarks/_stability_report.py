@@ -26,7 +26,13 @@ def charts(payload, suffix):
             rs = [r for r in rows if r["kernel"] == k and r["dtype"] == dname and r["reg"] == 0.0]
             ax.loglog([r["width"] for r in rs], [r["cond"] for r in rs], "o-", label=k, ms=3)
         ax.axhline(1 / np.finfo(dname).eps, color="k", ls="--", lw=1)
-        ax.text(ax.get_xlim()[0], 1 / np.finfo(dname).eps, " 1/ε: guard threshold", va="bottom", fontsize=8)
+        ax.text(
+            ax.get_xlim()[0],
+            1 / np.finfo(dname).eps,
+            " 1/ε: guard threshold",
+            va="bottom",
+            fontsize=8,
+        )
         ax.set_title(f"estimated condition, λ = 0, {dname}")
         ax.set_xlabel("kernel width ℓ (radians of the onion coordinates)")
     axes[0].set_ylabel("κ₁ (Hager estimate)")
@@ -38,10 +44,21 @@ def charts(payload, suffix):
         for i, k in enumerate(kernels):
             rs = [r for r in rows if r["kernel"] == k and r["dtype"] == dname and r["reg"] == 0.0]
             col = f"C{i}"
-            ax.semilogx([r["width"] for r in rs], [r["de76_bare"] for r in rs], "x--", color=col, ms=4)
-            ax.semilogx([r["width"] for r in rs], [r["de76_guard"] for r in rs], "o-", color=col, ms=3, label=k)
+            ax.semilogx(
+                [r["width"] for r in rs], [r["de76_bare"] for r in rs], "x--", color=col, ms=4
+            )
+            ax.semilogx(
+                [r["width"] for r in rs],
+                [r["de76_guard"] for r in rs],
+                "o-",
+                color=col,
+                ms=3,
+                label=k,
+            )
         ax.set_yscale("log")
-        ax.set_title(f"ΔE76 vs width, λ = 0, {dname}\n(solid: guard on; dashed: off; gaps: NaN)", fontsize=10)
+        ax.set_title(
+            f"ΔE76 vs width, λ = 0, {dname}\n(solid: guard on; dashed: off; gaps: NaN)", fontsize=10
+        )
         ax.set_xlabel("kernel width ℓ")
     axes[0].set_ylabel("mean ΔE76")
     axes[1].legend(fontsize=7)
@@ -50,7 +67,9 @@ def charts(payload, suffix):
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for name in METHODS:
         axes[0].plot(curves["noise"]["x"], curves["noise"][name], "o-", label=name, ms=3)
-        axes[1].plot(curves["few_samples"]["x"], curves["few_samples"][name], "o-", label=name, ms=3)
+        axes[1].plot(
+            curves["few_samples"]["x"], curves["few_samples"][name], "o-", label=name, ms=3
+        )
     axes[0].set_xlabel("multiplicative noise σ")
     axes[0].set_title("ΔE76 vs measurement noise")
     axes[1].set_xlabel("samples kept per slice (of 24-26)")
@@ -100,28 +119,47 @@ def g(v, f=".3g"):
 
 
 def markdown(payload) -> str:
-    out = [f"# Stability benchmark ({'quick' if payload['quick'] else 'full'} run)", "",
-           f"`python -m benchmarks.stability{' --quick' if payload['quick'] else ''}`, "
-           f"{payload['seconds']:.0f} s, {payload['machine']['date']}, {payload['machine']['jax_devices']}, "
-           f"materials: {', '.join(payload['materials'])}", "",
-           "## RBF conditioning: where the plain solve breaks (iso102 system, 1296 centres)", "",
-           "| kernel | dtype | max κ₁ | singular (κ ≥ 1/ε) | NaN, guard off | ΔE > 2× best, guard off | "
-           "ΔE > 2× best, guard on | best ΔE | guard retries / not ok | f32 ≠ f64 (>1%) |",
-           "|---|---|---|---|---|---|---|---|---|---|"]
+    out = [
+        f"# Stability benchmark ({'quick' if payload['quick'] else 'full'} run)",
+        "",
+        f"`python -m benchmarks.stability{' --quick' if payload['quick'] else ''}`, "
+        f"{payload['seconds']:.0f} s, {payload['machine']['date']}, {payload['machine']['jax_devices']}, "
+        f"materials: {', '.join(payload['materials'])}",
+        "",
+        "## RBF conditioning: where the plain solve breaks (iso102 system, 1296 centres)",
+        "",
+        "| kernel | dtype | max κ₁ | singular (κ ≥ 1/ε) | NaN, guard off | ΔE > 2× best, guard off | "
+        "ΔE > 2× best, guard on | best ΔE | guard retries / not ok | f32 ≠ f64 (>1%) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for b in payload["breaks"]:
-        out.append(f"| {b['kernel']} | {b['dtype']} | {g(b['max_cond'])} | {b['singular']} | {b['nan_bare']} | "
-                   f"{b['blowup_bare']} | {b['blowup_guard']} | {g(b['best_de76'], '.2f')} | "
-                   f"{b['retries']} / {b['guard_not_ok']} | {b['f32_ne_f64']} |")
-    est = [(r["cond"], r["cond_exact"]) for r in payload["conditioning"]
-           if "cond_exact" in r and np.isfinite(r["cond_exact"]) and r["cond_exact"] < 1e15]
+        out.append(
+            f"| {b['kernel']} | {b['dtype']} | {g(b['max_cond'])} | {b['singular']} | {b['nan_bare']} | "
+            f"{b['blowup_bare']} | {b['blowup_guard']} | {g(b['best_de76'], '.2f')} | "
+            f"{b['retries']} / {b['guard_not_ok']} | {b['f32_ne_f64']} |"
+        )
+    est = [
+        (r["cond"], r["cond_exact"])
+        for r in payload["conditioning"]
+        if "cond_exact" in r and np.isfinite(r["cond_exact"]) and r["cond_exact"] < 1e15
+    ]
     if est:
         ratio = np.array([e / c for c, e in est])
-        out += ["", f"Hager estimate vs exact κ₁ (float64, κ < 1e15, {len(est)} systems): exact/estimate "
-                f"median {np.median(ratio):.3g}, max {np.max(ratio):.3g}."]
-    out += ["", "## Data edges (float32, package defaults of each method)", "",
-            "Materials: iso102 columns the isotropic set above; aniso204 columns lambert-clay, ggx-plastic "
-            "and ward-brushed-steel. Errors are means over the batch.", "",
-            "| case | " + " | ".join(METHODS) + " |", "|---|" + "---|" * len(METHODS)]
+        out += [
+            "",
+            f"Hager estimate vs exact κ₁ (float64, κ < 1e15, {len(est)} systems): exact/estimate "
+            f"median {np.median(ratio):.3g}, max {np.max(ratio):.3g}.",
+        ]
+    out += [
+        "",
+        "## Data edges (float32, package defaults of each method)",
+        "",
+        "Materials: iso102 columns the isotropic set above; aniso204 columns lambert-clay, ggx-plastic "
+        "and ward-brushed-steel. Errors are means over the batch.",
+        "",
+        "| case | " + " | ".join(METHODS) + " |",
+        "|---|" + "---|" * len(METHODS),
+    ]
     cases = payload["data_edges"]["cases"]
     for case in dict.fromkeys(c["case"] for c in cases):
         cells = []
@@ -138,21 +176,45 @@ def markdown(payload) -> str:
     curves = payload["data_edges"]["curves"]
     for key, label in (("noise", "noise σ"), ("few_samples", "samples per slice")):
         xs = curves[key]["x"]
-        out += ["", f"ΔE76 vs {label}:", "", "| method | " + " | ".join(g(x) for x in xs) + " |",
-                "|---|" + "---|" * len(xs)]
-        out += [f"| {n} | " + " | ".join(g(v, ".2f") for v in curves[key][n]) + " |" for n in METHODS]
+        out += [
+            "",
+            f"ΔE76 vs {label}:",
+            "",
+            "| method | " + " | ".join(g(x) for x in xs) + " |",
+            "|---|" + "---|" * len(xs),
+        ]
+        out += [
+            f"| {n} | " + " | ".join(g(v, ".2f") for v in curves[key][n]) + " |" for n in METHODS
+        ]
     an = payload["anisotropy"]
     for key, label in (("strength", "anisotropy α_y/α_x"), ("rotation", "axis rotation (deg)")):
         xs = an[key]["x"]
-        out += ["", f"ΔE76 vs {label} (Ward):", "", "| method | " + " | ".join(g(x) for x in xs) + " |",
-                "|---|" + "---|" * len(xs)]
+        out += [
+            "",
+            f"ΔE76 vs {label} (Ward):",
+            "",
+            "| method | " + " | ".join(g(x) for x in xs) + " |",
+            "|---|" + "---|" * len(xs),
+        ]
         out += [f"| {n} | " + " | ".join(g(v, ".2f") for v in an[key][n]) + " |" for n in METHODS]
     e4 = payload["eq4"]
-    out += ["", "Eq. (4) and the other subspace rules (aniso204, recommended RBF), GGX α_x = a, α_y = 3a:", "",
-            "| a | diagonal-slice range | axial-slice range | " + " | ".join(("filip2012", "average", "crossing", "log", "iso102 (diagonal)")) + " |",
-            "|---|---|---|---|---|---|---|---|"]
+    out += [
+        "",
+        "Eq. (4) and the other subspace rules (aniso204, recommended RBF), GGX α_x = a, α_y = 3a:",
+        "",
+        "| a | diagonal-slice range | axial-slice range | "
+        + " | ".join(("filip2012", "average", "crossing", "log", "iso102 (diagonal)"))
+        + " |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for i, a in enumerate(e4["x_alpha"]):
-        out.append(f"| {a:g} | {g(e4['range_diag'][i])} | {g(e4['range_axial'][i])} | " + " | ".join(
-            g(e4[r][i], ".2f") for r in ("filip2012", "average", "crossing", "log", "iso102 (diagonal)")) + " |")
+        out.append(
+            f"| {a:g} | {g(e4['range_diag'][i])} | {g(e4['range_axial'][i])} | "
+            + " | ".join(
+                g(e4[r][i], ".2f")
+                for r in ("filip2012", "average", "crossing", "log", "iso102 (diagonal)")
+            )
+            + " |"
+        )
     out += ["", "Charts: " + ", ".join(f"`{p}`" for p in payload["charts"]), ""]
     return "\n".join(out)

@@ -10,9 +10,19 @@ from __future__ import annotations
 from ._suite_run import pareto
 
 GROUP_STYLE = {  # colour of each group on the chart
-    "paper": "#1f77b4", "recommended": "#d62728", "budget": "#9467bd", "rule": "#8c564b", "kernel": "#e377c2",
-    "parameterization": "#7f7f7f", "float64": "#17becf", "peer: scipy": "#ff7f0e", "peer: PCA": "#2ca02c",
-    "peer: analytic": "#bcbd22", "mean fill": "#000000", "tuned": "#ff9896", "operator": "#393b79",
+    "paper": "#1f77b4",
+    "recommended": "#d62728",
+    "budget": "#9467bd",
+    "rule": "#8c564b",
+    "kernel": "#e377c2",
+    "parameterization": "#7f7f7f",
+    "float64": "#17becf",
+    "peer: scipy": "#ff7f0e",
+    "peer: PCA": "#2ca02c",
+    "peer: analytic": "#bcbd22",
+    "mean fill": "#000000",
+    "tuned": "#ff9896",
+    "operator": "#393b79",
 }
 
 
@@ -34,7 +44,9 @@ def plot(payload: dict, path=None, dataset: str = "merl-test"):
     fig, axes = plt.subplots(1, 2, figsize=(14, 6), constrained_layout=True)
     cmap = plt.get_cmap("tab20")
     order = list(GROUP_STYLE)
-    groups = sorted({p["group"] for p in pts}, key=lambda g: (order.index(g) if g in order else len(order), g))
+    groups = sorted(
+        {p["group"] for p in pts}, key=lambda g: (order.index(g) if g in order else len(order), g)
+    )
     colour = {g: GROUP_STYLE.get(g, cmap(i % 20)) for i, g in enumerate(groups)}
     labels = ("mean ΔE76 (lower is better)", "mean LogErr (lower is better)")
     for ax, metric, label in zip(axes, ("de76", "logerr"), labels):
@@ -42,17 +54,30 @@ def plot(payload: dict, path=None, dataset: str = "merl-test"):
             for marker, iso in (("o", True), ("^", False)):
                 sel = [p for p in pts if p["group"] == g and (p["budget"] == "iso102") == iso]
                 if sel:
-                    ax.scatter([p["seconds_per_abrdf"] for p in sel], [p[metric] for p in sel], c=[colour[g]],
-                               marker=marker, s=36, alpha=0.85, label=g if iso or not any(
-                                   p["group"] == g and p["budget"] == "iso102" for p in pts) else None)
+                    ax.scatter(
+                        [p["seconds_per_abrdf"] for p in sel],
+                        [p[metric] for p in sel],
+                        c=[colour[g]],
+                        marker=marker,
+                        s=36,
+                        alpha=0.85,
+                        label=g
+                        if iso or not any(p["group"] == g and p["budget"] == "iso102" for p in pts)
+                        else None,
+                    )
         front = [next(p for p in pts if p["name"] == n) for n in pareto(pts, metric)]
         xs = [p["seconds_per_abrdf"] for p in front]
         ys = [p[metric] for p in front]
         ax.step(xs, ys, where="post", ls="--", c="0.3", lw=1, label="Pareto front")
         ax.scatter(xs, ys, s=120, facecolors="none", edgecolors="0.2", lw=1.2)
         for i, p in enumerate(front):  # staggered labels: front points often sit close together
-            ax.annotate(p["name"], (p["seconds_per_abrdf"], p[metric]), textcoords="offset points",
-                        xytext=(6, 10 - 11 * (i % 3)), fontsize=7)
+            ax.annotate(
+                p["name"],
+                (p["seconds_per_abrdf"], p[metric]),
+                textcoords="offset points",
+                xytext=(6, 10 - 11 * (i % 3)),
+                fontsize=7,
+            )
         ax.set_xscale("log")
         ax.set_yscale("log")
         plain = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}")
@@ -64,14 +89,15 @@ def plot(payload: dict, path=None, dataset: str = "merl-test"):
         ax.grid(True, which="both", alpha=0.3)
     n = pts[0]["n_materials"] if pts else 0
     m = payload.get("machine", {})
-    fig.suptitle(f"Speed against accuracy, {dataset} ({n} materials), {payload.get('mode', '')} run; "
-                 f"{m.get('cpu_count', '?')} CPUs, JAX {m.get('jax', '?')}; circles iso, triangles aniso layouts",
-                 fontsize=10)
+    fig.suptitle(
+        f"Speed against accuracy, {dataset} ({n} materials), {payload.get('mode', '')} run; "
+        f"{m.get('cpu_count', '?')} CPUs, JAX {m.get('jax', '?')}; circles iso, triangles aniso layouts",
+        fontsize=10,
+    )
     axes[1].legend(fontsize=7, loc="upper right", ncol=2)
     if path is not None:
         fig.savefig(path, dpi=120)
     return fig
-
 
 
 def plot_throughput(payload: dict, path=None):
@@ -99,10 +125,20 @@ def plot_throughput(payload: dict, path=None):
             ax2.plot(*zip(*mem), "o-", label=f"{name} preset (arguments + output + temporaries)")
     first = next(iter(tp["presets"].values()))
     flops_per_abrdf = 2.0 * first["matrix_shape"][0] * first["n_inputs"] * 3
-    ax.axhline(peak / flops_per_abrdf, c="k", ls="--", lw=1,
-               label=f"roofline: square GEMM {tp['gemm_square']['gflops']:.0f} GFLOP/s at this GEMM's flops")
-    ax.axhline(tp["gemm_same_shape"]["gflops"] * 1e9 / flops_per_abrdf, c="0.5", ls=":", lw=1,
-               label="the same-shape GEMM alone")
+    ax.axhline(
+        peak / flops_per_abrdf,
+        c="k",
+        ls="--",
+        lw=1,
+        label=f"roofline: square GEMM {tp['gemm_square']['gflops']:.0f} GFLOP/s at this GEMM's flops",
+    )
+    ax.axhline(
+        tp["gemm_same_shape"]["gflops"] * 1e9 / flops_per_abrdf,
+        c="0.5",
+        ls=":",
+        lw=1,
+        label="the same-shape GEMM alone",
+    )
     scipy = (tp.get("targets") or {}).get("scipy_abrdfs_per_second")
     if scipy:
         ax.axhline(scipy, c="#ff7f0e", ls="-.", lw=1, label=f"scipy peer ({scipy:.1f} ABRDF/s)")
@@ -116,9 +152,12 @@ def plot_throughput(payload: dict, path=None):
     ax.set_ylabel("ABRDFs per second (iso102 → 81×81×3, float32, after compilation)")
     ax2.set_ylabel("XLA buffers of the compiled call [MiB]")
     m = payload.get("machine", {})
-    fig.suptitle(f"Compiled operator throughput, {payload.get('mode', '')} run; {m.get('cpu_count', '?')} CPUs, "
-                 f"JAX {m.get('jax', '?')}; load {payload.get('load_average_before')} → "
-                 f"{payload.get('load_average_after')}; peak RSS {tp['peak_rss_mb']:.0f} MB", fontsize=10)
+    fig.suptitle(
+        f"Compiled operator throughput, {payload.get('mode', '')} run; {m.get('cpu_count', '?')} CPUs, "
+        f"JAX {m.get('jax', '?')}; load {payload.get('load_average_before')} → "
+        f"{payload.get('load_average_after')}; peak RSS {tp['peak_rss_mb']:.0f} MB",
+        fontsize=10,
+    )
     if path is not None:
         fig.savefig(path, dpi=120)
     return fig

@@ -69,20 +69,25 @@ LAYOUTS = {
 }
 
 
-def sample_models(models, layout: Layout, dtype=jnp.float32,
-                  alpha_deg: float = aj.PROTOCOL_ALPHA_DEG) -> aj.Measurements:
+def sample_models(
+    models, layout: Layout, dtype=jnp.float32, alpha_deg: float = aj.PROTOCOL_ALPHA_DEG
+) -> aj.Measurements:
     """Slice samples of stacked neural models (exact angles, vmapped) on ``layout``."""
     alpha = jnp.asarray(np.deg2rad(alpha_deg), dtype)
-    fn = jax.jit(jax.vmap(lambda m: aj.sample_model(m, layout.counts, alpha, layout.pairs, dtype=dtype)))
+    fn = jax.jit(
+        jax.vmap(lambda m: aj.sample_model(m, layout.counts, alpha, layout.pairs, dtype=dtype))
+    )
     return fn(models)
 
 
-def sample_materials(materials, layout: Layout, dtype=jnp.float32,
-                     alpha_deg: float = aj.PROTOCOL_ALPHA_DEG) -> aj.Measurements:
+def sample_materials(
+    materials, layout: Layout, dtype=jnp.float32, alpha_deg: float = aj.PROTOCOL_ALPHA_DEG
+) -> aj.Measurements:
     """Slice samples of a list of (different) materials on ``layout``, stacked."""
     alpha = jnp.asarray(np.deg2rad(alpha_deg), dtype)
-    return aj.stack_measurements([aj.sample_model(m, layout.counts, alpha, layout.pairs, dtype=dtype)
-                                  for m in materials])
+    return aj.stack_measurements(
+        [aj.sample_model(m, layout.counts, alpha, layout.pairs, dtype=dtype) for m in materials]
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -110,8 +115,10 @@ class Batch:
     def samples(self) -> list:
         """Per-material flat :class:`abrdf_jax.Samples` (numpy; for the scipy peer), cached."""
         if self._samples is None:
-            self._samples = [jax.tree_util.tree_map(lambda x, k=k: x[k], self.meas).to_samples()
-                             for k in range(self.size)]
+            self._samples = [
+                jax.tree_util.tree_map(lambda x, k=k: x[k], self.meas).to_samples()
+                for k in range(self.size)
+            ]
         return self._samples
 
     def flat(self):
@@ -150,7 +157,9 @@ class Context:
             aniso = [n for n in material_names() if not material_info(n)["isotropic"]]
             self.names["analytic-aniso"] = aniso
             self._models["analytic-aniso"] = [get_material(n) for n in aniso]
-            self.refs["analytic-aniso"] = np.stack([dense_table(get_material(n)) for n in aniso]).astype(np.float32)
+            self.refs["analytic-aniso"] = np.stack(
+                [dense_table(get_material(n)) for n in aniso]
+            ).astype(np.float32)
 
     def batch(self, dataset: str, layout: Layout, dtype) -> Batch:
         if dataset == "analytic-aniso":
@@ -158,7 +167,11 @@ class Context:
         key = (dataset, layout.name, jnp.dtype(dtype).name)
         if key not in self._batches:
             src = self._models[dataset]
-            meas = sample_materials(src, layout, dtype) if isinstance(src, list) else sample_models(src, layout, dtype)
+            meas = (
+                sample_materials(src, layout, dtype)
+                if isinstance(src, list)
+                else sample_models(src, layout, dtype)
+            )
             self._batches[key] = Batch(jax.block_until_ready(meas), layout)
         return self._batches[key]
 

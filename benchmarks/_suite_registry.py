@@ -58,9 +58,13 @@ REGISTRY: dict[str, Entry] = {}
 def register(entry: Entry) -> Entry:
     """Add (or replace) a configuration in :data:`REGISTRY`."""
     if entry.layout not in LAYOUTS:
-        raise ValueError(f"entry {entry.name!r}: unknown layout {entry.layout!r}; known: {list(LAYOUTS)}")
+        raise ValueError(
+            f"entry {entry.name!r}: unknown layout {entry.layout!r}; known: {list(LAYOUTS)}"
+        )
     if entry.dtype not in ("float32", "float64"):
-        raise ValueError(f"entry {entry.name!r}: dtype must be float32 or float64, got {entry.dtype!r}")
+        raise ValueError(
+            f"entry {entry.name!r}: dtype must be float32 or float64, got {entry.dtype!r}"
+        )
     REGISTRY[entry.name] = entry
     return entry
 
@@ -69,7 +73,9 @@ def default_params(config: aj.Config, dtype) -> aj.Params:
     return aj.Params.default(config, dtype=dtype)
 
 
-def pipeline_entry(name, group, layout, *, preset="paper", params=default_params, **config_kw) -> Entry:
+def pipeline_entry(
+    name, group, layout, *, preset="paper", params=default_params, **config_kw
+) -> Entry:
     """An entry that runs ``abrdf_jax``'s batched reconstruction (vmapped, jit-compiled).
 
     Args:
@@ -79,7 +85,9 @@ def pipeline_entry(name, group, layout, *, preset="paper", params=default_params
         Other keyword arguments of :class:`Entry` (``modes``, ``dtype``, ``datasets``, ``note``)
         are taken from ``config_kw`` when given.
     """
-    entry_kw = {k: config_kw.pop(k) for k in ("modes", "dtype", "datasets", "note") if k in config_kw}
+    entry_kw = {
+        k: config_kw.pop(k) for k in ("modes", "dtype", "datasets", "note") if k in config_kw
+    }
     if preset not in aj.PRESETS:
         raise ValueError(f"entry {name!r}: unknown preset {preset!r}; known: {list(aj.PRESETS)}")
     base = dict(aj.PRESETS[preset])
@@ -104,13 +112,27 @@ def params_file_entry(name, group, layout, path, **entry_kw) -> Entry:
 
     def build(ctx, lay, dtype):
         cfg, p, _ = load_params(path)
-        cfg = lay.config(**{f: getattr(cfg, f) for f in ("rule", "kernel", "degree", "parameterization", "interp",
-                                                           "value_space", "log_eps")})
+        cfg = lay.config(
+            **{
+                f: getattr(cfg, f)
+                for f in (
+                    "rule",
+                    "kernel",
+                    "degree",
+                    "parameterization",
+                    "interp",
+                    "value_space",
+                    "log_eps",
+                )
+            }
+        )
         # the test samples lie at PROTOCOL's α = 15°: the file's widths and λ are used, not its α
         p = p.astype(dtype).with_alpha_deg(aj.PROTOCOL_ALPHA_DEG)
         return lambda batch: aj.reconstruct_batch(batch.meas, cfg, p)
 
-    return Entry(name, group, layout, build, note=entry_kw.pop("note", f"parameters from {path}"), **entry_kw)
+    return Entry(
+        name, group, layout, build, note=entry_kw.pop("note", f"parameters from {path}"), **entry_kw
+    )
 
 
 def tuned_params(budget: str, preset: str, path=None):
@@ -122,14 +144,21 @@ def tuned_params(budget: str, preset: str, path=None):
     path = Path(path or RESULTS / "tuning.json")
     if not path.exists():
         return None
-    rows = [r for r in json.loads(path.read_text()).get("population", [])
-            if r.get("budget") == budget and r.get("config") == preset and r.get("solver") == "lm"]
+    rows = [
+        r
+        for r in json.loads(path.read_text()).get("population", [])
+        if r.get("budget") == budget and r.get("config") == preset and r.get("solver") == "lm"
+    ]
     if not rows:
         return None
     widths, reg = rows[0]["widths"], rows[0]["reg"]
 
     def params(config, dtype):
-        return aj.Params(aj.Params.default(dtype=dtype).alpha, jnp.asarray(widths, dtype), jnp.asarray(reg, dtype))
+        return aj.Params(
+            aj.Params.default(dtype=dtype).alpha,
+            jnp.asarray(widths, dtype),
+            jnp.asarray(reg, dtype),
+        )
 
     return params
 

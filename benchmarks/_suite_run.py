@@ -20,14 +20,20 @@ from ._common import metrics_of
 from ._suite_layouts import LAYOUTS, Context
 from ._suite_registry import Entry
 
-MIN_TIME = {"full": 2.0, "quick": 0.5, "smoke": 0.1}  # seconds of repeated timing per point (at most 5 calls)
+MIN_TIME = {
+    "full": 2.0,
+    "quick": 0.5,
+    "smoke": 0.1,
+}  # seconds of repeated timing per point (at most 5 calls)
 
 
 def _block(x):
     return jax.block_until_ready(x) if isinstance(x, jax.Array) else x
 
 
-def run_entry(ctx: Context, entry: Entry, dataset: str, min_time: float = 2.0, max_repeats: int = 5) -> dict:
+def run_entry(
+    ctx: Context, entry: Entry, dataset: str, min_time: float = 2.0, max_repeats: int = 5
+) -> dict:
     """Set up, warm up, time and evaluate one entry on one dataset; returns the JSON point."""
     lay = LAYOUTS[entry.layout]
     dtype = jnp.float64 if entry.dtype == "float64" else jnp.float32
@@ -46,17 +52,30 @@ def run_entry(ctx: Context, entry: Entry, dataset: str, min_time: float = 2.0, m
     steady = statistics.median(times)
     out = np.asarray(out)
     if out.shape != (batch.size, 81, 81, 3):
-        raise RuntimeError(f"{entry.name}: expected tables of shape {(batch.size, 81, 81, 3)}, got {out.shape}")
+        raise RuntimeError(
+            f"{entry.name}: expected tables of shape {(batch.size, 81, 81, 3)}, got {out.shape}"
+        )
     if entry.dtype == "float32" and out.dtype != np.float32:
         raise RuntimeError(f"{entry.name}: a float32 entry returned {out.dtype}")
     finite = bool(np.all(np.isfinite(out)))
     per = metrics_of(np.nan_to_num(out, nan=0.0, posinf=0.0).astype(np.float32), ctx.refs[dataset])
     return dict(
-        name=entry.name, group=entry.group, dataset=dataset, layout=lay.name, budget=lay.budget,
-        n_samples=lay.n_samples, dtype=entry.dtype, note=entry.note, n_materials=batch.size,
-        seconds_per_abrdf=steady / batch.size, batch_seconds=steady, repeats=len(times),
-        compile_seconds=max(first - steady, 0.0) if entry.jit else 0.0, setup_seconds=setup,
-        finite=finite, **{k: float(np.mean(v)) for k, v in per.items()},
+        name=entry.name,
+        group=entry.group,
+        dataset=dataset,
+        layout=lay.name,
+        budget=lay.budget,
+        n_samples=lay.n_samples,
+        dtype=entry.dtype,
+        note=entry.note,
+        n_materials=batch.size,
+        seconds_per_abrdf=steady / batch.size,
+        batch_seconds=steady,
+        repeats=len(times),
+        compile_seconds=max(first - steady, 0.0) if entry.jit else 0.0,
+        setup_seconds=setup,
+        finite=finite,
+        **{k: float(np.mean(v)) for k, v in per.items()},
         per_material={k: [float(x) for x in per[k]] for k in ("de76", "logerr")},
     )
 
@@ -74,7 +93,17 @@ def pareto(points: list[dict], metric: str) -> list[str]:
 def versions() -> dict:
     """Versions of the packages behind the figures."""
     out = {}
-    for pkg in ("jax", "jaxlib", "numpy", "scipy", "equinox", "optimistix", "lineax", "matplotlib", "abrdf_jax"):
+    for pkg in (
+        "jax",
+        "jaxlib",
+        "numpy",
+        "scipy",
+        "equinox",
+        "optimistix",
+        "lineax",
+        "matplotlib",
+        "abrdf_jax",
+    ):
         try:
             out[pkg] = importlib.metadata.version(pkg)
         except importlib.metadata.PackageNotFoundError:
@@ -85,14 +114,24 @@ def versions() -> dict:
 
 def threads() -> dict:
     """CPU count, affinity, load and the thread-related environment of the run."""
-    env = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "XLA_FLAGS", "JAX_PLATFORMS")
+    env = (
+        "OMP_NUM_THREADS",
+        "OPENBLAS_NUM_THREADS",
+        "MKL_NUM_THREADS",
+        "XLA_FLAGS",
+        "JAX_PLATFORMS",
+    )
     affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
     try:
         load = os.getloadavg()
     except OSError:
         load = None
-    return dict(cpu_count=os.cpu_count(), affinity=affinity, load_average=load,
-                env={k: os.environ[k] for k in env if k in os.environ})
+    return dict(
+        cpu_count=os.cpu_count(),
+        affinity=affinity,
+        load_average=load,
+        env={k: os.environ[k] for k in env if k in os.environ},
+    )
 
 
 def loadavg():
@@ -110,16 +149,33 @@ def targets_check(tp: dict, points: list[dict]) -> dict:
     scipy_rate = 1.0 / scipy[0]["seconds_per_abrdf"] if scipy else None
     out = dict(scipy_abrdfs_per_second=scipy_rate, presets={}, lines=[])
     for name, pre in tp["presets"].items():
-        rate, frac, lat = pre["best_abrdfs_per_second"], pre["best_fraction_of_roofline"], pre["latency_seconds"]
+        rate, frac, lat = (
+            pre["best_abrdfs_per_second"],
+            pre["best_fraction_of_roofline"],
+            pre["latency_seconds"],
+        )
         ratio = rate / scipy_rate if scipy_rate else None
-        out["presets"][name] = dict(abrdfs_per_second=rate, batch=pre["best_batch"], ratio_to_scipy=ratio,
-                                    fraction_of_roofline=frac, latency_seconds=lat,
-                                    meets=dict(rate_5000=rate >= 5000, ratio_500=None if ratio is None else ratio >= 500,
-                                               roofline_30=frac >= 0.3, latency_10ms=lat < 0.010))
+        out["presets"][name] = dict(
+            abrdfs_per_second=rate,
+            batch=pre["best_batch"],
+            ratio_to_scipy=ratio,
+            fraction_of_roofline=frac,
+            latency_seconds=lat,
+            meets=dict(
+                rate_5000=rate >= 5000,
+                ratio_500=None if ratio is None else ratio >= 500,
+                roofline_30=frac >= 0.3,
+                latency_10ms=lat < 0.010,
+            ),
+        )
         out["lines"].append(
             f"operator {name}: {rate:,.0f} ABRDF/s at B={pre['best_batch']} (target ≥ 5,000); "
-            + (f"{ratio:,.0f}× the scipy peer's {scipy_rate:.2f} ABRDF/s (target ≥ 500×); " if ratio else
-               "scipy peer not in this run; ")
+            + (
+                f"{ratio:,.0f}× the scipy peer's {scipy_rate:.2f} ABRDF/s (target ≥ 500×); "
+                if ratio
+                else "scipy peer not in this run; "
+            )
             + f"{100 * frac:.0f}% of the measured square-GEMM rate (aim ≥ 30%); single-material latency "
-            f"{lat * 1e3:.2f} ms after compilation (target < 10 ms).")
+            f"{lat * 1e3:.2f} ms after compilation (target < 10 ms)."
+        )
     return out

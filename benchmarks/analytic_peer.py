@@ -48,10 +48,20 @@ MODELS = ("ggx", "ward")
 # Chosen on the train split (`python -m benchmarks.analytic_peer`, mean ΔE76 per budget; train ΔE76
 # iso102: GGX 2.89 / 2.94 / 3.32 for eps_rel 0.001 / 0.01 / 0.1, Ward 4.89 / 5.18 / 5.69; aniso204:
 # GGX 3.06 / 3.07 / 3.19, Ward 4.80 / 4.92 / 5.13). Both models stay in the suite.
-SELECTED = {"iso102": dict(model="ggx", eps_rel=0.001), "aniso204": dict(model="ggx", eps_rel=0.001)}
+SELECTED = {
+    "iso102": dict(model="ggx", eps_rel=0.001),
+    "aniso204": dict(model="ggx", eps_rel=0.001),
+}
 _ISO_ALPHAS = (0.02, 0.06, 0.15, 0.4)
-_ANISO_STARTS = ((0.03, 0.03, 0.0), (0.1, 0.1, 0.0), (0.35, 0.35, 0.0),
-                 (0.05, 0.3, 0.0), (0.05, 0.3, np.pi / 4), (0.05, 0.3, np.pi / 2), (0.05, 0.3, 3 * np.pi / 4))
+_ANISO_STARTS = (
+    (0.03, 0.03, 0.0),
+    (0.1, 0.1, 0.0),
+    (0.35, 0.35, 0.0),
+    (0.05, 0.3, 0.0),
+    (0.05, 0.3, np.pi / 4),
+    (0.05, 0.3, np.pi / 2),
+    (0.05, 0.3, 3 * np.pi / 4),
+)
 
 
 def n_params(model: str, anisotropic: bool) -> int:
@@ -75,9 +85,13 @@ def evaluate_model(p: dict, model: str, wi, wv) -> Float[Array, "... 3"]:
     ax = jnp.clip(p["alpha_x"], 1e-3, 4.0)
     ay = jnp.clip(p["alpha_y"], 1e-3, 4.0)
     if model == "ggx":
-        spec = GGX(diffuse=0.0, specular_f0=p["f0"], alpha_x=ax, alpha_y=ay, rotation=p["rotation"])(wi, wv)
+        spec = GGX(
+            diffuse=0.0, specular_f0=p["f0"], alpha_x=ax, alpha_y=ay, rotation=p["rotation"]
+        )(wi, wv)
         return p["kd"] / jnp.pi * jnp.maximum(wi[..., 2:3], 0) * (wv[..., 2:3] > 0) + p["ks"] * spec
-    return Ward(diffuse=p["kd"], specular=p["ks"], alpha_x=ax, alpha_y=ay, rotation=p["rotation"])(wi, wv)
+    return Ward(diffuse=p["kd"], specular=p["ks"], alpha_x=ax, alpha_y=ay, rotation=p["rotation"])(
+        wi, wv
+    )
 
 
 def _starts(model: str, anisotropic: bool, y, valid, wi, wv, dtype):
@@ -90,12 +104,20 @@ def _starts(model: str, anisotropic: bool, y, valid, wi, wv, dtype):
     grid = [(a, a, 0.0) for a in _ISO_ALPHAS] if not anisotropic else list(_ANISO_STARTS)
     out = []
     for ax, ay, rot in grid:
-        lobe_p = dict(kd=jnp.zeros(3, dtype), ks=jnp.ones(3, dtype), f0=jnp.asarray(0.5, dtype),
-                      alpha_x=jnp.asarray(ax, dtype), alpha_y=jnp.asarray(ay, dtype), rotation=jnp.asarray(rot, dtype))
+        lobe_p = dict(
+            kd=jnp.zeros(3, dtype),
+            ks=jnp.ones(3, dtype),
+            f0=jnp.asarray(0.5, dtype),
+            alpha_x=jnp.asarray(ax, dtype),
+            alpha_y=jnp.asarray(ay, dtype),
+            rotation=jnp.asarray(rot, dtype),
+        )
         lobe = evaluate_model(lobe_p, model, wi, wv)[..., 0]
         resid = jnp.maximum(y - kd0 / jnp.pi * cos_i, 0)
         # scale so that the lobe explains the largest residual above the diffuse term
-        ks0 = jnp.max(jnp.where(w, resid, 0), axis=0) / jnp.maximum(jnp.max(jnp.where(valid, lobe, 0)), 1e-6)
+        ks0 = jnp.max(jnp.where(w, resid, 0), axis=0) / jnp.maximum(
+            jnp.max(jnp.where(valid, lobe, 0)), 1e-6
+        )
         ks0 = jnp.maximum(ks0, 1e-4 * jnp.max(jnp.where(w, y, 0)) + 1e-8)
         th = [jnp.log(kd0), jnp.log(ks0)]
         if model == "ggx":
@@ -127,14 +149,24 @@ class AnalyticFit(eqx.Module):
 def _grid_tables(theta, model, anisotropic):
     ti, pi_, tv, pv = (np.deg2rad(a) for a in aj.pair_grid())
     dt = theta.dtype
-    wi, wv = aj.to_vector(jnp.asarray(ti, dt), jnp.asarray(pi_, dt)), aj.to_vector(jnp.asarray(tv, dt), jnp.asarray(pv, dt))
-    return jax.vmap(lambda t: evaluate_model(unpack(t, model, anisotropic), model, wi, wv).reshape(81, 81, 3))(theta)
+    wi, wv = (
+        aj.to_vector(jnp.asarray(ti, dt), jnp.asarray(pi_, dt)),
+        aj.to_vector(jnp.asarray(tv, dt), jnp.asarray(pv, dt)),
+    )
+    return jax.vmap(
+        lambda t: evaluate_model(unpack(t, model, anisotropic), model, wi, wv).reshape(81, 81, 3)
+    )(theta)
 
 
 def _problem(y, valid, eps_rel):
     """Target log values, ε and residual weights of one material (channels last)."""
     dtype = y.dtype
-    eps = eps_rel * jnp.sum(jnp.where(valid[..., None], y, 0), axis=0) / jnp.maximum(jnp.sum(valid), 1) + 1e-12
+    eps = (
+        eps_rel
+        * jnp.sum(jnp.where(valid[..., None], y, 0), axis=0)
+        / jnp.maximum(jnp.sum(valid), 1)
+        + 1e-12
+    )
     return jnp.log(jnp.maximum(y, 0) + eps), eps, valid[..., None].astype(dtype)
 
 
@@ -155,26 +187,38 @@ def _solve(theta0, target, eps, w, wi, wv, model, anisotropic, max_steps):
 @eqx.filter_jit
 def _fit_batch(meas: aj.Measurements, alpha, model, anisotropic, eps_rel, max_steps):
     one = jax.tree_util.tree_map(lambda x: x[0], meas)
-    wi, wv = aj.slice_directions(one.t, meas.pairs, jnp.asarray(alpha, meas.y.dtype))  # (S, nmax, 3)
+    wi, wv = aj.slice_directions(
+        one.t, meas.pairs, jnp.asarray(alpha, meas.y.dtype)
+    )  # (S, nmax, 3)
     b, s, n = meas.y.shape[0], wi.shape[0], wi.shape[1]
     wi, wv = wi.reshape(s * n, 3), wv.reshape(s * n, 3)
     y = meas.y.reshape(b, s * n, 3)
     valid = meas.mask.reshape(b, s * n)
     target, eps, w = jax.vmap(lambda yy, vv: _problem(yy, vv, eps_rel))(y, valid)
-    starts = jax.vmap(lambda yy, vv: _starts(model, anisotropic, yy, vv, wi, wv, y.dtype))(y, valid)  # (B, k, p)
+    starts = jax.vmap(lambda yy, vv: _starts(model, anisotropic, yy, vv, wi, wv, y.dtype))(
+        y, valid
+    )  # (B, k, p)
     k = starts.shape[1]
     # One flat vmap over (material, start): nested vmaps of the solver's while loop compile slower.
     rep = lambda a: jnp.repeat(a, k, axis=0)  # noqa: E731
-    theta, loss, steps = jax.vmap(lambda t0, tg, e, ww: _solve(t0, tg, e, ww, wi, wv, model, anisotropic, max_steps))(
-        starts.reshape(b * k, -1), rep(target), rep(eps), rep(w))
+    theta, loss, steps = jax.vmap(
+        lambda t0, tg, e, ww: _solve(t0, tg, e, ww, wi, wv, model, anisotropic, max_steps)
+    )(starts.reshape(b * k, -1), rep(target), rep(eps), rep(w))
     loss = loss.reshape(b, k)
     best = jnp.argmin(loss, axis=1)
     theta = theta.reshape(b, k, -1)[jnp.arange(b), best]
     return theta, loss[jnp.arange(b), best], jnp.sum(steps.reshape(b, k), axis=1)
 
 
-def fit_analytic(meas: aj.Measurements, model: str = "ggx", anisotropic: bool | None = None, *, eps_rel: float = 0.01,
-                 alpha_deg: float = 15.0, max_steps: int = 100) -> AnalyticFit:
+def fit_analytic(
+    meas: aj.Measurements,
+    model: str = "ggx",
+    anisotropic: bool | None = None,
+    *,
+    eps_rel: float = 0.01,
+    alpha_deg: float = 15.0,
+    max_steps: int = 100,
+) -> AnalyticFit:
     """Fit the analytic model to a batch of measurements (one slice layout, leading material axis).
 
     Args:
@@ -197,10 +241,17 @@ def fit_analytic(meas: aj.Measurements, model: str = "ggx", anisotropic: bool | 
     if jax.config.jax_enable_x64 and meas.y.dtype != jnp.float64:
         # Under x64, optimistix's Levenberg–Marquardt mixes float64 scalars into a float32 state
         # (structure mismatch): fit in float64 then; reconstruct_analytic casts the tables back.
-        meas = jax.tree_util.tree_map(lambda a: a.astype(jnp.float64) if jnp.issubdtype(a.dtype, jnp.floating) else a,
-                                      meas)
-    theta, loss, steps = _fit_batch(meas, jnp.asarray(np.deg2rad(alpha_deg), meas.y.dtype), model, aniso,
-                                    jnp.asarray(eps_rel, meas.y.dtype), int(max_steps))
+        meas = jax.tree_util.tree_map(
+            lambda a: a.astype(jnp.float64) if jnp.issubdtype(a.dtype, jnp.floating) else a, meas
+        )
+    theta, loss, steps = _fit_batch(
+        meas,
+        jnp.asarray(np.deg2rad(alpha_deg), meas.y.dtype),
+        model,
+        aniso,
+        jnp.asarray(eps_rel, meas.y.dtype),
+        int(max_steps),
+    )
     return AnalyticFit(theta, loss, steps, model, aniso)
 
 
@@ -213,7 +264,9 @@ def main(argv=None):
     from ._common import machine, mean_metrics, merl_split, metrics_of, sample_batch, write_json
     import abrdf_jax as aj
 
-    ap = argparse.ArgumentParser(description="analytic peer: model and ε chosen on train, figures on test")
+    ap = argparse.ArgumentParser(
+        description="analytic peer: model and ε chosen on train, figures on test"
+    )
     ap.add_argument("--quick", action="store_true", help="12 materials per split, iso102 only")
     args = ap.parse_args(argv)
     log = lambda *a: print(*a, file=sys.stderr, flush=True)  # noqa: E731
@@ -235,8 +288,14 @@ def main(argv=None):
             for eps_rel in (0.001, 0.01, 0.1):
                 t = time.perf_counter()
                 rec = reconstruct_analytic(tr_meas, model=model, eps_rel=eps_rel)
-                rows.append(dict(model=model, eps_rel=eps_rel, seconds=time.perf_counter() - t,
-                                 **mean_metrics(metrics_of(rec, tr_ref))))
+                rows.append(
+                    dict(
+                        model=model,
+                        eps_rel=eps_rel,
+                        seconds=time.perf_counter() - t,
+                        **mean_metrics(metrics_of(rec, tr_ref)),
+                    )
+                )
                 log(f"{budget} train {rows[-1]}")
         best = min(rows, key=lambda r: r["de76"])
         pick = dict(model=best["model"], eps_rel=best["eps_rel"])

@@ -38,6 +38,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from ._btf_report import markdown as _markdown
+from ._btf_report import scaling_chart as _scaling_chart
+
 RESULTS = Path(__file__).resolve().parent / "results"
 SEED = 1
 CHUNK = 1024
@@ -56,16 +59,26 @@ def _child(argv) -> int:
     for k, target in enumerate((out, out + "-warm")):
         stats: dict = {}
         t = time.perf_counter()
-        store = btf.reconstruct_btf(meas, target, chunk=CHUNK, progress=False, dtype="float16", stats=stats)
+        store = btf.reconstruct_btf(
+            meas, target, chunk=CHUNK, progress=False, dtype="float16", stats=stats
+        )
         runs.append(dict(stats, seconds=time.perf_counter() - t))  # the whole call
         if k == 1:
             shutil.rmtree(target)
-    print("RESULT " + json.dumps(dict(
-        import_seconds=t_import, cold=runs[0], warm=runs[1], texels=store.n_texels,
-        devices=[str(d) for d in jax.devices()],
-        peak_rss_bytes=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
-        total_seconds=time.perf_counter() - t0,
-    )))
+    print(
+        "RESULT "
+        + json.dumps(
+            dict(
+                import_seconds=t_import,
+                cold=runs[0],
+                warm=runs[1],
+                texels=store.n_texels,
+                devices=[str(d) for d in jax.devices()],
+                peak_rss_bytes=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+                total_seconds=time.perf_counter() - t0,
+            )
+        )
+    )
     return 0
 
 
@@ -74,8 +87,13 @@ def _run_child(meas: Path, out: Path, devices: int | None = None) -> dict:
     if devices is not None:
         env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
     t = time.perf_counter()
-    res = subprocess.run([sys.executable, "-m", "benchmarks.btf", "--child", str(meas), str(out)], env=env,
-                         capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
+    res = subprocess.run(
+        [sys.executable, "-m", "benchmarks.btf", "--child", str(meas), str(out)],
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parents[1],
+    )
     wall = time.perf_counter() - t
     if res.returncode != 0:
         raise RuntimeError(f"child failed:\n{res.stderr[-4000:]}")
@@ -144,8 +162,15 @@ def _operator_in_memory(meas_path: Path) -> dict:
     s = statistics.median(ts)
     n_in = int(fn.operator.n_inputs) if fn.operator is not None else None
     flops = 2.0 * 81 * 81 * n_in * 3 * y.shape[0] if n_in else float("nan")
-    return dict(backend=fn.backend, texels=int(y.shape[0]), seconds=s, texels_per_second=y.shape[0] / s,
-                n_inputs=n_in, gflops=flops / s / 1e9, gemm_shape=[81 * 81, n_in, 3 * int(y.shape[0])])
+    return dict(
+        backend=fn.backend,
+        texels=int(y.shape[0]),
+        seconds=s,
+        texels_per_second=y.shape[0] / s,
+        n_inputs=n_in,
+        gflops=flops / s / 1e9,
+        gemm_shape=[81 * 81, n_in, 3 * int(y.shape[0])],
+    )
 
 
 def _accuracy(size: int, rec_path: Path, meas_path: Path) -> dict:
@@ -156,23 +181,39 @@ def _accuracy(size: int, rec_path: Path, meas_path: Path) -> dict:
 
     gen = btf.procedural_btf(size, SEED)
     rec = btf.ChunkedStore.open(rec_path)
-    maps = {k: np.empty(rec.n_texels) for k in ("de76", "logerr", "mean_fill_de76", "mean_fill_logerr")}
+    maps = {
+        k: np.empty(rec.n_texels) for k in ("de76", "logerr", "mean_fill_de76", "mean_fill_logerr")
+    }
     albedo = np.empty((rec.n_texels, 3))
     for k in range(rec.n_chunks):
         a, b = rec.chunk_range(k)
         gt = btf.texel_chunk(gen, a, b, reference=True, measure=False, maps=True, pad_to=rec.chunk)
-        both = btf.texel_metrics_many(dict(ours=rec.read(a, b), base=btf.mean_fill(meas_path, a, b)),
-                                      gt["reference"], metrics=("de76", "logerr"), batch=rec.chunk)
+        both = btf.texel_metrics_many(
+            dict(ours=rec.read(a, b), base=btf.mean_fill(meas_path, a, b)),
+            gt["reference"],
+            metrics=("de76", "logerr"),
+            batch=rec.chunk,
+        )
         ours, base = both["ours"], both["base"]
         maps["de76"][a:b], maps["logerr"][a:b] = ours["de76"].ravel(), ours["logerr"].ravel()
-        maps["mean_fill_de76"][a:b], maps["mean_fill_logerr"][a:b] = base["de76"].ravel(), base["logerr"].ravel()
+        maps["mean_fill_de76"][a:b], maps["mean_fill_logerr"][a:b] = (
+            base["de76"].ravel(),
+            base["logerr"].ravel(),
+        )
         albedo[a:b] = gt["map_albedo"]
     shape = rec.texel_shape
-    summary = {k: dict(mean=float(v.mean()), median=float(np.median(v)), p95=float(np.percentile(v, 95)))
-               for k, v in maps.items()}
-    summary["fraction_better_than_mean_fill"] = float(np.mean(maps["de76"] < maps["mean_fill_de76"]))
-    return dict(summary=summary, maps={k: v.reshape(shape) for k, v in maps.items()},
-                albedo=albedo.reshape(*shape, 3))
+    summary = {
+        k: dict(mean=float(v.mean()), median=float(np.median(v)), p95=float(np.percentile(v, 95)))
+        for k, v in maps.items()
+    }
+    summary["fraction_better_than_mean_fill"] = float(
+        np.mean(maps["de76"] < maps["mean_fill_de76"])
+    )
+    return dict(
+        summary=summary,
+        maps={k: v.reshape(shape) for k, v in maps.items()},
+        albedo=albedo.reshape(*shape, 3),
+    )
 
 
 def _config_comparison(work: Path, size: int = 16, seed: int = 0) -> dict:
@@ -184,128 +225,49 @@ def _config_comparison(work: Path, size: int = 16, seed: int = 0) -> dict:
     from abrdf_jax import btf
 
     root = work / f"cmp{size}"
-    paths = btf.generate_btf(root, size, seed, chunk=size * size, reference=True, reference_dtype="float32",
-                             maps=False)
+    paths = btf.generate_btf(
+        root, size, seed, chunk=size * size, reference=True, reference_dtype="float32", maps=False
+    )
     candidates = {
         "btf.default_config(): rule average, value_space logsamples (operator)": btf.default_config(),
-        "rule crossing, logsamples (operator)": aj.Config.recommended(budget="aniso204", rule="crossing",
-                                                                      value_space="logsamples"),
-        "Config.recommended(aniso204): rule filip2012, log after the rule (pipeline)":
-            aj.Config.recommended(budget="aniso204"),
+        "rule crossing, logsamples (operator)": aj.Config.recommended(
+            budget="aniso204", rule="crossing", value_space="logsamples"
+        ),
+        "Config.recommended(aniso204): rule filip2012, log after the rule (pipeline)": aj.Config.recommended(
+            budget="aniso204"
+        ),
         "paper method Config(aniso204) (pipeline)": aj.Config(budget="aniso204"),
     }
     rows = {}
     for name, cfg in candidates.items():
         t = time.perf_counter()
-        rec = btf.reconstruct_btf(paths["measurements"], root / f"rec{len(rows)}", cfg, chunk=size * size,
-                                  progress=False, dtype="float32", block=size * size)
+        rec = btf.reconstruct_btf(
+            paths["measurements"],
+            root / f"rec{len(rows)}",
+            cfg,
+            chunk=size * size,
+            progress=False,
+            dtype="float32",
+            block=size * size,
+        )
         m = btf.texel_metrics(rec, paths["reference"], metrics=("de76", "logerr"))
-        rows[name] = dict(de76=float(m["de76"].mean()), logerr=float(m["logerr"].mean()),
-                          seconds=time.perf_counter() - t)
-        print(f"  {name}: ΔE76 {rows[name]['de76']:.2f}, LogErr {rows[name]['logerr']:.3f}", flush=True)
-    base = btf.texel_metrics(btf.mean_fill(paths["measurements"]), paths["reference"], metrics=("de76", "logerr"))
-    rows["mean fill"] = dict(de76=float(np.mean(base["de76"])), logerr=float(np.mean(base["logerr"])), seconds=0.0)
+        rows[name] = dict(
+            de76=float(m["de76"].mean()),
+            logerr=float(m["logerr"].mean()),
+            seconds=time.perf_counter() - t,
+        )
+        print(
+            f"  {name}: ΔE76 {rows[name]['de76']:.2f}, LogErr {rows[name]['logerr']:.3f}",
+            flush=True,
+        )
+    base = btf.texel_metrics(
+        btf.mean_fill(paths["measurements"]), paths["reference"], metrics=("de76", "logerr")
+    )
+    rows["mean fill"] = dict(
+        de76=float(np.mean(base["de76"])), logerr=float(np.mean(base["logerr"])), seconds=0.0
+    )
     shutil.rmtree(root, ignore_errors=True)
     return dict(size=size, seed=seed, rows=rows)
-
-
-def _scaling_chart(path: Path, sizes, size_times, devices, device_times, title: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import NullLocator
-
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
-    texels = [s * s for s in sizes]
-    a.plot(texels, size_times, "o-", label="measured (warm)")
-    a.plot(texels, [size_times[-1] * t / texels[-1] for t in texels], "--", color="grey", label="linear in texels")
-    a.set_xscale("log")
-    a.set_yscale("log")
-    a.set_xlabel("texels")
-    a.set_ylabel("seconds (reconstruct_btf, float16 store)")
-    a.xaxis.set_minor_locator(NullLocator())  # else the log axis labels its minor ticks over the sizes
-    a.set_xticks(texels)
-    a.set_xticklabels([f"{s}²" for s in sizes])
-    a.legend()
-    a.set_title("time against texel count")
-    b.plot(devices, device_times, "o-")
-    b.set_xscale("log", base=2)
-    b.xaxis.set_minor_locator(NullLocator())
-    b.set_xticks(devices)
-    b.set_xticklabels([str(d) for d in devices])
-    b.set_xlabel("simulated CPU devices (XLA_FLAGS), same 2 cores")
-    b.set_ylabel("seconds (warm)")
-    b.set_ylim(bottom=0)
-    b.set_title("time against device count")
-    fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def _markdown(out: dict, suffix: str) -> str:
-    """The results as markdown tables (``btf.md``), every figure from ``out`` (the JSON)."""
-    m, h = out["machine"], out["headline"]
-    op, roof, single = out["operator_in_memory"], out["roofline_gflops"], out["single_material"]
-    lines = [
-        f"# Whole-BTF benchmark{' (quick)' if out['quick'] else ''}",
-        "",
-        f"`python -m benchmarks.btf{' --quick' if out['quick'] else ''}`, {m['date']}, {m['platform']}, "
-        f"{m['cpu_count']} CPU cores, JAX {m['jax']} on {', '.join(m['jax_devices'])}, float32 compute, "
-        f"float16 store, chunks of {out['chunk']} texels, seed {out['seed']}; load average (1 min) "
-        f"{out['load_average_start'][0]:.1f} at the start, {out['load_average_end'][0]:.1f} at the end. "
-        f"{out['note']}",
-        "",
-        "| texels | samples/texel | output | cold (compile incl.) | warm | peak RSS | texels/s (warm) | backend |",
-        "|---|---|---|---|---|---|---|---|",
-        f"| {h['size']}² = {h['texels']} | {h['samples_per_texel']} | 81×81×3 {h['store_dtype']}, "
-        f"{h['store_bytes'] / 2**30:.2f} GiB | {h['seconds_cold']:.1f} s | {h['seconds_warm']:.1f} s | "
-        f"{h['peak_rss_gib']:.2f} GiB | {h['texels_per_second_warm']:.0f} | {h['backend']} |",
-        "",
-        f"Target: {h['target']}.",
-        "",
-        "| beside it (same run) | figure |",
-        "|---|---|",
-        f"| single material, `abrdf_jax.reconstruct` (recommended, aniso204), after compilation | "
-        f"{single['abrdfs_per_second']:.1f} ABRDF/s |",
-        f"| BTF, whole path (read, reconstruct, write), warm | {h['texels_per_second_warm']:.0f} texels/s "
-        f"({h['vs_single_material']:.0f}× the single material) |",
-        f"| BTF chunk map in memory (one chunk of {op['texels']}, no I/O), {op['backend']} | "
-        f"{op['texels_per_second']:.0f} texels/s, {op['gflops']:.1f} GFLOP/s |",
-        f"| float32 GEMM roofline, operator shape {op['gemm_shape']} | {roof['operator_shape']:.1f} GFLOP/s "
-        f"(chunk map reaches {100 * op['fraction_of_roofline']:.0f} %) |",
-        f"| float32 GEMM, 2048³ | {roof['square_2048']:.1f} GFLOP/s |",
-        "",
-        "| texels | cold | warm | peak RSS |",
-        "|---|---|---|---|",
-    ]
-    for s, r in out["size_scaling"].items():
-        lines.append(f"| {s}² | {r['seconds_cold']:.1f} s | {r['seconds_warm']:.2f} s | {r['peak_rss_gib']:.2f} GiB |")
-    ds = out["device_scaling"]
-    lines += ["", f"| simulated CPU devices ({ds['size']}² texels, same cores) | cold | warm |", "|---|---|---|"]
-    for d, r in ds["runs"].items():
-        lines.append(f"| {d} | {r['seconds_cold']:.1f} s | {r['seconds_warm']:.2f} s |")
-    if "exr_export" in out:
-        e = out["exr_export"]
-        lines += ["", f"EXR export (timed apart): {e['images']} images of {h['size']}×{h['size']} half RGB, "
-                  f"{e['seconds']:.1f} s, {e['bytes'] / 2**20:.0f} MiB."]
-    a = out["accuracy"]
-    lines += ["", f"| accuracy per texel ({a['size']}², vs procedural ground truth) | mean | median | p95 |",
-              "|---|---|---|---|"]
-    for key, name in (("de76", "ΔE76, ours"), ("mean_fill_de76", "ΔE76, mean fill"),
-                      ("logerr", "LogErr, ours"), ("mean_fill_logerr", "LogErr, mean fill")):
-        v = a[key]
-        lines.append(f"| {name} | {v['mean']:.3f} | {v['median']:.3f} | {v['p95']:.3f} |")
-    lines += ["", f"Ours better than mean fill on {100 * a['fraction_better_than_mean_fill']:.0f} % of texels. "
-              f"Charts: `btf_scaling{suffix}.png`, `btf_error_map{suffix}.png`.", ""]
-    cc = out.get("config_comparison")
-    if cc:
-        lines += ["", f"| configuration ({cc['size']}², seed {cc['seed']}, where the default was chosen) | mean ΔE76 "
-                  "| mean LogErr |", "|---|---|---|"]
-        lines += [f"| {k} | {v['de76']:.2f} | {v['logerr']:.3f} |" for k, v in cc["rows"].items()]
-    lines.append("")
-    return "\n".join(lines)
 
 
 def main(argv=None) -> int:
@@ -313,12 +275,19 @@ def main(argv=None) -> int:
     if argv and argv[0] == "--child":
         return _child(argv[1:])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="16² to 64² texels, 1-2-4 devices (CI smoke)")
-    ap.add_argument("--keep", metavar="DIR", help="keep the stores in DIR (default: a temporary folder, removed)")
+    ap.add_argument(
+        "--quick", action="store_true", help="16² to 64² texels, 1-2-4 devices (CI smoke)"
+    )
+    ap.add_argument(
+        "--keep",
+        metavar="DIR",
+        help="keep the stores in DIR (default: a temporary folder, removed)",
+    )
     ap.add_argument("--no-exr", action="store_true", help="skip the EXR export")
-    ap.add_argument("--note", default="", help="a remark stored with the figures (e.g. the machine was busy)")
+    ap.add_argument(
+        "--note", default="", help="a remark stored with the figures (e.g. the machine was busy)"
+    )
     args = ap.parse_args(argv)
-
 
     from abrdf_jax import btf
 
@@ -330,8 +299,15 @@ def main(argv=None) -> int:
     suffix = "_quick" if args.quick else ""
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="abrdf_btf_bench_"))
     work.mkdir(parents=True, exist_ok=True)
-    out = dict(machine=machine(), quick=args.quick, seed=SEED, chunk=CHUNK, config=repr(btf.default_config()),
-               note=args.note, load_average_start=list(os.getloadavg()))
+    out = dict(
+        machine=machine(),
+        quick=args.quick,
+        seed=SEED,
+        chunk=CHUNK,
+        config=repr(btf.default_config()),
+        note=args.note,
+        load_average_start=list(os.getloadavg()),
+    )
     try:
         # Measurements for every size (no dense reference on disk: accuracy uses the generator).
         gen_times = {}
@@ -346,37 +322,60 @@ def main(argv=None) -> int:
         big = sizes[-1]
         op = _operator_in_memory(work / f"btf{big}" / "measurements")
         m, k, n = op["gemm_shape"]
-        out["roofline_gflops"] = dict(operator_shape=_gemm_rate(m, k, n), square_2048=_gemm_rate(2048, 2048, 2048))
+        out["roofline_gflops"] = dict(
+            operator_shape=_gemm_rate(m, k, n), square_2048=_gemm_rate(2048, 2048, 2048)
+        )
         out["operator_in_memory"] = op
-        out["operator_in_memory"]["fraction_of_roofline"] = op["gflops"] / out["roofline_gflops"]["operator_shape"]
+        out["operator_in_memory"]["fraction_of_roofline"] = (
+            op["gflops"] / out["roofline_gflops"]["operator_shape"]
+        )
         out["single_material"] = _single_material()
-        print(f"roofline {out['roofline_gflops']['operator_shape']:.1f} GFLOP/s (operator shape), "
-              f"{out['roofline_gflops']['square_2048']:.1f} (2048²); operator in memory "
-              f"{op['texels_per_second']:.0f} texels/s = {op['gflops']:.1f} GFLOP/s; single material "
-              f"{out['single_material']['abrdfs_per_second']:.1f} ABRDF/s", flush=True)
+        print(
+            f"roofline {out['roofline_gflops']['operator_shape']:.1f} GFLOP/s (operator shape), "
+            f"{out['roofline_gflops']['square_2048']:.1f} (2048²); operator in memory "
+            f"{op['texels_per_second']:.0f} texels/s = {op['gflops']:.1f} GFLOP/s; single material "
+            f"{out['single_material']['abrdfs_per_second']:.1f} ABRDF/s",
+            flush=True,
+        )
 
         # Headline and texel-count scaling (each size in a fresh process: cold + warm).
         runs = {}
         for s in sizes:
             runs[s] = _run_child(work / f"btf{s}" / "measurements", work / f"rec{s}")
             r = runs[s]
-            print(f"{s}x{s}: cold {r['cold']['seconds']:.1f} s, warm {r['warm']['seconds']:.1f} s, "
-                  f"peak RSS {r['peak_rss_bytes'] / 2**30:.2f} GiB, {r['warm']['backend']} backend", flush=True)
+            print(
+                f"{s}x{s}: cold {r['cold']['seconds']:.1f} s, warm {r['warm']['seconds']:.1f} s, "
+                f"peak RSS {r['peak_rss_bytes'] / 2**30:.2f} GiB, {r['warm']['backend']} backend",
+                flush=True,
+            )
         head = runs[big]
         out["headline"] = dict(
-            size=big, texels=big * big, samples_per_texel=204, store_dtype="float16",
-            seconds_cold=head["cold"]["seconds"], seconds_warm=head["warm"]["seconds"],
-            process_wall_seconds=head["process_wall_seconds"], peak_rss_gib=head["peak_rss_bytes"] / 2**30,
+            size=big,
+            texels=big * big,
+            samples_per_texel=204,
+            store_dtype="float16",
+            seconds_cold=head["cold"]["seconds"],
+            seconds_warm=head["warm"]["seconds"],
+            process_wall_seconds=head["process_wall_seconds"],
+            peak_rss_gib=head["peak_rss_bytes"] / 2**30,
             texels_per_second_warm=big * big / head["warm"]["seconds"],
-            texels_per_second_cold=big * big / head["cold"]["seconds"], backend=head["warm"]["backend"],
+            texels_per_second_cold=big * big / head["cold"]["seconds"],
+            backend=head["warm"]["backend"],
             target="<= 60 s and < 4 GiB on 2 cores",
             store_bytes=sum(f.stat().st_size for f in (work / f"rec{big}" / "chunks").iterdir()),
         )
-        out["headline"]["vs_single_material"] = (out["headline"]["texels_per_second_warm"]
-                                                 / out["single_material"]["abrdfs_per_second"])
-        out["size_scaling"] = {str(s): dict(texels=s * s, seconds_cold=r["cold"]["seconds"],
-                                            seconds_warm=r["warm"]["seconds"], peak_rss_gib=r["peak_rss_bytes"] / 2**30)
-                               for s, r in runs.items()}
+        out["headline"]["vs_single_material"] = (
+            out["headline"]["texels_per_second_warm"] / out["single_material"]["abrdfs_per_second"]
+        )
+        out["size_scaling"] = {
+            str(s): dict(
+                texels=s * s,
+                seconds_cold=r["cold"]["seconds"],
+                seconds_warm=r["warm"]["seconds"],
+                peak_rss_gib=r["peak_rss_bytes"] / 2**30,
+            )
+            for s, r in runs.items()
+        }
 
         # Device scaling: simulated CPU devices (the same two cores split N ways).
         dev = {}
@@ -384,19 +383,32 @@ def main(argv=None) -> int:
             r = _run_child(work / f"btf{device_size}" / "measurements", work / f"dev{d}", devices=d)
             dev[d] = r
             shutil.rmtree(work / f"dev{d}", ignore_errors=True)
-            print(f"{d} device(s), {device_size}x{device_size}: warm {r['warm']['seconds']:.2f} s "
-                  f"(cold {r['cold']['seconds']:.1f} s)", flush=True)
-        out["device_scaling"] = dict(size=device_size, runs={str(d): dict(seconds_warm=r["warm"]["seconds"],
-                                                                           seconds_cold=r["cold"]["seconds"],
-                                                                           devices=len(r["devices"]))
-                                                             for d, r in dev.items()})
+            print(
+                f"{d} device(s), {device_size}x{device_size}: warm {r['warm']['seconds']:.2f} s "
+                f"(cold {r['cold']['seconds']:.1f} s)",
+                flush=True,
+            )
+        out["device_scaling"] = dict(
+            size=device_size,
+            runs={
+                str(d): dict(
+                    seconds_warm=r["warm"]["seconds"],
+                    seconds_cold=r["cold"]["seconds"],
+                    devices=len(r["devices"]),
+                )
+                for d, r in dev.items()
+            },
+        )
 
         # EXR export, timed apart.
         if not args.no_exr:
             t = time.perf_counter()
             n_img = btf.write_exr_pairs(work / f"rec{big}", work / "exr", half=True)
-            out["exr_export"] = dict(images=n_img, seconds=time.perf_counter() - t,
-                                     bytes=sum(f.stat().st_size for f in (work / "exr").iterdir()))
+            out["exr_export"] = dict(
+                images=n_img,
+                seconds=time.perf_counter() - t,
+                bytes=sum(f.stat().st_size for f in (work / "exr").iterdir()),
+            )
             shutil.rmtree(work / "exr")
             print(f"EXR export: {n_img} images in {out['exr_export']['seconds']:.1f} s", flush=True)
 
@@ -409,18 +421,33 @@ def main(argv=None) -> int:
         acc = _accuracy(big, work / f"rec{big}", work / f"btf{big}" / "measurements")
         out["accuracy"] = dict(acc["summary"], seconds=time.perf_counter() - t, size=big)
         s = acc["summary"]
-        print(f"accuracy: ΔE76 {s['de76']['mean']:.2f} (mean fill {s['mean_fill_de76']['mean']:.2f}), "
-              f"LogErr {s['logerr']['mean']:.3f} (mean fill {s['mean_fill_logerr']['mean']:.3f})", flush=True)
+        print(
+            f"accuracy: ΔE76 {s['de76']['mean']:.2f} (mean fill {s['mean_fill_de76']['mean']:.2f}), "
+            f"LogErr {s['logerr']['mean']:.3f} (mean fill {s['mean_fill_logerr']['mean']:.3f})",
+            flush=True,
+        )
         RESULTS.mkdir(exist_ok=True)
-        btf.save_error_map(acc["maps"]["de76"], RESULTS / f"btf_error_map{suffix}.png",
-                           title=f"ΔE76 per texel, {big}x{big}, seed {SEED}",
-                           extra={f"mean fill ΔE76 (mean {s['mean_fill_de76']['mean']:.2f})":
-                                  acc["maps"]["mean_fill_de76"], "albedo": acc["albedo"]})
-        _scaling_chart(RESULTS / f"btf_scaling{suffix}.png", sizes, [runs[s]["warm"]["seconds"] for s in sizes],
-                       device_counts, [dev[d]["warm"]["seconds"] for d in device_counts],
-                       f"reconstruct_btf, {out['headline']['backend']} backend, chunks of {CHUNK}; "
-                       f"{out['machine']['cpu_count']} CPU cores, load average {out['load_average_start'][0]:.1f}"
-                       + (f"\n{args.note}" if args.note else ""))
+        btf.save_error_map(
+            acc["maps"]["de76"],
+            RESULTS / f"btf_error_map{suffix}.png",
+            title=f"ΔE76 per texel, {big}x{big}, seed {SEED}",
+            extra={
+                f"mean fill ΔE76 (mean {s['mean_fill_de76']['mean']:.2f})": acc["maps"][
+                    "mean_fill_de76"
+                ],
+                "albedo": acc["albedo"],
+            },
+        )
+        _scaling_chart(
+            RESULTS / f"btf_scaling{suffix}.png",
+            sizes,
+            [runs[s]["warm"]["seconds"] for s in sizes],
+            device_counts,
+            [dev[d]["warm"]["seconds"] for d in device_counts],
+            f"reconstruct_btf, {out['headline']['backend']} backend, chunks of {CHUNK}; "
+            f"{out['machine']['cpu_count']} CPU cores, load average {out['load_average_start'][0]:.1f}"
+            + (f"\n{args.note}" if args.note else ""),
+        )
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
@@ -428,9 +455,11 @@ def main(argv=None) -> int:
     path = write_json(f"btf{suffix}.json", out)
     (RESULTS / f"btf{suffix}.md").write_text(_markdown(out, suffix), encoding="utf-8")
     h = out["headline"]
-    print(f"{path}: {h['size']}² texels in {h['seconds_warm']:.1f} s warm / {h['seconds_cold']:.1f} s cold, "
-          f"peak {h['peak_rss_gib']:.2f} GiB, {h['texels_per_second_warm']:.0f} texels/s "
-          f"({h['vs_single_material']:.0f}x the single-material ABRDF/s)")
+    print(
+        f"{path}: {h['size']}² texels in {h['seconds_warm']:.1f} s warm / {h['seconds_cold']:.1f} s cold, "
+        f"peak {h['peak_rss_gib']:.2f} GiB, {h['texels_per_second_warm']:.0f} texels/s "
+        f"({h['vs_single_material']:.0f}x the single-material ABRDF/s)"
+    )
     return 0
 
 

@@ -27,7 +27,15 @@ import numpy as np
 import abrdf_jax as aj
 from abrdf_jax.materials import dense_table, get_material, material_info, material_names
 
-from ._common import machine, mean_fill, mean_metrics, merl_split, metrics_of, sample_batch, write_json
+from ._common import (
+    machine,
+    mean_fill,
+    mean_metrics,
+    merl_split,
+    metrics_of,
+    sample_batch,
+    write_json,
+)
 from .scipy_peer import reconstruct_scipy
 
 KEYS = ("de76", "de2000", "rmse8", "psnr", "logerr")
@@ -36,7 +44,11 @@ KEYS = ("de76", "de2000", "rmse8", "psnr", "logerr")
 def jax_grid(quick):
     widths = (0.45, 0.6) if quick else (0.3, 0.45, 0.6, 0.8, 1.0)
     regs = (1e-2,) if quick else (1e-3, 1e-2)
-    kernels = ("gaussian", "thin_plate_spline") if quick else ("gaussian", "inverse_multiquadric", "multiquadric", "thin_plate_spline")
+    kernels = (
+        ("gaussian", "thin_plate_spline")
+        if quick
+        else ("gaussian", "inverse_multiquadric", "multiquadric", "thin_plate_spline")
+    )
     for kernel, vs in itertools.product(kernels, ("linear", "log")):
         degrees = (None, 0) if kernel in ("gaussian", "inverse_multiquadric") else (None,)
         ws = (1.0,) if kernel == "thin_plate_spline" else widths  # scale-free up to λ
@@ -45,9 +57,14 @@ def jax_grid(quick):
 
 
 def run_jax(meas, ref, s, budget="iso102"):
-    cfg = aj.Config(budget=budget, kernel=s["kernel"], value_space=s["value_space"], degree=s["degree"])
-    p = aj.Params(jnp.deg2rad(aj.PROTOCOL_ALPHA_DEG), jnp.full(4, s["width"], jnp.float32),
-                  jnp.asarray(s["reg"], jnp.float32))
+    cfg = aj.Config(
+        budget=budget, kernel=s["kernel"], value_space=s["value_space"], degree=s["degree"]
+    )
+    p = aj.Params(
+        jnp.deg2rad(aj.PROTOCOL_ALPHA_DEG),
+        jnp.full(4, s["width"], jnp.float32),
+        jnp.asarray(s["reg"], jnp.float32),
+    )
     rec = aj.reconstruct_batch(meas, cfg, p)
     return rec, metrics_of(rec, ref)
 
@@ -56,8 +73,18 @@ def run_scipy(meas, ref, s):
     recs = []
     for k in range(meas.y.shape[0]):
         smp = jax.tree_util.tree_map(lambda x, k=k: x[k], meas).to_samples()
-        recs.append(reconstruct_scipy(smp.theta_i, smp.phi_i, smp.theta_v, smp.phi_v, smp.rgb,
-                                      kernel=s["kernel"], widths=(s["width"],) * 4, smoothing=s["reg"]))
+        recs.append(
+            reconstruct_scipy(
+                smp.theta_i,
+                smp.phi_i,
+                smp.theta_v,
+                smp.phi_v,
+                smp.rgb,
+                kernel=s["kernel"],
+                widths=(s["width"],) * 4,
+                smoothing=s["reg"],
+            )
+        )
     rec = np.stack(recs)
     return rec, metrics_of(rec, ref)
 
@@ -79,7 +106,11 @@ def main(argv=None):
         tr_models = jax.tree_util.tree_map(lambda x: x[sel], tr_models)
         te_models = jax.tree_util.tree_map(lambda x: x[sel], te_models)
         tr_ref, te_ref = tr_ref[sel], te_ref[sel]
-        tr_names, te_names, te_group = [tr_names[i] for i in sel], [te_names[i] for i in sel], [te_group[i] for i in sel]
+        tr_names, te_names, te_group = (
+            [tr_names[i] for i in sel],
+            [te_names[i] for i in sel],
+            [te_group[i] for i in sel],
+        )
     iso = aj.Config(budget="iso102")
     tr_meas = sample_batch(tr_models, iso)
 
@@ -89,11 +120,17 @@ def main(argv=None):
         _, m = run_jax(tr_meas, tr_ref, s)
         jax_rows.append({**s, **mean_metrics(m)})
         log(f"train jax {s}: dE76 {jax_rows[-1]['de76']:.3f}")
-    best_paper = min((r for r in jax_rows if r["value_space"] == "linear" and r["degree"] is None), key=lambda r: r["de76"])
+    best_paper = min(
+        (r for r in jax_rows if r["value_space"] == "linear" and r["degree"] is None),
+        key=lambda r: r["de76"],
+    )
     best_all = min(jax_rows, key=lambda r: r["de76"])
     scipy_rows = []
-    sgrid = [dict(kernel=k, width=w, reg=1e-2) for k in ("gaussian", "inverse_multiquadric", "multiquadric")
-             for w in ((0.45,) if args.quick else (0.3, 0.45, 0.6, 1.0))]
+    sgrid = [
+        dict(kernel=k, width=w, reg=1e-2)
+        for k in ("gaussian", "inverse_multiquadric", "multiquadric")
+        for w in ((0.45,) if args.quick else (0.3, 0.45, 0.6, 1.0))
+    ]
     sgrid.append(dict(kernel="thin_plate_spline", width=1.0, reg=1e-2))
     for s in sgrid:
         _, m = run_scipy(tr_meas, tr_ref, s)
@@ -117,13 +154,17 @@ def main(argv=None):
         for name, m in per.items():
             results[f"{budget} | {name} | MERL+Nielsen test ({len(te_names)})"] = mean_metrics(m)
             if nielsen.any() and name != "mean-fill":
-                results[f"{budget} | {name} | Nielsen only ({int(nielsen.sum())})"] = mean_metrics({k: v[nielsen] for k, v in m.items()})
+                results[f"{budget} | {name} | Nielsen only ({int(nielsen.sum())})"] = mean_metrics(
+                    {k: v[nielsen] for k, v in m.items()}
+                )
         log(f"test {budget} done")
     # 3. analytic anisotropic materials, aniso204 (nothing was chosen on them)
     aniso_names = [n for n in material_names() if not material_info(n)["isotropic"]]
     refs = jnp.stack([jnp.asarray(dense_table(get_material(n))) for n in aniso_names])
     cfg = aj.Config(budget="aniso204")
-    meas = aj.stack_measurements([aj.sample(get_material(n), cfg, as_measurements=True) for n in aniso_names])
+    meas = aj.stack_measurements(
+        [aj.sample(get_material(n), cfg, as_measurements=True) for n in aniso_names]
+    )
     synth = {
         "mean-fill": metrics_of(mean_fill(meas), refs),
         "scipy peer (paper method)": run_scipy(meas, refs, spick)[1],
@@ -131,20 +172,34 @@ def main(argv=None):
         "abrdf_jax, recommended": run_jax(meas, refs, pick(best_all), "aniso204")[1],
     }
     for name, m in synth.items():
-        results[f"aniso204 | {name} | analytic anisotropic ({len(aniso_names)}, synthetic)"] = mean_metrics(m)
+        results[f"aniso204 | {name} | analytic anisotropic ({len(aniso_names)}, synthetic)"] = (
+            mean_metrics(m)
+        )
 
-    payload = dict(machine=machine(), quick=args.quick, seconds=time.time() - t0,
-                   selected=dict(paper=pick(best_paper), recommended=pick(best_all), scipy=spick),
-                   train_grid_jax=jax_rows, train_grid_scipy=scipy_rows, test=results,
-                   test_materials=te_names, analytic_materials=aniso_names)
+    payload = dict(
+        machine=machine(),
+        quick=args.quick,
+        seconds=time.time() - t0,
+        selected=dict(paper=pick(best_paper), recommended=pick(best_all), scipy=spick),
+        train_grid_jax=jax_rows,
+        train_grid_scipy=scipy_rows,
+        test=results,
+        test_materials=te_names,
+        analytic_materials=aniso_names,
+    )
     write_json("merl_accuracy_quick.json" if args.quick else "merl_accuracy.json", payload)
-    lines = ["| budget | method | data | ΔE76 | ΔE2000 | RMSE8 | PSNR dB | LogErr |", "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| budget | method | data | ΔE76 | ΔE2000 | RMSE8 | PSNR dB | LogErr |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for key, row in results.items():
         b, meth, data = key.split(" | ")
         lines.append(f"| {b} | {meth} | {data} | {fmt(row)} |")
     lines.append("")
-    lines.append(f"Selected on train (iso102, mean ΔE76): paper method {pick(best_paper)}; "
-                 f"recommended {pick(best_all)}; scipy peer {spick}.")
+    lines.append(
+        f"Selected on train (iso102, mean ΔE76): paper method {pick(best_paper)}; "
+        f"recommended {pick(best_all)}; scipy peer {spick}."
+    )
     text = "\n".join(lines)
     if not args.quick:
         (write_json.__globals__["RESULTS"] / "merl_accuracy.md").write_text(text + "\n")

@@ -51,10 +51,25 @@ def analytic_family(quick: bool):
     ratios = (1.0, 1.5, 3.0) if quick else RATIOS
     out = {}
     for r in ratios:
-        out[f"ward a=0.15 r={r:g}"] = (Ward(diffuse=[0.05, 0.05, 0.06], specular=[0.3, 0.3, 0.32],
-                                            alpha_x=0.15, alpha_y=0.15 * r), r == 1.0)
-        out[f"ggx a=0.15 r={r:g}"] = (GGX(diffuse=[0.08, 0.25, 0.55], specular_f0=[0.6, 0.5, 0.4],
-                                          alpha_x=0.15, alpha_y=0.15 * r, rotation=np.pi / 6), r == 1.0)
+        out[f"ward a=0.15 r={r:g}"] = (
+            Ward(
+                diffuse=[0.05, 0.05, 0.06],
+                specular=[0.3, 0.3, 0.32],
+                alpha_x=0.15,
+                alpha_y=0.15 * r,
+            ),
+            r == 1.0,
+        )
+        out[f"ggx a=0.15 r={r:g}"] = (
+            GGX(
+                diffuse=[0.08, 0.25, 0.55],
+                specular_f0=[0.6, 0.5, 0.4],
+                alpha_x=0.15,
+                alpha_y=0.15 * r,
+                rotation=np.pi / 6,
+            ),
+            r == 1.0,
+        )
     names = [n for n in material_names() if is_anisotropic(n)]
     for n in names[: 2 if quick else None]:
         out[n] = (get_material(n), False)
@@ -97,7 +112,9 @@ def cv_errors(meas_list, names, alpha, k=4, log=print):
         compile_s += time.perf_counter() - t0
         for j, n in enumerate(gnames):
             out[:, names.index(n)] = errs[:, j]
-    log(f"  held-out errors of {len(names)} candidates x {len(meas_list)} measurements: {compile_s:.0f} s (incl. compile)")
+    log(
+        f"  held-out errors of {len(names)} candidates x {len(meas_list)} measurements: {compile_s:.0f} s (incl. compile)"
+    )
     return out
 
 
@@ -111,7 +128,9 @@ def dense_errors(meas, ref, names, log=print):
         rec = aj.reconstruct_batch(meas, cfg, params)
         m = metrics_of(rec, ref)
         out[n] = {"de76": m["de76"], "logerr": m["logerr"]}
-        log(f"  {n:15s} dense ΔE76 {np.mean(m['de76']):6.2f}  LogErr {np.mean(m['logerr']):.3f}  ({time.perf_counter() - t0:.0f} s)")
+        log(
+            f"  {n:15s} dense ΔE76 {np.mean(m['de76']):6.2f}  LogErr {np.mean(m['logerr']):.3f}  ({time.perf_counter() - t0:.0f} s)"
+        )
     return out
 
 
@@ -128,12 +147,20 @@ def decide(meas, cv_row, names, tol=select.TOL):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="12 MERL test materials, fewer analytic models and noise levels")
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="12 MERL test materials, fewer analytic models and noise levels",
+    )
     args = ap.parse_args(argv)
     quick = args.quick
     log = lambda s: print(s, flush=True)  # noqa: E731
     noise = (0.0, 0.05) if quick else NOISE
-    cand_names = list(DEFAULT_ANISO) + ([] if quick else [n for n in KERNEL_FAMILY if n not in DEFAULT_ANISO] + ["paper", "paper-aniso"])
+    cand_names = list(DEFAULT_ANISO) + (
+        []
+        if quick
+        else [n for n in KERNEL_FAMILY if n not in DEFAULT_ANISO] + ["paper", "paper-aniso"]
+    )
     alpha = np.deg2rad(aj.PROTOCOL_ALPHA_DEG)
     cfg_a = aj.Config.recommended("aniso204")
     p_a = aj.Params.default(cfg_a, dtype=jnp.float32)
@@ -144,7 +171,12 @@ def main(argv=None):
     if quick:
         idx = np.linspace(0, len(names) - 1, 12).round().astype(int)
         names = [names[i] for i in idx]
-        models = jax.tree_util.tree_map(lambda x: x[idx] if hasattr(x, "shape") and x.ndim and x.shape[0] == ref.shape[0] else x, models)
+        models = jax.tree_util.tree_map(
+            lambda x: (
+                x[idx] if hasattr(x, "shape") and x.ndim and x.shape[0] == ref.shape[0] else x
+            ),
+            models,
+        )
         ref, groups = ref[idx], [groups[i] for i in idx]
     log(f"MERL test: {len(names)} materials, sampled aniso204")
     meas_all = sample_batch(models, cfg_a, p_a)
@@ -154,27 +186,52 @@ def main(argv=None):
     merl_rows = []
     for i, n in enumerate(names):
         rep, pick = decide(merl_meas[i], merl_cv[i], cand_names)
-        merl_rows.append({"material": n, "group": groups[i], "isotropic_test": rep.isotropic, "statistic": rep.statistic,
-                          "p_value": rep.p_value, "effect": rep.effect, "noise": rep.noise, "choice": pick,
-                          "dense_de76": {c: float(merl_dense[c]["de76"][i]) for c in cand_names},
-                          "dense_logerr": {c: float(merl_dense[c]["logerr"][i]) for c in cand_names},
-                          "held_out": {c: float(merl_cv[i, j]) for j, c in enumerate(cand_names)}})
+        merl_rows.append(
+            {
+                "material": n,
+                "group": groups[i],
+                "isotropic_test": rep.isotropic,
+                "statistic": rep.statistic,
+                "p_value": rep.p_value,
+                "effect": rep.effect,
+                "noise": rep.noise,
+                "choice": pick,
+                "dense_de76": {c: float(merl_dense[c]["de76"][i]) for c in cand_names},
+                "dense_logerr": {c: float(merl_dense[c]["logerr"][i]) for c in cand_names},
+                "held_out": {c: float(merl_cv[i, j]) for j, c in enumerate(cand_names)},
+            }
+        )
     auto_de = float(np.mean([r["dense_de76"][r["choice"]] for r in merl_rows]))
     auto_le = float(np.mean([r["dense_logerr"][r["choice"]] for r in merl_rows]))
-    fixed = {c: {"de76": float(np.mean(merl_dense[c]["de76"])), "logerr": float(np.mean(merl_dense[c]["logerr"])),
-                 "held_out": float(np.mean(merl_cv[:, j])), "rank": CANDIDATES[c].rank} for j, c in enumerate(cand_names)}
+    fixed = {
+        c: {
+            "de76": float(np.mean(merl_dense[c]["de76"])),
+            "logerr": float(np.mean(merl_dense[c]["logerr"])),
+            "held_out": float(np.mean(merl_cv[:, j])),
+            "rank": CANDIDATES[c].rank,
+        }
+        for j, c in enumerate(cand_names)
+    }
     best = min(fixed, key=lambda c: fixed[c]["de76"])
-    best_iso = min((c for c in fixed if CANDIDATES[c].settings["budget"] == "iso102"), key=lambda c: fixed[c]["de76"])
-    log(f"MERL auto: ΔE76 {auto_de:.3f} (LogErr {auto_le:.4f}); best fixed {best} {fixed[best]['de76']:.3f}; "
-        f"best fixed isotropic {best_iso} {fixed[best_iso]['de76']:.3f}")
+    best_iso = min(
+        (c for c in fixed if CANDIDATES[c].settings["budget"] == "iso102"),
+        key=lambda c: fixed[c]["de76"],
+    )
+    log(
+        f"MERL auto: ΔE76 {auto_de:.3f} (LogErr {auto_le:.4f}); best fixed {best} {fixed[best]['de76']:.3f}; "
+        f"best fixed isotropic {best_iso} {fixed[best_iso]['de76']:.3f}"
+    )
 
     # MERL under noise: the isotropy decision only (false anisotropic decisions).
     merl_noise = {}
     for s in noise:
         reps = [select.isotropy_test(add_noise(m, s, 1000 + i)) for i, m in enumerate(merl_meas)]
-        merl_noise[str(s)] = {"isotropic": int(sum(r.isotropic for r in reps)), "anisotropic": int(sum(not r.isotropic for r in reps)),
-                              "statistic_median": float(np.median([r.statistic for r in reps])),
-                              "noise_estimate_median": float(np.median([r.noise for r in reps]))}
+        merl_noise[str(s)] = {
+            "isotropic": int(sum(r.isotropic for r in reps)),
+            "anisotropic": int(sum(not r.isotropic for r in reps)),
+            "statistic_median": float(np.median([r.statistic for r in reps])),
+            "noise_estimate_median": float(np.median([r.noise for r in reps])),
+        }
         log(f"  MERL noise σ={s}: isotropic {merl_noise[str(s)]['isotropic']}/{len(reps)}")
 
     # -- analytic models (anisotropic unless ratio 1) ----------------------------------------------
@@ -199,34 +256,72 @@ def main(argv=None):
         de = {c: float(a_dense[c]["de76"][i]) for c in a_names}
         best_aniso = min((c for c in a_names if c != "iso"), key=lambda c: de[c])
         gain = 1.0 - de[best_aniso] / de["iso"]
-        a_rows.append({"material": name, "truly_isotropic": iso, "noise": s, "isotropic_test": rep.isotropic,
-                       "statistic": rep.statistic, "p_value": rep.p_value, "effect": rep.effect, "noise_estimate": rep.noise,
-                       "choice": pick, "dense_de76": de, "held_out": {c: float(a_cv[i, j]) for j, c in enumerate(a_names)},
-                       "aniso_gain": gain, "aniso_material": bool(gain >= MATERIAL_GAIN)})
-        log(f"  {name:24s} σ={s:<5g} test {'iso  ' if rep.isotropic else 'ANISO'} (stat {rep.statistic:9.3g}, effect {rep.effect:.3f}) "
-            f"-> {pick:15s} ΔE76 iso {de['iso']:.2f} best aniso {de[best_aniso]:.2f} ({best_aniso}), chosen {de[pick]:.2f}")
+        a_rows.append(
+            {
+                "material": name,
+                "truly_isotropic": iso,
+                "noise": s,
+                "isotropic_test": rep.isotropic,
+                "statistic": rep.statistic,
+                "p_value": rep.p_value,
+                "effect": rep.effect,
+                "noise_estimate": rep.noise,
+                "choice": pick,
+                "dense_de76": de,
+                "held_out": {c: float(a_cv[i, j]) for j, c in enumerate(a_names)},
+                "aniso_gain": gain,
+                "aniso_material": bool(gain >= MATERIAL_GAIN),
+            }
+        )
+        log(
+            f"  {name:24s} σ={s:<5g} test {'iso  ' if rep.isotropic else 'ANISO'} (stat {rep.statistic:9.3g}, effect {rep.effect:.3f}) "
+            f"-> {pick:15s} ΔE76 iso {de['iso']:.2f} best aniso {de[best_aniso]:.2f} ({best_aniso}), chosen {de[pick]:.2f}"
+        )
 
     # -- cost: select_model beside reconstruct, per material ----------------------------------------
     timing = {}
     samples = [m.to_samples() for m in merl_meas[:3]] + [a.to_samples() for a in a_meas[-3:]]
     sel, timing["select_first_s"] = timed(lambda: select.select_model(samples[-1]))
-    _, timing["reconstruct_first_s"] = timed(lambda: aj.reconstruct(samples[-1], sel.config, sel.params))
+    _, timing["reconstruct_first_s"] = timed(
+        lambda: aj.reconstruct(samples[-1], sel.config, sel.params)
+    )
     sel_t, rec_t = [], []
     for s in samples:
         sel, t = timed(lambda: select.select_model(s))
         sel_t.append(t)
         rec_t.append(timed(lambda: aj.reconstruct(s, sel.config, sel.params))[1])
-    timing.update(select_median_s=float(np.median(sel_t)), reconstruct_median_s=float(np.median(rec_t)),
-                  select_iso_median_s=float(np.median(sel_t[:3])), select_aniso_median_s=float(np.median(sel_t[3:])))
-    log(f"cost: select {timing['select_median_s']:.3f} s/material (isotropic {timing['select_iso_median_s']:.3f}, anisotropic "
+    timing.update(
+        select_median_s=float(np.median(sel_t)),
+        reconstruct_median_s=float(np.median(rec_t)),
+        select_iso_median_s=float(np.median(sel_t[:3])),
+        select_aniso_median_s=float(np.median(sel_t[3:])),
+    )
+    log(
+        f"cost: select {timing['select_median_s']:.3f} s/material (isotropic {timing['select_iso_median_s']:.3f}, anisotropic "
         f"{timing['select_aniso_median_s']:.3f}) vs reconstruct {timing['reconstruct_median_s']:.3f} s; first calls "
-        f"{timing['select_first_s']:.1f} s / {timing['reconstruct_first_s']:.1f} s")
+        f"{timing['select_first_s']:.1f} s / {timing['reconstruct_first_s']:.1f} s"
+    )
 
-    out = {"machine": machine(), "quick": quick, "noise_levels": list(noise), "tol": select.TOL,
-           "level": select.LEVEL if hasattr(select, "LEVEL") else None, "min_effect": select.MIN_EFFECT,
-           "merl": {"materials": names, "fixed": fixed, "auto": {"de76": auto_de, "logerr": auto_le},
-                    "best_fixed": best, "best_fixed_isotropic": best_iso, "rows": merl_rows, "noise": merl_noise},
-           "analytic": {"rows": a_rows}, "timing": timing, "seconds": time.time() - t_start}
+    out = {
+        "machine": machine(),
+        "quick": quick,
+        "noise_levels": list(noise),
+        "tol": select.TOL,
+        "level": select.LEVEL if hasattr(select, "LEVEL") else None,
+        "min_effect": select.MIN_EFFECT,
+        "merl": {
+            "materials": names,
+            "fixed": fixed,
+            "auto": {"de76": auto_de, "logerr": auto_le},
+            "best_fixed": best,
+            "best_fixed_isotropic": best_iso,
+            "rows": merl_rows,
+            "noise": merl_noise,
+        },
+        "analytic": {"rows": a_rows},
+        "timing": timing,
+        "seconds": time.time() - t_start,
+    }
     out["confusion"] = confusion(out)
     suffix = "_quick" if quick else ""
     path = write_json(f"model_selection{suffix}.json", out)
@@ -250,12 +345,22 @@ def confusion(out) -> dict:
         imm = [r for r in a_true if not r["aniso_material"]]
         rows[key] = {
             "merl_isotropic": [mi["isotropic"], mi["anisotropic"]],
-            "analytic_isotropic": [sum(r["isotropic_test"] for r in a_iso), sum(not r["isotropic_test"] for r in a_iso)],
-            "analytic_anisotropic": [sum(r["isotropic_test"] for r in a_true), sum(not r["isotropic_test"] for r in a_true)],
-            "aniso_material": [sum(CANDIDATES[r["choice"]].settings["budget"] == "iso102" for r in mat),
-                               sum(CANDIDATES[r["choice"]].settings["budget"] == "aniso204" for r in mat)],
-            "aniso_immaterial": [sum(CANDIDATES[r["choice"]].settings["budget"] == "iso102" for r in imm),
-                                 sum(CANDIDATES[r["choice"]].settings["budget"] == "aniso204" for r in imm)],
+            "analytic_isotropic": [
+                sum(r["isotropic_test"] for r in a_iso),
+                sum(not r["isotropic_test"] for r in a_iso),
+            ],
+            "analytic_anisotropic": [
+                sum(r["isotropic_test"] for r in a_true),
+                sum(not r["isotropic_test"] for r in a_true),
+            ],
+            "aniso_material": [
+                sum(CANDIDATES[r["choice"]].settings["budget"] == "iso102" for r in mat),
+                sum(CANDIDATES[r["choice"]].settings["budget"] == "aniso204" for r in mat),
+            ],
+            "aniso_immaterial": [
+                sum(CANDIDATES[r["choice"]].settings["budget"] == "iso102" for r in imm),
+                sum(CANDIDATES[r["choice"]].settings["budget"] == "aniso204" for r in imm),
+            ],
         }
     return rows
 
@@ -264,28 +369,48 @@ def markdown(out) -> str:
     c = out["confusion"]
     lv = out["noise_levels"]
     head = "| truth | " + " | ".join(f"σ = {s:g}: iso / aniso" for s in lv) + " |"
-    lines = ["Isotropy decision (test alone) and final model budget (automatic choice):", "", head,
-             "|---|" + "---|" * len(lv)]
-    labels = (("merl_isotropic", "isotropic: MERL test (test decision)"),
-              ("analytic_isotropic", "isotropic: analytic, ratio 1 (test decision)"),
-              ("analytic_anisotropic", "anisotropic: analytic (test decision)"),
-              ("aniso_material", "anisotropic, aniso model ≥5% better (final budget)"),
-              ("aniso_immaterial", "anisotropic, aniso model <5% better (final budget)"))
+    lines = [
+        "Isotropy decision (test alone) and final model budget (automatic choice):",
+        "",
+        head,
+        "|---|" + "---|" * len(lv),
+    ]
+    labels = (
+        ("merl_isotropic", "isotropic: MERL test (test decision)"),
+        ("analytic_isotropic", "isotropic: analytic, ratio 1 (test decision)"),
+        ("analytic_anisotropic", "anisotropic: analytic (test decision)"),
+        ("aniso_material", "anisotropic, aniso model ≥5% better (final budget)"),
+        ("aniso_immaterial", "anisotropic, aniso model <5% better (final budget)"),
+    )
     for key, label in labels:
-        lines.append(f"| {label} | " + " | ".join(f"{c[str(s)][key][0]} / {c[str(s)][key][1]}" for s in lv) + " |")
+        lines.append(
+            f"| {label} | "
+            + " | ".join(f"{c[str(s)][key][0]} / {c[str(s)][key][1]}" for s in lv)
+            + " |"
+        )
     m = out["merl"]
-    lines += ["", f"MERL test ({len(m['materials'])} materials, aniso204 samples, noise-free): automatic choice mean ΔE76 "
-              f"{m['auto']['de76']:.3f} (LogErr {m['auto']['logerr']:.4f}); best fixed model {m['best_fixed']} "
-              f"{m['fixed'][m['best_fixed']]['de76']:.3f} ({100 * (m['auto']['de76'] / m['fixed'][m['best_fixed']]['de76'] - 1):+.1f}%); "
-              f"best fixed isotropic model {m['best_fixed_isotropic']} {m['fixed'][m['best_fixed_isotropic']]['de76']:.3f} "
-              f"({100 * (m['auto']['de76'] / m['fixed'][m['best_fixed_isotropic']]['de76'] - 1):+.1f}%).", "",
-              "| model | rank | MERL ΔE76 | MERL LogErr | MERL held-out log RMS |", "|---|---|---|---|---|"]
+    lines += [
+        "",
+        f"MERL test ({len(m['materials'])} materials, aniso204 samples, noise-free): automatic choice mean ΔE76 "
+        f"{m['auto']['de76']:.3f} (LogErr {m['auto']['logerr']:.4f}); best fixed model {m['best_fixed']} "
+        f"{m['fixed'][m['best_fixed']]['de76']:.3f} ({100 * (m['auto']['de76'] / m['fixed'][m['best_fixed']]['de76'] - 1):+.1f}%); "
+        f"best fixed isotropic model {m['best_fixed_isotropic']} {m['fixed'][m['best_fixed_isotropic']]['de76']:.3f} "
+        f"({100 * (m['auto']['de76'] / m['fixed'][m['best_fixed_isotropic']]['de76'] - 1):+.1f}%).",
+        "",
+        "| model | rank | MERL ΔE76 | MERL LogErr | MERL held-out log RMS |",
+        "|---|---|---|---|---|",
+    ]
     for n, f in sorted(m["fixed"].items(), key=lambda kv: kv[1]["rank"]):
-        lines.append(f"| {n} | {f['rank']} | {f['de76']:.3f} | {f['logerr']:.4f} | {f['held_out']:.4f} |")
+        lines.append(
+            f"| {n} | {f['rank']} | {f['de76']:.3f} | {f['logerr']:.4f} | {f['held_out']:.4f} |"
+        )
     t = out["timing"]
-    lines += ["", f"Cost per material (after compilation): select_model {t['select_median_s']:.3f} s "
-              f"(isotropic {t['select_iso_median_s']:.3f} s, anisotropic {t['select_aniso_median_s']:.3f} s), reconstruct "
-              f"{t['reconstruct_median_s']:.3f} s; first calls (compilation) {t['select_first_s']:.1f} s and {t['reconstruct_first_s']:.1f} s."]
+    lines += [
+        "",
+        f"Cost per material (after compilation): select_model {t['select_median_s']:.3f} s "
+        f"(isotropic {t['select_iso_median_s']:.3f} s, anisotropic {t['select_aniso_median_s']:.3f} s), reconstruct "
+        f"{t['reconstruct_median_s']:.3f} s; first calls (compilation) {t['select_first_s']:.1f} s and {t['reconstruct_first_s']:.1f} s.",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -301,11 +426,26 @@ def chart(out, path):
     ax = axes[0]
     xs = [f["rank"] for _, f in items]
     ax.plot(xs, [f["de76"] for _, f in items], "o-", label="dense ΔE76 (ground truth)")
-    for (n, f) in items:
-        ax.annotate(n, (f["rank"], f["de76"]), fontsize=7, rotation=30, xytext=(2, 4), textcoords="offset points")
-    ax.axhline(m["auto"]["de76"], color="C3", ls="--", label=f"automatic choice {m['auto']['de76']:.2f}")
+    for n, f in items:
+        ax.annotate(
+            n,
+            (f["rank"], f["de76"]),
+            fontsize=7,
+            rotation=30,
+            xytext=(2, 4),
+            textcoords="offset points",
+        )
+    ax.axhline(
+        m["auto"]["de76"], color="C3", ls="--", label=f"automatic choice {m['auto']['de76']:.2f}"
+    )
     ax2 = ax.twinx()
-    ax2.plot(xs, [f["held_out"] for _, f in items], "s:", color="C2", label="held-out log RMS (own samples)")
+    ax2.plot(
+        xs,
+        [f["held_out"] for _, f in items],
+        "s:",
+        color="C2",
+        label="held-out log RMS (own samples)",
+    )
     ax2.set_ylabel("held-out log RMS", color="C2")
     ax.set_xlabel("complexity rank")
     ax.set_ylabel("mean ΔE76")
@@ -317,11 +457,23 @@ def chart(out, path):
     rows = [r for r in out["analytic"]["rows"] if r["noise"] == 0 and not r["truly_isotropic"]]
     names = list(DEFAULT_ANISO)
     ranks = [CANDIDATES[n].rank for n in names]
-    ax.plot(ranks, [np.mean([r["dense_de76"][n] for r in rows]) for n in names], "o-", label="dense ΔE76")
+    ax.plot(
+        ranks,
+        [np.mean([r["dense_de76"][n] for r in rows]) for n in names],
+        "o-",
+        label="dense ΔE76",
+    )
     auto = np.mean([r["dense_de76"][r["choice"]] for r in rows])
     ax.axhline(auto, color="C3", ls="--", label=f"automatic choice {auto:.2f}")
     for n, k in zip(names, ranks):
-        ax.annotate(n, (k, np.mean([r["dense_de76"][n] for r in rows])), fontsize=7, rotation=30, xytext=(2, 4), textcoords="offset points")
+        ax.annotate(
+            n,
+            (k, np.mean([r["dense_de76"][n] for r in rows])),
+            fontsize=7,
+            rotation=30,
+            xytext=(2, 4),
+            textcoords="offset points",
+        )
     ax.set_xlabel("complexity rank")
     ax.set_ylabel("mean ΔE76")
     ax.set_title(f"analytic anisotropic ({len(rows)}, synthetic), noise-free")

@@ -141,7 +141,9 @@ class PCAPrior(eqx.Module):
 
     def truncate(self, k: int) -> "PCAPrior":
         """The prior with its first ``k`` components only."""
-        return eqx.tree_at(lambda p: (p.comps_g, p.comps_s), self, (self.comps_g[:, :k], self.comps_s[:, :k]))
+        return eqx.tree_at(
+            lambda p: (p.comps_g, p.comps_s), self, (self.comps_g[:, :k], self.comps_s[:, :k])
+        )
 
     def ridge_operator(self, lam) -> Float[Array, "K n"]:
         """``(Q_sᵀQ_s + λI)⁻¹ Q_sᵀ``: mapped, centred samples → component weights (fixed layout)."""
@@ -168,8 +170,15 @@ def _per_position(v, channels):
 
 
 def fit_pca_prior(
-    train_tables, train_samples, layout: aj.Measurements, *, n_components: int | None, channels: str = "joint",
-    eps: float = NIELSEN_EPS, basis_at: str = "models", alpha: float = float(np.deg2rad(aj.PROTOCOL_ALPHA_DEG)),
+    train_tables,
+    train_samples,
+    layout: aj.Measurements,
+    *,
+    n_components: int | None,
+    channels: str = "joint",
+    eps: float = NIELSEN_EPS,
+    basis_at: str = "models",
+    alpha: float = float(np.deg2rad(aj.PROTOCOL_ALPHA_DEG)),
     dtype=jnp.float32,
 ) -> PCAPrior:
     """Fit the PCA prior of :mod:`benchmarks.pca_peer` (steps 1–3) in float64 numpy.
@@ -209,7 +218,9 @@ def fit_pca_prior(
     rank = int(np.sum(lam2 > 1e-10 * max(lam2.max(), 1e-300)))
     k = rank if n_components is None else int(n_components)
     if not 1 <= k <= rank:
-        raise ValueError(f"n_components must be in [1, {rank}] (the rank of the training set), got {k}")
+        raise ValueError(
+            f"n_components must be in [1, {rank}] (the rank of the training set), got {k}"
+        )
     # (X − μ) = U Σ Vᵀ (rows = training vectors): the scaled components σ_k v_k / √R are the
     # combinations (X − μ)ᵀ u_k / √R of the training rows; the same combination gives them at
     # the sample positions (basis_at="models").
@@ -226,6 +237,7 @@ def fit_pca_prior(
         mu_s = rows_s.mean(0)
         comps_s = (rows_s - mu_s).T @ weights
     else:
+
         def as_table(v):  # a D-vector of the layout → (6561, 3)
             return v.reshape(-1, 3) if channels == "joint" else np.repeat(v[:, None], 3, axis=1)
 
@@ -235,12 +247,16 @@ def fit_pca_prior(
         mu_s = _per_position(vals[1], channels)
         comps_s = np.stack([_per_position(v, channels) for v in vals[2:]], 1)
     return PCAPrior(
-        mean_g=jnp.asarray(mu_g, dtype), ref_g=jnp.asarray(_per_position(ref_g, channels), dtype),
+        mean_g=jnp.asarray(mu_g, dtype),
+        ref_g=jnp.asarray(_per_position(ref_g, channels), dtype),
         cos_g=jnp.asarray(_per_position(np.broadcast_to(cos_g, ref_g.shape), channels), dtype),
         comps_g=jnp.asarray(comps_g, dtype),
-        mean_s=jnp.asarray(mu_s, dtype), ref_s=jnp.asarray(_per_position(ref_s, channels), dtype),
+        mean_s=jnp.asarray(mu_s, dtype),
+        ref_s=jnp.asarray(_per_position(ref_s, channels), dtype),
         cos_s=jnp.asarray(_per_position(np.broadcast_to(cos_s, ref_s.shape), channels), dtype),
-        comps_s=jnp.asarray(comps_s, dtype), eps=float(eps), channels=channels,
+        comps_s=jnp.asarray(comps_s, dtype),
+        eps=float(eps),
+        channels=channels,
     )
 
 
@@ -252,7 +268,11 @@ def interp_tables(tables, layout: aj.Measurements, alpha) -> np.ndarray:
     """
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     counts = tuple(int(c) for c in np.asarray(layout.count))
-    fn = jax.jit(jax.vmap(lambda t: aj.sample_table(t, counts, jnp.asarray(alpha, dt), layout.pairs, dtype=dt).y))
+    fn = jax.jit(
+        jax.vmap(
+            lambda t: aj.sample_table(t, counts, jnp.asarray(alpha, dt), layout.pairs, dtype=dt).y
+        )
+    )
     y = np.asarray(fn(jnp.asarray(tables, dt)), np.float64)
     rows, cols = np.nonzero(sample_mask(layout))
     return y[:, rows, cols, :]
@@ -273,20 +293,26 @@ def reconstruct_pca(prior: PCAPrior, lam, y: Float[Array, "B n 3"]) -> Float[Arr
     r = prior.ridge_operator(jnp.asarray(lam, prior.comps_s.dtype))
     y = y.astype(prior.comps_s.dtype)
     if prior.channels == "joint":
-        z = log_relative(y.reshape(y.shape[0], -1), prior.ref_s, prior.cos_s, prior.eps) - prior.mean_s
+        z = (
+            log_relative(y.reshape(y.shape[0], -1), prior.ref_s, prior.cos_s, prior.eps)
+            - prior.mean_s
+        )
         c = z @ r.T  # (B, K)
         m = prior.mean_g + c @ prior.comps_g.T
         out = inverse_log_relative(m, prior.ref_g, prior.cos_g, prior.eps)
         return out.reshape(-1, 81, 81, 3)
-    z = log_relative(jnp.moveaxis(y, -1, 1), prior.ref_s, prior.cos_s, prior.eps) - prior.mean_s  # (B, 3, n)
+    z = (
+        log_relative(jnp.moveaxis(y, -1, 1), prior.ref_s, prior.cos_s, prior.eps) - prior.mean_s
+    )  # (B, 3, n)
     c = z @ r.T  # (B, 3, K)
     m = prior.mean_g + c @ prior.comps_g.T  # (B, 3, 6561)
     out = inverse_log_relative(m, prior.ref_g, prior.cos_g, prior.eps)
     return jnp.moveaxis(out, 1, -1).reshape(-1, 81, 81, 3)
 
 
-def cross_validate(tables, samples, layout, *, ks, lams, channels, eps_values, basis_at="models", folds=6,
-                   log=None) -> list[dict]:
+def cross_validate(
+    tables, samples, layout, *, ks, lams, channels, eps_values, basis_at="models", folds=6, log=None
+) -> list[dict]:
     """``folds``-fold cross-validation of the prior *within* one (training) set.
 
     Material ``j`` is held out in fold ``j % folds``; the prior is fitted on the others and the
@@ -303,19 +329,29 @@ def cross_validate(tables, samples, layout, *, ks, lams, channels, eps_values, b
         for f in range(folds):
             tr, te = fold != f, fold == f
             kmax = min(max(ks), (tr.sum() if ch == "joint" else 3 * tr.sum()) - 1)
-            prior = fit_pca_prior(tables[tr], samples[tr], layout, n_components=kmax, channels=ch, eps=eps,
-                                  basis_at=basis_at)
+            prior = fit_pca_prior(
+                tables[tr],
+                samples[tr],
+                layout,
+                n_components=kmax,
+                channels=ch,
+                eps=eps,
+                basis_at=basis_at,
+            )
             for k in sorted({min(k, kmax) for k in ks}):
                 pk = prior.truncate(k)
                 for lam in lams:
                     recs.setdefault((k, lam), np.zeros(tables.shape, np.float32))[te] = np.asarray(
-                        reconstruct_pca(pk, lam, jnp.asarray(samples[te], jnp.float32)))
+                        reconstruct_pca(pk, lam, jnp.asarray(samples[te], jnp.float32))
+                    )
         for (k, lam), rec in recs.items():
             de76, logerr = _cv_metrics(jnp.asarray(rec), jnp.asarray(tables, jnp.float32))
             m = dict(de76=float(jnp.mean(de76)), logerr=float(jnp.mean(logerr)))
             rows.append(dict(channels=ch, eps=eps, n_components=k, lam=lam, **m))
             if log:
-                log(f"  cv {ch} eps={eps:g} K={k} lam={lam:g}: dE76 {m['de76']:.3f} LogErr {m['logerr']:.3f}")
+                log(
+                    f"  cv {ch} eps={eps:g} K={k} lam={lam:g}: dE76 {m['de76']:.3f} LogErr {m['logerr']:.3f}"
+                )
     return rows
 
 
@@ -337,19 +373,29 @@ def train_samples(models, config, alpha_deg=15.0):
     return flat_samples(meas), layout, meas
 
 
-def fit_selected(budget: str, train_tables, train_flat, layout, basis_at="models",
-                 **overrides) -> tuple[PCAPrior, float]:
+def fit_selected(
+    budget: str, train_tables, train_flat, layout, basis_at="models", **overrides
+) -> tuple[PCAPrior, float]:
     """The prior of :data:`SELECTED` for ``budget`` fitted on the given training set, and its λ."""
     s = {**SELECTED[budget], **overrides}
-    prior = fit_pca_prior(train_tables, train_flat, layout, n_components=s["n_components"], channels=s["channels"],
-                          eps=s["eps"], basis_at=basis_at)
+    prior = fit_pca_prior(
+        train_tables,
+        train_flat,
+        layout,
+        n_components=s["n_components"],
+        channels=s["channels"],
+        eps=s["eps"],
+        basis_at=basis_at,
+    )
     return prior, float(s["lam"])
 
 
 def main(argv=None):
     from ._common import machine, mean_metrics, merl_split, metrics_of, write_json
 
-    ap = argparse.ArgumentParser(description="PCA peer: cross-validated choice on train, figures on test")
+    ap = argparse.ArgumentParser(
+        description="PCA peer: cross-validated choice on train, figures on test"
+    )
     ap.add_argument("--quick", action="store_true", help="small grid, iso102 only")
     args = ap.parse_args(argv)
     log = lambda *a: print(*a, file=sys.stderr, flush=True)  # noqa: E731
@@ -359,22 +405,41 @@ def main(argv=None):
     ks = (8, 16, 32) if args.quick else (8, 16, 32, 44, 64, 96)
     lams = (0.01, 0.1, 1.0) if args.quick else (0.003, 0.01, 0.03, 0.1, 0.3, 1.0)
     eps_values = (NIELSEN_EPS,) if args.quick else (1e-6, 1e-5, 1e-4, NIELSEN_EPS)
-    out = dict(machine=machine(), quick=args.quick, grid=dict(ks=ks, lams=lams, channels=CHANNELS, eps=eps_values),
-               budgets={})
+    out = dict(
+        machine=machine(),
+        quick=args.quick,
+        grid=dict(ks=ks, lams=lams, channels=CHANNELS, eps=eps_values),
+        budgets={},
+    )
     for budget in ("iso102",) if args.quick else ("iso102", "aniso204"):
         cfg = aj.Config(budget=budget)
         tr_flat, layout, _ = train_samples(tr_models, cfg)
         te_flat, _, _ = train_samples(te_models, cfg)
-        rows = cross_validate(tr_ref, tr_flat, layout, ks=ks, lams=lams, channels=CHANNELS, eps_values=eps_values,
-                              log=log)
+        rows = cross_validate(
+            tr_ref,
+            tr_flat,
+            layout,
+            ks=ks,
+            lams=lams,
+            channels=CHANNELS,
+            eps_values=eps_values,
+            log=log,
+        )
         best = min(rows, key=lambda r: r["de76"])
         pick = {k: best[k] for k in ("n_components", "lam", "channels", "eps")}
         log(f"{budget}: selected {pick} (cv dE76 {best['de76']:.3f})")
         test = {}
         for basis_at in BASIS_AT:
             t = time.perf_counter()
-            prior = fit_pca_prior(tr_ref, tr_flat, layout, n_components=pick["n_components"],
-                                  channels=pick["channels"], eps=pick["eps"], basis_at=basis_at)
+            prior = fit_pca_prior(
+                tr_ref,
+                tr_flat,
+                layout,
+                n_components=pick["n_components"],
+                channels=pick["channels"],
+                eps=pick["eps"],
+                basis_at=basis_at,
+            )
             fit_s = time.perf_counter() - t
             rec = reconstruct_pca(prior, pick["lam"], te_flat)
             test[basis_at] = dict(fit_seconds=fit_s, **mean_metrics(metrics_of(rec, te_ref)))

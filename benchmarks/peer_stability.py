@@ -38,7 +38,14 @@ MODEL = "ggx"
 EPS_REL = 1e-3  # the peer's choice on the train split (analytic_peer.SELECTED)
 
 
-NAMED = ("ward-brushed-steel", "ward-rotated-45", "ashikhmin-satin", "ggx-aniso-metal", "rough-fabric", "rough-grooves")
+NAMED = (
+    "ward-brushed-steel",
+    "ward-rotated-45",
+    "ashikhmin-satin",
+    "ggx-aniso-metal",
+    "rough-fabric",
+    "rough-grooves",
+)
 NOISE = (0.0, 0.05)
 
 
@@ -50,8 +57,17 @@ def materials(quick: bool) -> dict:
     out = {n: (get_material(n), None, None) for n in (NAMED[:2] if quick else NAMED)}
     for r in ratios:
         for a in angles:
-            out[f"ggx r={r:g} φ={a:g}°"] = (GGX(diffuse=[0.08, 0.2, 0.4], specular_f0=[0.5, 0.45, 0.4], alpha_x=0.08,
-                                                alpha_y=0.08 * r, rotation=np.deg2rad(a)), r, a)
+            out[f"ggx r={r:g} φ={a:g}°"] = (
+                GGX(
+                    diffuse=[0.08, 0.2, 0.4],
+                    specular_f0=[0.5, 0.45, 0.4],
+                    alpha_x=0.08,
+                    alpha_y=0.08 * r,
+                    rotation=np.deg2rad(a),
+                ),
+                r,
+                a,
+            )
     return out
 
 
@@ -59,7 +75,9 @@ def materials(quick: bool) -> dict:
 def _per_start(y, valid, wi, wv):
     target, eps, w = _problem(y, valid, jnp.asarray(EPS_REL, y.dtype))
     starts = _starts(MODEL, True, y, valid, wi, wv, y.dtype)
-    theta, loss, steps = jax.vmap(lambda t0: _solve(t0, target, eps, w, wi, wv, MODEL, True, 100))(starts)
+    theta, loss, steps = jax.vmap(lambda t0: _solve(t0, target, eps, w, wi, wv, MODEL, True, 100))(
+        starts
+    )
     return theta, loss, steps
 
 
@@ -92,7 +110,9 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(0)
     config = aj.Config(budget="aniso204")
     params = aj.Params.default(config)
-    for (name, (model, ratio, angle)), sigma in ((m, s) for m in materials(args.quick).items() for s in NOISE):
+    for (name, (model, ratio, angle)), sigma in (
+        (m, s) for m in materials(args.quick).items() for s in NOISE
+    ):
         meas = aj.sample(model, config, params, as_measurements=True)
         if sigma:
             noisy = meas.y * (1 + sigma * rng.standard_normal(meas.y.shape))
@@ -113,33 +133,66 @@ def main(argv=None) -> int:
         loss = np.asarray(loss)
         best = int(np.argmin(loss))
         near = loss <= 1.1 * loss[best]
-        rows.append(dict(material=name_s, noise=sigma, samples=int(np.sum(np.asarray(meas.count))), ratio=ratio, angle=angle, loss=loss.tolist(), de76=de.tolist(),
-                         ratio_fit=ratio_fit.tolist(), angle_error=ang.tolist(), steps=np.asarray(steps).tolist(),
-                         best=best, near_best=int(near.sum()), de76_best=float(de[best]),
-                         de76_spread_near=float(de[near].max() - de[near].min()),
-                         angle_spread_near=float(np.nanmax(ang[near]) - np.nanmin(ang[near])) if angle is not None else None,
-                         orientation_spread_near=float(_orientation_spread(ax[near], ay[near], rot[near])),
-                         angle_error_best=float(ang[best]), ratio_fit_best=float(ratio_fit[best]),
-                         finite=bool(np.all(np.isfinite(loss)))))
+        rows.append(
+            dict(
+                material=name_s,
+                noise=sigma,
+                samples=int(np.sum(np.asarray(meas.count))),
+                ratio=ratio,
+                angle=angle,
+                loss=loss.tolist(),
+                de76=de.tolist(),
+                ratio_fit=ratio_fit.tolist(),
+                angle_error=ang.tolist(),
+                steps=np.asarray(steps).tolist(),
+                best=best,
+                near_best=int(near.sum()),
+                de76_best=float(de[best]),
+                de76_spread_near=float(de[near].max() - de[near].min()),
+                angle_spread_near=float(np.nanmax(ang[near]) - np.nanmin(ang[near]))
+                if angle is not None
+                else None,
+                orientation_spread_near=float(_orientation_spread(ax[near], ay[near], rot[near])),
+                angle_error_best=float(ang[best]),
+                ratio_fit_best=float(ratio_fit[best]),
+                finite=bool(np.all(np.isfinite(loss))),
+            )
+        )
         r = rows[-1]
-        print(f"{name_s:34s} best loss {loss[best]:.4f}: ΔE76 {de[best]:.2f}, ratio {ratio_fit[best]:.2f} (true {ratio}), "
-              f"axis off by {ang[best]:.1f}°; {r['near_best']} of {len(loss)} starts within 10 % of the best loss, "
-              f"their ΔE76 spread {r['de76_spread_near']:.2f}, long-axis spread {r['orientation_spread_near']:.1f}°", flush=True)
-    out = dict(machine=machine(), quick=args.quick, model=MODEL, eps_rel=EPS_REL, starts=[list(map(float, s)) for s in _ANISO_STARTS],
-               rows=rows, seconds=time.time() - t_start)
+        print(
+            f"{name_s:34s} best loss {loss[best]:.4f}: ΔE76 {de[best]:.2f}, ratio {ratio_fit[best]:.2f} (true {ratio}), "
+            f"axis off by {ang[best]:.1f}°; {r['near_best']} of {len(loss)} starts within 10 % of the best loss, "
+            f"their ΔE76 spread {r['de76_spread_near']:.2f}, long-axis spread {r['orientation_spread_near']:.1f}°",
+            flush=True,
+        )
+    out = dict(
+        machine=machine(),
+        quick=args.quick,
+        model=MODEL,
+        eps_rel=EPS_REL,
+        starts=[list(map(float, s)) for s in _ANISO_STARTS],
+        rows=rows,
+        seconds=time.time() - t_start,
+    )
     suffix = "_quick" if args.quick else ""
     write_json(f"peer_stability{suffix}.json", out)
-    lines = ["# Analytic peer (GGX + Lambert, LM) on anisotropic GGX materials, aniso204 slices, each start fitted alone",
-             "", f"`python -m benchmarks.peer_stability{' --quick' if args.quick else ''}`, {out['machine']['date']}, "
-             f"{len(_ANISO_STARTS)} starts per material (`analytic_peer._ANISO_STARTS`).", "",
-             "| material, samples, noise | best start: ΔE76 | fitted ratio | axis error | starts within 10 % of the best loss | their ΔE76 spread | their long-axis spread | all starts: ΔE76 min–max |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Analytic peer (GGX + Lambert, LM) on anisotropic GGX materials, aniso204 slices, each start fitted alone",
+        "",
+        f"`python -m benchmarks.peer_stability{' --quick' if args.quick else ''}`, {out['machine']['date']}, "
+        f"{len(_ANISO_STARTS)} starts per material (`analytic_peer._ANISO_STARTS`).",
+        "",
+        "| material, samples, noise | best start: ΔE76 | fitted ratio | axis error | starts within 10 % of the best loss | their ΔE76 spread | their long-axis spread | all starts: ΔE76 min–max |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         true = "?" if r["ratio"] is None else f"{r['ratio']:g}"
         axis = "–" if r["angle"] is None else f"{r['angle_error_best']:.1f}°"
-        lines.append(f"| {r['material']} | {r['de76_best']:.2f} | {r['ratio_fit_best']:.2f} (true {true}) | "
-                     f"{axis} | {r['near_best']} / {len(r['loss'])} | {r['de76_spread_near']:.2f} | "
-                     f"{r['orientation_spread_near']:.1f}° | {min(r['de76']):.2f}–{max(r['de76']):.2f} |")
+        lines.append(
+            f"| {r['material']} | {r['de76_best']:.2f} | {r['ratio_fit_best']:.2f} (true {true}) | "
+            f"{axis} | {r['near_best']} / {len(r['loss'])} | {r['de76_spread_near']:.2f} | "
+            f"{r['orientation_spread_near']:.1f}° | {min(r['de76']):.2f}–{max(r['de76']):.2f} |"
+        )
     (RESULTS / f"peer_stability{suffix}.md").write_text("\n".join(lines) + "\n")
     print(f"wrote {RESULTS / f'peer_stability{suffix}.md'} ({out['seconds']:.0f} s)")
     return 0

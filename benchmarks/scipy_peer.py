@@ -18,12 +18,20 @@ __all__ = ["reconstruct_scipy", "scipy_kwargs", "reconstruct_samples"]
 
 def scipy_kwargs(config: aj.Config, params: aj.Params) -> dict:
     """The oracle's keyword arguments for ``config`` and ``params`` (kernel, widths, λ, values, α)."""
-    return dict(kernel=config.kernel, widths=tuple(np.asarray(params.widths, float)), smoothing=float(params.reg),
-                degree=config.degree, value_space=config.value_space, alpha=params.alpha_deg,
-                log_eps=config.log_eps)
+    return dict(
+        kernel=config.kernel,
+        widths=tuple(np.asarray(params.widths, float)),
+        smoothing=float(params.reg),
+        degree=config.degree,
+        value_space=config.value_space,
+        alpha=params.alpha_deg,
+        log_eps=config.log_eps,
+    )
 
 
 def reconstruct_samples(samples: aj.Samples, config: aj.Config, params: aj.Params) -> np.ndarray:
     """The scipy peer's ``(81, 81, 3)`` table of one material's flat samples (float64)."""
     s = samples
-    return reconstruct_scipy(s.theta_i, s.phi_i, s.theta_v, s.phi_v, s.rgb, **scipy_kwargs(config, params))
+    return reconstruct_scipy(
+        s.theta_i, s.phi_i, s.theta_v, s.phi_v, s.rgb, **scipy_kwargs(config, params)
+    )

@@ -44,7 +44,9 @@ def measurements(n, cfg):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="fewer repeats and a 10-material scipy batch")
+    ap.add_argument(
+        "--quick", action="store_true", help="fewer repeats and a 10-material scipy batch"
+    )
     ap.add_argument("--batch", type=int, default=100)
     args = ap.parse_args(argv)
     reps = 3 if args.quick else 10
@@ -61,11 +63,19 @@ def main(argv=None):
         jax.block_until_ready(aj.reconstruct_batch(stacked, cfg, p))
         compile_batch = time.perf_counter() - t
         batch = timeit(lambda: aj.reconstruct_batch(stacked, cfg, p), reps)
-        out["configs"][label] = dict(config=repr(cfg), compile_s_single=compile_single, seconds_per_abrdf=single,
-                                     compile_s_batch=compile_batch, batch_seconds=batch,
-                                     abrdfs_per_second_batch=args.batch / batch)
-        print(f"jax {label}: {single * 1e3:.1f} ms per ABRDF, batch of {args.batch}: "
-              f"{args.batch / batch:.1f} ABRDF/s (compile {compile_single:.1f} s / {compile_batch:.1f} s)", flush=True)
+        out["configs"][label] = dict(
+            config=repr(cfg),
+            compile_s_single=compile_single,
+            seconds_per_abrdf=single,
+            compile_s_batch=compile_batch,
+            batch_seconds=batch,
+            abrdfs_per_second_batch=args.batch / batch,
+        )
+        print(
+            f"jax {label}: {single * 1e3:.1f} ms per ABRDF, batch of {args.batch}: "
+            f"{args.batch / batch:.1f} ABRDF/s (compile {compile_single:.1f} s / {compile_batch:.1f} s)",
+            flush=True,
+        )
     # the scipy peer, same materials, iso102, the paper's method with its train-selected widths and λ
     n_sc = 10 if args.quick else args.batch
     flat = [m.to_samples() for m in items[:n_sc]]
@@ -78,13 +88,23 @@ def main(argv=None):
     for s in flat:
         call(s)
     batch_sc = time.perf_counter() - t
-    out["scipy_peer"] = dict(seconds_per_abrdf=single_sc, batch_size=n_sc, batch_seconds=batch_sc,
-                             abrdfs_per_second_batch=n_sc / batch_sc)
-    print(f"scipy peer: {single_sc * 1e3:.1f} ms per ABRDF, {n_sc / batch_sc:.2f} ABRDF/s over {n_sc} materials")
+    out["scipy_peer"] = dict(
+        seconds_per_abrdf=single_sc,
+        batch_size=n_sc,
+        batch_seconds=batch_sc,
+        abrdfs_per_second_batch=n_sc / batch_sc,
+    )
+    print(
+        f"scipy peer: {single_sc * 1e3:.1f} ms per ABRDF, {n_sc / batch_sc:.2f} ABRDF/s over {n_sc} materials"
+    )
     for label, r in out["configs"].items():
         r["speedup_vs_scipy_single"] = single_sc / r["seconds_per_abrdf"]
-        r["speedup_vs_scipy_batch"] = r["abrdfs_per_second_batch"] / out["scipy_peer"]["abrdfs_per_second_batch"]
-        print(f"  {label}: {r['speedup_vs_scipy_single']:.1f}x (single), {r['speedup_vs_scipy_batch']:.1f}x (batch)")
+        r["speedup_vs_scipy_batch"] = (
+            r["abrdfs_per_second_batch"] / out["scipy_peer"]["abrdfs_per_second_batch"]
+        )
+        print(
+            f"  {label}: {r['speedup_vs_scipy_single']:.1f}x (single), {r['speedup_vs_scipy_batch']:.1f}x (batch)"
+        )
     write_json("speed_quick.json" if args.quick else "speed.json", out)
     return 0
 

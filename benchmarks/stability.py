@@ -43,21 +43,38 @@ from ._stability_data import anisotropy, data_edges, eq4
 from ._stability_rbf import breaks, conditioning
 from ._stability_report import charts, markdown
 
-__all__ = ["METHODS", "anisotropy", "breaks", "charts", "conditioning", "data_edges", "eq4", "main", "markdown"]
+__all__ = [
+    "METHODS",
+    "anisotropy",
+    "breaks",
+    "charts",
+    "conditioning",
+    "data_edges",
+    "eq4",
+    "main",
+    "markdown",
+]
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="a few points per sweep (smoke run)")
-    ap.add_argument("--data-dir", default=None, help="shared data folder (default: the package's lookup)")
+    ap.add_argument(
+        "--data-dir", default=None, help="shared data folder (default: the package's lookup)"
+    )
     args = ap.parse_args(argv)
     jax.config.update("jax_enable_x64", True)  # float64 is needed for the f32/f64 comparison
     t0 = time.time()
     rng = np.random.default_rng(0)
     names, models, refs = materials_iso(args.data_dir, 2 if args.quick else 4)
     cond_rows = conditioning(args.quick, names, models, refs)
-    payload = dict(machine=machine(), quick=args.quick, materials=names, conditioning=cond_rows,
-                   breaks=breaks(cond_rows))
+    payload = dict(
+        machine=machine(),
+        quick=args.quick,
+        materials=names,
+        conditioning=cond_rows,
+        breaks=breaks(cond_rows),
+    )
     payload["data_edges"] = data_edges(args.quick, models, refs, rng)
     payload["anisotropy"] = anisotropy(args.quick)
     payload["eq4"] = eq4(args.quick)
@@ -66,8 +83,10 @@ def main(argv=None):
     payload["charts"] = charts(payload, suffix)
     write_json(f"stability{suffix}.json", payload)
     (RESULTS / f"stability{suffix}.md").write_text(markdown(payload))
-    log(f"wrote benchmarks/results/stability{suffix}.json, .md and {len(payload['charts'])} charts "
-        f"in {payload['seconds']:.0f} s")
+    log(
+        f"wrote benchmarks/results/stability{suffix}.json, .md and {len(payload['charts'])} charts "
+        f"in {payload['seconds']:.0f} s"
+    )
 
 
 if __name__ == "__main__":

@@ -67,7 +67,15 @@ import jax
 from ._common import RESULTS, machine, write_json
 from ._suite_charts import GROUP_STYLE, plot, plot_throughput
 from ._suite_entries import register_defaults
-from ._suite_layouts import LAYOUTS, N_MATERIALS, Batch, Context, Layout, sample_materials, sample_models
+from ._suite_layouts import (
+    LAYOUTS,
+    N_MATERIALS,
+    Batch,
+    Context,
+    Layout,
+    sample_materials,
+    sample_models,
+)
 from ._suite_registry import (
     REGISTRY,
     Entry,
@@ -82,10 +90,35 @@ from ._suite_report import summary, table, write_outputs
 from ._suite_run import MIN_TIME, loadavg, pareto, run_entry, targets_check, threads, versions
 
 __all__ = [
-    "GROUP_STYLE", "LAYOUTS", "MIN_TIME", "MODES", "N_MATERIALS", "REGISTRY", "Batch", "Context", "Entry", "Layout",
-    "default_params", "main", "pareto", "params_file_entry", "pipeline_entry", "plot", "plot_throughput", "register",
-    "run_entry", "sample_materials", "sample_models", "selected_entries", "summary", "table", "targets_check",
-    "threads", "tuned_params", "versions", "write_outputs",
+    "GROUP_STYLE",
+    "LAYOUTS",
+    "MIN_TIME",
+    "MODES",
+    "N_MATERIALS",
+    "REGISTRY",
+    "Batch",
+    "Context",
+    "Entry",
+    "Layout",
+    "default_params",
+    "main",
+    "pareto",
+    "params_file_entry",
+    "pipeline_entry",
+    "plot",
+    "plot_throughput",
+    "register",
+    "run_entry",
+    "sample_materials",
+    "sample_models",
+    "selected_entries",
+    "summary",
+    "table",
+    "targets_check",
+    "threads",
+    "tuned_params",
+    "versions",
+    "write_outputs",
 ]
 
 MODES = ("full", "quick", "smoke")
@@ -110,19 +143,42 @@ OTHER_SCRIPTS = """other benchmark scripts:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.splitlines()[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=OTHER_SCRIPTS)
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks",
+        description=__doc__.splitlines()[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=OTHER_SCRIPTS,
+    )
     g = ap.add_mutually_exclusive_group()
-    g.add_argument("--quick", action="store_true", help="a subset of configurations on 12 test materials")
-    g.add_argument("--smoke", action="store_true", help="3 configurations on 2 materials (the CI smoke test)")
-    ap.add_argument("--out", type=Path, default=RESULTS, help="output folder (default benchmarks/results)")
-    ap.add_argument("--only", nargs="*", help="run the entries whose name contains one of these strings")
+    g.add_argument(
+        "--quick", action="store_true", help="a subset of configurations on 12 test materials"
+    )
+    g.add_argument(
+        "--smoke", action="store_true", help="3 configurations on 2 materials (the CI smoke test)"
+    )
+    ap.add_argument(
+        "--out", type=Path, default=RESULTS, help="output folder (default benchmarks/results)"
+    )
+    ap.add_argument(
+        "--only", nargs="*", help="run the entries whose name contains one of these strings"
+    )
     ap.add_argument("--no-plot", action="store_true", help="skip the PNG charts")
-    ap.add_argument("--no-throughput", action="store_true", help="skip the operator throughput/roofline part")
-    ap.add_argument("--list", action="store_true", help="list the registered configurations and exit")
-    ap.add_argument("--replot", action="store_true", help="redraw the charts and table from the stored JSON, no run")
-    ap.add_argument("--update", action="store_true",
-                    help="with --only: rerun those entries and merge them into the stored JSON (throughput kept)")
+    ap.add_argument(
+        "--no-throughput", action="store_true", help="skip the operator throughput/roofline part"
+    )
+    ap.add_argument(
+        "--list", action="store_true", help="list the registered configurations and exit"
+    )
+    ap.add_argument(
+        "--replot",
+        action="store_true",
+        help="redraw the charts and table from the stored JSON, no run",
+    )
+    ap.add_argument(
+        "--update",
+        action="store_true",
+        help="with --only: rerun those entries and merge them into the stored JSON (throughput kept)",
+    )
     return ap
 
 
@@ -137,20 +193,31 @@ def run_points(ctx: Context, entries: list[Entry], log) -> list[dict]:
                 p = run_entry(ctx, entry, ds, min_time=MIN_TIME[ctx.mode])
             except Exception as exc:  # a failing configuration is reported, not fatal
                 log(f"  FAILED {entry.name} [{ds}]: {type(exc).__name__}: {exc}")
-                points.append(dict(name=entry.name, group=entry.group, dataset=ds, layout=entry.layout,
-                                   error=f"{type(exc).__name__}: {exc}"))
+                points.append(
+                    dict(
+                        name=entry.name,
+                        group=entry.group,
+                        dataset=ds,
+                        layout=entry.layout,
+                        error=f"{type(exc).__name__}: {exc}",
+                    )
+                )
                 continue
             points.append(p)
-            log(f"  {p['name']:42s} [{ds}] {p['seconds_per_abrdf'] * 1e3:9.3f} ms/ABRDF  dE76 {p['de76']:6.2f}  "
-                f"LogErr {p['logerr']:.3f}  (compile {p['compile_seconds']:.1f} s, set-up {p['setup_seconds']:.1f} s)")
+            log(
+                f"  {p['name']:42s} [{ds}] {p['seconds_per_abrdf'] * 1e3:9.3f} ms/ABRDF  dE76 {p['de76']:6.2f}  "
+                f"LogErr {p['logerr']:.3f}  (compile {p['compile_seconds']:.1f} s, set-up {p['setup_seconds']:.1f} s)"
+            )
     return points
 
 
 def mark_pareto(points: list[dict]) -> dict:
     """The Pareto fronts per dataset and metric; flags ``pareto_de76``/``pareto_logerr`` on the points."""
     ok = [p for p in points if "error" not in p]
-    fronts = {ds: {m: pareto([p for p in ok if p["dataset"] == ds], m) for m in ("de76", "logerr")}
-              for ds in sorted({p["dataset"] for p in ok})}
+    fronts = {
+        ds: {m: pareto([p for p in ok if p["dataset"] == ds], m) for m in ("de76", "logerr")}
+        for ds in sorted({p["dataset"] for p in ok})
+    }
     for p in ok:
         for m in ("de76", "logerr"):
             p[f"pareto_{m}"] = p["name"] in fronts[p["dataset"]][m]
@@ -182,7 +249,9 @@ def main(argv=None, log=None) -> dict:
     points = run_points(ctx, selected_entries(mode, args.only), log)
     tp = None
     stored = None
-    if args.update:  # merge into the stored run: same-named points replaced, its throughput part kept
+    if (
+        args.update
+    ):  # merge into the stored run: same-named points replaced, its throughput part kept
         stored = json.loads((args.out / f"suite{suffix}.json").read_text())
         new = {(p["name"], p["dataset"]) for p in points}
         points = [p for p in stored["points"] if (p["name"], p["dataset"]) not in new] + points
@@ -197,27 +266,53 @@ def main(argv=None, log=None) -> dict:
         tp["targets"] = targets_check(tp, points)
     fronts = mark_pareto(points)
     payload = dict(
-        suite="abrdf_jax speed/accuracy", mode=mode, machine=machine(), threads=threads(), versions=versions(),
+        suite="abrdf_jax speed/accuracy",
+        mode=mode,
+        machine=machine(),
+        threads=threads(),
+        versions=versions(),
         dtype_note="float32 unless the point says float64 (jax_enable_x64 is on for those; float32 inputs and "
-                   "parameters stay float32)",
+        "parameters stay float32)",
         timing="time per ABRDF = median batch time after a warm-up call / batch size; compile and set-up apart",
         materials={ds: ctx.names[ds] for ds in ctx.names},
         layouts={k: dataclasses.asdict(v) | {"n_samples": v.n_samples} for k, v in LAYOUTS.items()},
-        points=points, pareto=fronts, throughput=tp, load_average_before=load_before,
-        load_average_after=loadavg(), seconds=time.time() - t0,
+        points=points,
+        pareto=fronts,
+        throughput=tp,
+        load_average_before=load_before,
+        load_average_after=loadavg(),
+        seconds=time.time() - t0,
     )
     if stored is not None:
-        update = dict(date=payload["machine"]["date"], entries=sorted({e.name for e in selected_entries(mode, args.only)}),
-                      load_average_before=load_before, load_average_after=payload["load_average_after"],
-                      seconds=payload["seconds"])
-        payload.update({k: stored[k] for k in ("machine", "threads", "versions", "load_average_before",
-                                               "load_average_after", "seconds") if k in stored})
+        update = dict(
+            date=payload["machine"]["date"],
+            entries=sorted({e.name for e in selected_entries(mode, args.only)}),
+            load_average_before=load_before,
+            load_average_after=payload["load_average_after"],
+            seconds=payload["seconds"],
+        )
+        payload.update(
+            {
+                k: stored[k]
+                for k in (
+                    "machine",
+                    "threads",
+                    "versions",
+                    "load_average_before",
+                    "load_average_after",
+                    "seconds",
+                )
+                if k in stored
+            }
+        )
         payload["updates"] = stored.get("updates", []) + [update]
     write_json(args.out / f"suite{suffix}.json", payload, indent=1)
     write_outputs(payload, args.out, plots=not args.no_plot)
     n_ok = sum("error" not in p for p in points)
-    log(f"suite ({mode}): {n_ok} points, {len(points) - n_ok} failed, {payload['seconds']:.0f} s; "
-        f"wrote {args.out / f'suite{suffix}.json'}")
+    log(
+        f"suite ({mode}): {n_ok} points, {len(points) - n_ok} failed, {payload['seconds']:.0f} s; "
+        f"wrote {args.out / f'suite{suffix}.json'}"
+    )
     return payload
 
 

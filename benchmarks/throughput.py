@@ -42,8 +42,16 @@ from abrdf_jax.materials import default_materials
 
 from ._common import machine, write_json
 
-BATCHES = {"full": (1, 10, 100, 1000, 3000, 10000), "quick": (1, 10, 100, 1000, 10000), "smoke": (1, 10)}
-BUDGETS = {"full": (12, 25, 50, 100), "quick": (12, 50), "smoke": ()}  # samples per slice (iso: 4 slices)
+BATCHES = {
+    "full": (1, 10, 100, 1000, 3000, 10000),
+    "quick": (1, 10, 100, 1000, 10000),
+    "smoke": (1, 10),
+}
+BUDGETS = {
+    "full": (12, 25, 50, 100),
+    "quick": (12, 50),
+    "smoke": (),
+}  # samples per slice (iso: 4 slices)
 TARGETS = {"full": (1000, 6561, 20000), "quick": (1000, 20000), "smoke": ()}
 MIN_TIME = {"full": 1.0, "quick": 0.3, "smoke": 0.05}
 
@@ -96,9 +104,16 @@ def memory_of(op, x) -> dict | None:
         return None
     if m is None:
         return None
-    keys = ("argument_size_in_bytes", "output_size_in_bytes", "temp_size_in_bytes", "generated_code_size_in_bytes")
+    keys = (
+        "argument_size_in_bytes",
+        "output_size_in_bytes",
+        "temp_size_in_bytes",
+        "generated_code_size_in_bytes",
+    )
     out = {k: int(getattr(m, k, 0) or 0) for k in keys}
-    out["total_bytes"] = out["argument_size_in_bytes"] + out["output_size_in_bytes"] + out["temp_size_in_bytes"]
+    out["total_bytes"] = (
+        out["argument_size_in_bytes"] + out["output_size_in_bytes"] + out["temp_size_in_bytes"]
+    )
     return out
 
 
@@ -118,7 +133,9 @@ PRESETS = {
 def _params(cfg: aj.Config, dtype) -> aj.Params:
     """``Params.default`` of the setting the operator stands for (``logsamples`` takes ``log``'s widths and λ)."""
     if cfg.value_space == "logsamples":
-        cfg = aj.Config(**{**{f: getattr(cfg, f) for f in ("budget", "kernel", "degree")}, "value_space": "log"})
+        cfg = aj.Config(
+            **{**{f: getattr(cfg, f) for f in ("budget", "kernel", "degree")}, "value_space": "log"}
+        )
     return aj.Params.default(cfg, dtype=dtype)
 
 
@@ -132,7 +149,9 @@ def measure(mode: str = "quick", log=print) -> dict:
     big = max(BATCHES[mode])
     out["gemm_same_shape"] = gemm_rate(3 * big, 102, 6561, dtype, min_time=mt)
     peak = out["gemm_square"]["gflops"]
-    log(f"  roofline: square GEMM {peak:.1f} GFLOP/s, same-shape GEMM {out['gemm_same_shape']['gflops']:.1f} GFLOP/s")
+    log(
+        f"  roofline: square GEMM {peak:.1f} GFLOP/s, same-shape GEMM {out['gemm_same_shape']['gflops']:.1f} GFLOP/s"
+    )
     for name, make in PRESETS.items():
         if mode == "smoke" and name != "paper":
             continue  # the smoke test checks that the part runs, one preset is enough
@@ -150,18 +169,34 @@ def measure(mode: str = "quick", log=print) -> dict:
             first = time.perf_counter() - t
             sec, reps = _time(lambda: op(x), mt)
             flops = 2.0 * op.matrix.shape[0] * op.n_inputs * 3 * b
-            row = dict(batch=b, seconds=sec, repeats=reps, abrdfs_per_second=b / sec,
-                       compile_seconds=max(first - sec, 0.0), gflops=flops / sec / 1e9,
-                       fraction_of_roofline=flops / sec / 1e9 / peak, memory=memory_of(op, x))
+            row = dict(
+                batch=b,
+                seconds=sec,
+                repeats=reps,
+                abrdfs_per_second=b / sec,
+                compile_seconds=max(first - sec, 0.0),
+                gflops=flops / sec / 1e9,
+                fraction_of_roofline=flops / sec / 1e9 / peak,
+                memory=memory_of(op, x),
+            )
             rows.append(row)
-            log(f"  operator {name:11s} B={b:6d}: {b / sec:10.0f} ABRDF/s  {row['gflops']:6.1f} GFLOP/s "
-                f"({row['fraction_of_roofline']:.0%} of the square GEMM)")
+            log(
+                f"  operator {name:11s} B={b:6d}: {b / sec:10.0f} ABRDF/s  {row['gflops']:6.1f} GFLOP/s "
+                f"({row['fraction_of_roofline']:.0%} of the square GEMM)"
+            )
             del x
         best = max(rows, key=lambda r: r["abrdfs_per_second"])
         out["presets"][name] = dict(
-            config=repr(cfg), n_inputs=op.n_inputs, matrix_shape=list(op.matrix.shape), build_seconds=build,
-            rows=rows, latency_seconds=rows[0]["seconds"], best_abrdfs_per_second=best["abrdfs_per_second"],
-            best_batch=best["batch"], best_fraction_of_roofline=best["fraction_of_roofline"])
+            config=repr(cfg),
+            n_inputs=op.n_inputs,
+            matrix_shape=list(op.matrix.shape),
+            build_seconds=build,
+            rows=rows,
+            latency_seconds=rows[0]["seconds"],
+            best_abrdfs_per_second=best["abrdfs_per_second"],
+            best_batch=best["batch"],
+            best_fraction_of_roofline=best["fraction_of_roofline"],
+        )
     # cost against the number of centres (sample budget) and of target directions; recommended preset
     cfg = PRESETS["recommended"]()
     params = _params(cfg, dtype)
@@ -174,9 +209,20 @@ def measure(mode: str = "quick", log=print) -> dict:
         x = values(op, meas, 100)
         jax.block_until_ready(op(x))
         sec, _ = _time(lambda: op(x), mt)
-        scaling.append(dict(kind="centres", n_samples=op.n_inputs, targets=int(op.matrix.shape[0]),
-                            build_seconds=build, batch=100, seconds=sec, abrdfs_per_second=100 / sec))
-        log(f"  centres: {op.n_inputs:4d} samples: build {build:.2f} s, {100 / sec:.0f} ABRDF/s at B=100")
+        scaling.append(
+            dict(
+                kind="centres",
+                n_samples=op.n_inputs,
+                targets=int(op.matrix.shape[0]),
+                build_seconds=build,
+                batch=100,
+                seconds=sec,
+                abrdfs_per_second=100 / sec,
+            )
+        )
+        log(
+            f"  centres: {op.n_inputs:4d} samples: build {build:.2f} s, {100 / sec:.0f} ABRDF/s at B=100"
+        )
     meas = template(cfg, dtype=dtype)
     rng = np.random.default_rng(0)
     for q in TARGETS[mode]:
@@ -184,13 +230,24 @@ def measure(mode: str = "quick", log=print) -> dict:
         v[..., 2] = np.abs(v[..., 2])
         v /= np.linalg.norm(v, axis=-1, keepdims=True)
         t = time.perf_counter()
-        op = jax.block_until_ready(aj.compile_operator(cfg, params, meas, dtype=dtype, targets=(v[0], v[1])))
+        op = jax.block_until_ready(
+            aj.compile_operator(cfg, params, meas, dtype=dtype, targets=(v[0], v[1]))
+        )
         build = time.perf_counter() - t
         x = values(op, meas, 100)
         jax.block_until_ready(op(x))
         sec, _ = _time(lambda: op(x), mt)
-        scaling.append(dict(kind="targets", n_samples=op.n_inputs, targets=q, build_seconds=build, batch=100,
-                            seconds=sec, abrdfs_per_second=100 / sec))
+        scaling.append(
+            dict(
+                kind="targets",
+                n_samples=op.n_inputs,
+                targets=q,
+                build_seconds=build,
+                batch=100,
+                seconds=sec,
+                abrdfs_per_second=100 / sec,
+            )
+        )
         log(f"  targets: {q:6d}: build {build:.2f} s, {100 / sec:.0f} evaluations/s at B=100")
     out["scaling"] = scaling
     out["peak_rss_mb"] = peak_rss_mb()
@@ -201,32 +258,51 @@ def table(tp: dict, scipy_seconds: float | None = None) -> str:
     """Markdown table of the throughput block (ABRDFs/s per batch size, fraction of the roofline)."""
     pre = tp["presets"]
     names = list(pre)
-    lines = ["| batch | " + " | ".join(f"{n}: ABRDF/s | {n}: % of GEMM peak" for n in names) + " | XLA buffers (MB) |",
-             "|---" * (2 * len(names) + 2) + "|"]
+    lines = [
+        "| batch | "
+        + " | ".join(f"{n}: ABRDF/s | {n}: % of GEMM peak" for n in names)
+        + " | XLA buffers (MB) |",
+        "|---" * (2 * len(names) + 2) + "|",
+    ]
     for i, b in enumerate(tp["batches"]):
         cells = []
         for n in names:
             r = pre[n]["rows"][i]
             cells += [f"{r['abrdfs_per_second']:,.0f}", f"{100 * r['fraction_of_roofline']:.0f}"]
         mem = pre[names[0]]["rows"][i].get("memory")
-        lines.append(f"| {b} | " + " | ".join(cells) + f" | {mem['total_bytes'] / 2**20:.0f} |" if mem
-                     else f"| {b} | " + " | ".join(cells) + " | – |")
+        lines.append(
+            f"| {b} | " + " | ".join(cells) + f" | {mem['total_bytes'] / 2**20:.0f} |"
+            if mem
+            else f"| {b} | " + " | ".join(cells) + " | – |"
+        )
     g, s = tp["gemm_square"], tp["gemm_same_shape"]
-    notes = [f"Roofline (same run): square {g['shape'][0]}³ GEMM {g['gflops']:.1f} GFLOP/s; the operator's GEMM shape "
-             f"{s['shape']} alone {s['gflops']:.1f} GFLOP/s."]
+    notes = [
+        f"Roofline (same run): square {g['shape'][0]}³ GEMM {g['gflops']:.1f} GFLOP/s; the operator's GEMM shape "
+        f"{s['shape']} alone {s['gflops']:.1f} GFLOP/s."
+    ]
     for n in names:
         p = pre[n]
-        txt = (f"{n}: {p['best_abrdfs_per_second']:,.0f} ABRDF/s at B={p['best_batch']} "
-               f"({100 * p['best_fraction_of_roofline']:.0f}% of the square-GEMM rate); single-material latency "
-               f"{p['latency_seconds'] * 1e3:.2f} ms; building the {p['matrix_shape'][0]}×{p['matrix_shape'][1]} "
-               f"matrix {p['build_seconds']:.2f} s")
+        txt = (
+            f"{n}: {p['best_abrdfs_per_second']:,.0f} ABRDF/s at B={p['best_batch']} "
+            f"({100 * p['best_fraction_of_roofline']:.0f}% of the square-GEMM rate); single-material latency "
+            f"{p['latency_seconds'] * 1e3:.2f} ms; building the {p['matrix_shape'][0]}×{p['matrix_shape'][1]} "
+            f"matrix {p['build_seconds']:.2f} s"
+        )
         if scipy_seconds:
-            txt += f"; {p['best_abrdfs_per_second'] * scipy_seconds:,.0f}× the scipy peer's ABRDFs/s"
+            txt += (
+                f"; {p['best_abrdfs_per_second'] * scipy_seconds:,.0f}× the scipy peer's ABRDFs/s"
+            )
         notes.append(txt + ".")
     if tp.get("scaling"):
-        notes.append("Cost against centres/targets (recommended, B=100): " + "; ".join(
-            f"{r['n_samples']} samples × {r['targets']} targets: build (with its compile) {r['build_seconds']:.2f} s, "
-            f"{r['abrdfs_per_second']:,.0f}/s" for r in tp["scaling"]) + ".")
+        notes.append(
+            "Cost against centres/targets (recommended, B=100): "
+            + "; ".join(
+                f"{r['n_samples']} samples × {r['targets']} targets: build (with its compile) {r['build_seconds']:.2f} s, "
+                f"{r['abrdfs_per_second']:,.0f}/s"
+                for r in tp["scaling"]
+            )
+            + "."
+        )
     notes.append(f"Peak RSS of the process: {tp['peak_rss_mb']:.0f} MB.")
     return "\n".join(lines) + "\n\n" + "\n".join(f"- {n}" for n in notes)
 
@@ -237,7 +313,10 @@ def main(argv=None):
     args = ap.parse_args(argv)
     mode = "quick" if args.quick else "full"
     tp = measure(mode, log=lambda *a: print(*a, flush=True))
-    write_json("throughput_quick.json" if args.quick else "throughput.json", dict(machine=machine(), mode=mode, **tp))
+    write_json(
+        "throughput_quick.json" if args.quick else "throughput.json",
+        dict(machine=machine(), mode=mode, **tp),
+    )
     print(table(tp))
     return 0
 

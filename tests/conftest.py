@@ -19,7 +19,12 @@ SEED = int(os.environ.get("ABRDF_TEST_SEED", "0"))
 # float64 or int -> float mixing) and rank promotion raising (no silent broadcasting of a missing
 # axis), so an implicit cast or broadcast in the package fails here instead of costing precision.
 STRICT_MODULES = {
-    "test_transforms", "test_subspace", "test_interp1d", "test_rbf", "test_grid", "test_pipeline",
+    "test_transforms",
+    "test_subspace",
+    "test_interp1d",
+    "test_rbf",
+    "test_grid",
+    "test_pipeline",
     "test_operator",
 }
 

@@ -20,8 +20,15 @@ import numpy as np
 from scipy.interpolate import RBFInterpolator
 
 PAIRS = ((30.0, 30.0), (30.0, 75.0), (75.0, 30.0), (75.0, 75.0))
-MIN_DEGREE = {"gaussian": -1, "inverse_multiquadric": -1, "inverse_quadratic": -1, "multiquadric": 0,
-              "linear": 0, "thin_plate_spline": 1, "cubic": 1}
+MIN_DEGREE = {
+    "gaussian": -1,
+    "inverse_multiquadric": -1,
+    "inverse_quadratic": -1,
+    "multiquadric": 0,
+    "linear": 0,
+    "thin_plate_spline": 1,
+    "cubic": 1,
+}
 RINGS = {0.0: 1, 15.0: 6, 30.0: 12, 45.0: 18, 60.0: 20, 75.0: 24}
 
 
@@ -90,8 +97,20 @@ def subspace_on_grid(slices, pair, alpha=15.0):
     return pi_, pv, m + (a + b - lo) / span * (big_m - m)  # eq. (2)-(4), min-max stretched
 
 
-def reconstruct_scipy(ti, pi_, tv, pv, rgb, kernel="gaussian", widths=(0.6,) * 4, smoothing=1e-3,
-                      degree=None, value_space="linear", alpha=15.0, log_eps=0.01):
+def reconstruct_scipy(
+    ti,
+    pi_,
+    tv,
+    pv,
+    rgb,
+    kernel="gaussian",
+    widths=(0.6,) * 4,
+    smoothing=1e-3,
+    degree=None,
+    value_space="linear",
+    alpha=15.0,
+    log_eps=0.01,
+):
     """Full reconstruction to an (81, 81, 3) table with scipy's RBFInterpolator."""
     slices = split_slices(ti, pi_, tv, pv, rgb, alpha)
     xs, ys, idx = [], [], []
@@ -118,7 +137,9 @@ def reconstruct_scipy(ti, pi_, tv, pv, rgb, kernel="gaussian", widths=(0.6,) * 4
     xq = np.concatenate([onion(wi), onion(wv)], -1) / np.asarray(widths)
     if degree is None:  # the kernel's minimum degree (scipy's own default would add a linear tail)
         degree = MIN_DEGREE[kernel]
-    out = RBFInterpolator(x, y_fit, kernel=kernel, epsilon=1.0, smoothing=smoothing, degree=degree)(xq)
+    out = RBFInterpolator(x, y_fit, kernel=kernel, epsilon=1.0, smoothing=smoothing, degree=degree)(
+        xq
+    )
     if value_space == "log":
         out = np.exp(out) - eps
     out[idx] = y  # keep the reconstructed subspaces where they were measured

@@ -30,9 +30,16 @@ F64 = jnp.float64
 def _ggx_family(n, seed=0):
     """``n`` GGX materials (isotropic and anisotropic, coloured) stacked into one module."""
     r = np.random.default_rng(seed)
-    mats = [GGX(diffuse=r.uniform(0.02, 0.6, 3), specular_f0=r.uniform(0.02, 0.9, 3),
-                alpha_x=r.uniform(0.05, 0.5), alpha_y=r.uniform(0.05, 0.5), rotation=r.uniform(0, np.pi))
-            for _ in range(n)]
+    mats = [
+        GGX(
+            diffuse=r.uniform(0.02, 0.6, 3),
+            specular_f0=r.uniform(0.02, 0.9, 3),
+            alpha_x=r.uniform(0.05, 0.5),
+            alpha_y=r.uniform(0.05, 0.5),
+            rotation=r.uniform(0, np.pi),
+        )
+        for _ in range(n)
+    ]
     return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *mats)
 
 
@@ -44,7 +51,10 @@ def database():
     p = aj.Params.default(cfg, dtype=F64)
     meas = jax.jit(jax.vmap(lambda m: aj.sample(m, cfg, p, as_measurements=True)))(mats)
     ti, pi_, tv, pv = (np.deg2rad(a) for a in aj.pair_grid())
-    wi, wv = aj.to_vector(jnp.asarray(ti), jnp.asarray(pi_)), aj.to_vector(jnp.asarray(tv), jnp.asarray(pv))
+    wi, wv = (
+        aj.to_vector(jnp.asarray(ti), jnp.asarray(pi_)),
+        aj.to_vector(jnp.asarray(tv), jnp.asarray(pv)),
+    )
     tables = np.asarray(jax.jit(jax.vmap(lambda m: m(wi, wv).reshape(81, 81, 3)))(mats))
     layout = jax.tree_util.tree_map(lambda x: x[0], meas)
     return tables, np.asarray(flat_samples(meas)), layout
@@ -87,7 +97,9 @@ def test_pca_ridge_is_the_augmented_least_squares(database, rng):
 @pytest.mark.parametrize("basis_at", ["models", "tables"])
 def test_pca_held_out_material_is_finite_and_non_negative(database, basis_at):
     tables, flat, layout = database
-    prior = fit_pca_prior(tables[:-1], flat[:-1], layout, n_components=5, basis_at=basis_at, dtype=F64)
+    prior = fit_pca_prior(
+        tables[:-1], flat[:-1], layout, n_components=5, basis_at=basis_at, dtype=F64
+    )
     rec = np.asarray(reconstruct_pca(prior, 1.0, jnp.asarray(flat[-1:])))
     assert rec.shape == (1, 81, 81, 3)
     assert np.all(np.isfinite(rec)) and np.all(rec >= 0)
@@ -108,7 +120,9 @@ def test_analytic_fit_recovers_known_ggx():
     """Noise-free aniso204 samples of two anisotropic GGX materials: parameters and tables recovered."""
     truth = [
         dict(diffuse=[0.10, 0.20, 0.30], specular_f0=0.3, alpha_x=0.08, alpha_y=0.25, rotation=0.5),
-        dict(diffuse=[0.40, 0.10, 0.05], specular_f0=0.05, alpha_x=0.35, alpha_y=0.12, rotation=2.0),
+        dict(
+            diffuse=[0.40, 0.10, 0.05], specular_f0=0.05, alpha_x=0.35, alpha_y=0.12, rotation=2.0
+        ),
     ]
     mats = [GGX(**t) for t in truth]
     cfg = aj.Config(budget="aniso204")
@@ -124,9 +138,13 @@ def test_analytic_fit_recovers_known_ggx():
         np.testing.assert_allclose(got["ks"][k] * 1.0, 1.0, rtol=1e-3)  # the truth has ks = 1
         np.testing.assert_allclose(got["f0"][k], t["specular_f0"], rtol=1e-3)
         want = _canonical(t["alpha_x"], t["alpha_y"], t["rotation"])
-        have = _canonical(float(got["alpha_x"][k]), float(got["alpha_y"][k]), float(got["rotation"][k]))
+        have = _canonical(
+            float(got["alpha_x"][k]), float(got["alpha_y"][k]), float(got["rotation"][k])
+        )
         np.testing.assert_allclose(have, want, rtol=1e-4, atol=1e-5)
-        np.testing.assert_allclose(tables[k], dense_table(mats[k], np.float64), rtol=1e-4, atol=1e-8)
+        np.testing.assert_allclose(
+            tables[k], dense_table(mats[k], np.float64), rtol=1e-4, atol=1e-8
+        )
     # float32 samples with x64 on (the suite's float32 points): fitted in float64, float32 tables back
     meas32 = jax.tree_util.tree_map(lambda a: a.astype(jnp.float32) if a.dtype == F64 else a, meas)
     rec32 = reconstruct_analytic(meas32, model="ggx", eps_rel=1e-3)

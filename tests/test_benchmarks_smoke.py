@@ -13,9 +13,28 @@ import math
 from benchmarks import suite
 
 POINT_KEYS = {
-    "name", "group", "dataset", "layout", "budget", "n_samples", "dtype", "n_materials", "seconds_per_abrdf",
-    "batch_seconds", "compile_seconds", "setup_seconds", "repeats", "finite", "de76", "logerr", "de2000",
-    "rmse8", "psnr", "per_material", "pareto_de76", "pareto_logerr",
+    "name",
+    "group",
+    "dataset",
+    "layout",
+    "budget",
+    "n_samples",
+    "dtype",
+    "n_materials",
+    "seconds_per_abrdf",
+    "batch_seconds",
+    "compile_seconds",
+    "setup_seconds",
+    "repeats",
+    "finite",
+    "de76",
+    "logerr",
+    "de2000",
+    "rmse8",
+    "psnr",
+    "per_material",
+    "pareto_de76",
+    "pareto_logerr",
 }
 
 
@@ -46,8 +65,12 @@ def test_suite_smoke_writes_valid_json(data_dir, tmp_path, monkeypatch):
         front = set(payload["pareto"]["merl-test"][metric])
         assert front == {p["name"] for p in points if p[f"pareto_{metric}"]}
         for p in points:
-            beaten = any(q is not p and q["seconds_per_abrdf"] <= p["seconds_per_abrdf"] and q[metric] <= p[metric]
-                         for q in points)
+            beaten = any(
+                q is not p
+                and q["seconds_per_abrdf"] <= p["seconds_per_abrdf"]
+                and q[metric] <= p[metric]
+                for q in points
+            )
             assert (p["name"] not in front) == beaten, (metric, p["name"])
     assert len(payload["load_average_before"]) == len(payload["load_average_after"]) == 3
     # the throughput part: every batch size timed (a positive time recorded, no bound on it), and the
@@ -60,8 +83,11 @@ def test_suite_smoke_writes_valid_json(data_dir, tmp_path, monkeypatch):
         assert row["batch"] == b and row["seconds"] > 0
         assert math.isclose(row["abrdfs_per_second"], b / row["seconds"], rel_tol=1e-9)
         flops = 2.0 * 6561 * 102 * 3 * b
-        assert math.isclose(row["fraction_of_roofline"], flops / row["seconds"] / 1e9 / tp["gemm_square"]["gflops"],
-                            rel_tol=1e-9)
+        assert math.isclose(
+            row["fraction_of_roofline"],
+            flops / row["seconds"] / 1e9 / tp["gemm_square"]["gflops"],
+            rel_tol=1e-9,
+        )
     assert pre["latency_seconds"] == pre["rows"][0]["seconds"]
     assert set(tp["targets"]["presets"]) == {"paper"} and tp["targets"]["lines"]
     assert (tmp_path / "speed_accuracy_smoke.png").stat().st_size > 10_000
@@ -73,10 +99,14 @@ def test_suite_smoke_writes_valid_json(data_dir, tmp_path, monkeypatch):
     suite.main(["--smoke", "--out", str(tmp_path), "--replot", "--no-plot"], log=lambda *a: None)
     assert (tmp_path / "suite_smoke.md").read_text() == md
     # --update reruns one entry and merges it: same points (one replaced), the throughput part kept
-    suite.main(["--smoke", "--out", str(tmp_path), "--update", "--only", "mean fill iso102", "--no-plot"],
-               log=lambda *a: None)
+    suite.main(
+        ["--smoke", "--out", str(tmp_path), "--update", "--only", "mean fill iso102", "--no-plot"],
+        log=lambda *a: None,
+    )
     merged = json.loads((tmp_path / "suite_smoke.json").read_text())
     assert sorted(p["name"] for p in merged["points"]) == sorted(p["name"] for p in points)
-    assert merged["throughput"] == tp and [u["entries"] for u in merged["updates"]] == [["mean fill iso102"]]
+    assert merged["throughput"] == tp and [u["entries"] for u in merged["updates"]] == [
+        ["mean fill iso102"]
+    ]
     fill = [p for p in merged["points"] if p["name"] == "mean fill iso102"]
     assert fill[0]["de76"] == next(p["de76"] for p in points if p["name"] == "mean fill iso102")

@@ -42,7 +42,9 @@ def reconstructed(generated, tmp_path_factory):
     root, paths = generated
     out = tmp_path_factory.mktemp("rec") / "rec"
     stats = {}
-    store = btf.reconstruct_btf(paths["measurements"], out, chunk=CHUNK, progress=False, stats=stats)
+    store = btf.reconstruct_btf(
+        paths["measurements"], out, chunk=CHUNK, progress=False, stats=stats
+    )
     return store, stats
 
 
@@ -62,7 +64,9 @@ def test_generator_is_deterministic_and_chunk_independent(generated):
     np.testing.assert_array_equal(again["measurements"], meas.read(0, CHUNK))
     np.testing.assert_array_equal(again["reference"].astype(np.float16), ref.read(0, CHUNK))
     # the second chunk on its own (other padding) equals the stored one bit for bit
-    part = btf.texel_chunk(btf.procedural_btf(SIZE, SEED), CHUNK + 3, 2 * CHUNK, maps=True, pad_to=CHUNK)
+    part = btf.texel_chunk(
+        btf.procedural_btf(SIZE, SEED), CHUNK + 3, 2 * CHUNK, maps=True, pad_to=CHUNK
+    )
     np.testing.assert_array_equal(part["measurements"], meas.read(CHUNK + 3, 2 * CHUNK))
     other = btf.texel_chunk(btf.procedural_btf(SIZE, SEED + 1), 0, CHUNK, maps=True, pad_to=CHUNK)
     assert np.abs(other["measurements"] - again["measurements"]).mean() > 1e-3
@@ -84,8 +88,15 @@ def _rotation_error(t):
     theta, phi = ubo_grid()
     keep = np.isin(theta, (0.0, 30.0, 60.0, 75.0))
     idx = np.nonzero(keep)[0]
-    rot = np.array([np.nonzero(np.isclose(theta, theta[i]) & np.isclose(phi, (phi[i] + 90) % 360 if theta[i] else 0))[0][0]
-                    for i in idx])
+    rot = np.array(
+        [
+            np.nonzero(
+                np.isclose(theta, theta[i])
+                & np.isclose(phi, (phi[i] + 90) % 360 if theta[i] else 0)
+            )[0][0]
+            for i in idx
+        ]
+    )
     sub = t[np.ix_(idx, idx)]
     turned = t[np.ix_(rot, rot)]
     return np.abs(turned - sub).mean() / sub.mean()
@@ -96,13 +107,23 @@ def test_texels_are_anisotropic_and_nonreciprocal(generated):
     tables = _tables(btf.ChunkedStore.open(paths["reference"]))
     # Controls: flat texels with an open horizon are what their materials are: reciprocal, and a
     # Lambertian one is isotropic. The measures below are therefore the generator's doing.
-    flat = dict(normal=jnp.array([0.0, 0.0, 1.0]), albedo=jnp.array([0.5, 0.4, 0.3]),
-                metal=jnp.array([0.6, 0.6, 0.6]), roughness=jnp.asarray(0.2), angle=jnp.asarray(0.3),
-                fill=jnp.asarray(0.3), horizon=jnp.zeros(32))
-    controls = [btf.TexelModel(weights=jnp.array(w), aniso=jnp.asarray(a), **flat)
-                for w, a in (([0.2, 0.4, 0.4], 3.0), ([1.0, 0.0, 0.0], 1.0))]
+    flat = dict(
+        normal=jnp.array([0.0, 0.0, 1.0]),
+        albedo=jnp.array([0.5, 0.4, 0.3]),
+        metal=jnp.array([0.6, 0.6, 0.6]),
+        roughness=jnp.asarray(0.2),
+        angle=jnp.asarray(0.3),
+        fill=jnp.asarray(0.3),
+        horizon=jnp.zeros(32),
+    )
+    controls = [
+        btf.TexelModel(weights=jnp.array(w), aniso=jnp.asarray(a), **flat)
+        for w, a in (([0.2, 0.4, 0.4], 3.0), ([1.0, 0.0, 0.0], 1.0))
+    ]
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *controls)
-    ctl = np.asarray(jax.jit(jax.vmap(btf.dense_texel_table))(stacked), np.float64).reshape(-1, 81, 81, 3)
+    ctl = np.asarray(jax.jit(jax.vmap(btf.dense_texel_table))(stacked), np.float64).reshape(
+        -1, 81, 81, 3
+    )
     assert _reciprocity_error(ctl[0]) < 1e-5
     assert _rotation_error(ctl[1]) < 1e-5
     assert _rotation_error(ctl[0]) > 0.05  # the anisotropic lobes alone
@@ -119,8 +140,15 @@ def test_store_round_trip_and_corruption(tmp_path):
     rng = np.random.default_rng(SEED)
     data = rng.uniform(0, 10, (10, 5, 3)).astype(np.float32)
     for dtype in ("float32", "float16"):
-        s = btf.ChunkedStore.create(tmp_path / dtype, kind="measurements", texel_shape=(2, 5), item_shape=(5, 3),
-                                    dtype=dtype, chunk=4, geometry={"note": "test"})
+        s = btf.ChunkedStore.create(
+            tmp_path / dtype,
+            kind="measurements",
+            texel_shape=(2, 5),
+            item_shape=(5, 3),
+            dtype=dtype,
+            chunk=4,
+            geometry={"note": "test"},
+        )
         assert s.n_chunks == 3 and s.done_chunks() == []
         for k, (a, b) in enumerate(s.chunk_ranges()):
             s.write_chunk(k, data[a:b])
@@ -148,10 +176,23 @@ def test_store_round_trip_and_corruption(tmp_path):
         s.read(0, 10)
     # a different store in the same folder is refused unless overwritten
     with pytest.raises(InputError, match="different"):
-        btf.ChunkedStore.create(tmp_path / "float32", kind="measurements", texel_shape=(2, 5), item_shape=(5, 3),
-                                dtype="float32", chunk=5)
-    s2 = btf.ChunkedStore.create(tmp_path / "float32", kind="measurements", texel_shape=(2, 5), item_shape=(5, 3),
-                                 dtype="float32", chunk=5, overwrite=True)
+        btf.ChunkedStore.create(
+            tmp_path / "float32",
+            kind="measurements",
+            texel_shape=(2, 5),
+            item_shape=(5, 3),
+            dtype="float32",
+            chunk=5,
+        )
+    s2 = btf.ChunkedStore.create(
+        tmp_path / "float32",
+        kind="measurements",
+        texel_shape=(2, 5),
+        item_shape=(5, 3),
+        dtype="float32",
+        chunk=5,
+        overwrite=True,
+    )
     assert s2.done_chunks() == [] and not any((tmp_path / "float32" / "chunks").iterdir())
     with pytest.raises(ValueError, match="NaN"):
         s2.write_chunk(0, np.full((5, 5, 3), np.nan))
@@ -165,7 +206,9 @@ def test_store_round_trip_and_corruption(tmp_path):
     (tmp_path / "junk").mkdir()
     (tmp_path / "junk" / "x.txt").write_text("x")
     with pytest.raises(InputError, match="not empty"):
-        btf.ChunkedStore.create(tmp_path / "junk", kind="abrdf", texel_shape=(1, 1), item_shape=(1, 3))
+        btf.ChunkedStore.create(
+            tmp_path / "junk", kind="abrdf", texel_shape=(1, 1), item_shape=(1, 3)
+        )
 
 
 # ------------------------------------------------------------------------------------ batch path
@@ -177,7 +220,9 @@ def test_grouping_matches_group_slices(generated):
     meas = btf.ChunkedStore.open(paths["measurements"])
     y = meas.read(0, 3)
     cfg = btf.default_config()
-    fn = btf.make_chunk_fn(cfg, aj.Params.default(cfg), meas.geometry, backend="pipeline", dtype=jnp.float64)
+    fn = btf.make_chunk_fn(
+        cfg, aj.Params.default(cfg), meas.geometry, backend="pipeline", dtype=jnp.float64
+    )
     got = fn.measurements(jnp.asarray(y, jnp.float64))
     g = meas.geometry
     for k in range(3):
@@ -192,16 +237,24 @@ def test_accuracy_beats_mean_fill(generated, reconstructed):
     _, paths = generated
     rec, stats = reconstructed
     assert stats["chunks_done"] == 2 and stats["chunks_skipped"] == 0
-    both = btf.texel_metrics_many(dict(ours=rec, base=btf.mean_fill(paths["measurements"])), paths["reference"],
-                                  metrics=("de76", "logerr"))
+    both = btf.texel_metrics_many(
+        dict(ours=rec, base=btf.mean_fill(paths["measurements"])),
+        paths["reference"],
+        metrics=("de76", "logerr"),
+    )
     ours, base = both["ours"], both["base"]
     # the per-texel maps are the package's protocol metrics of each texel
     ref = btf.ChunkedStore.open(paths["reference"]).read(0, 3).astype(np.float32)
     for t, x in enumerate(rec.read(0, 3).astype(np.float32)):
         np.testing.assert_allclose(ours["de76"].ravel()[t], float(delta_e76(x, ref[t])), rtol=1e-5)
-        np.testing.assert_allclose(ours["logerr"].ravel()[t], float(log_error(x, ref[t])), rtol=1e-5)
+        np.testing.assert_allclose(
+            ours["logerr"].ravel()[t], float(log_error(x, ref[t])), rtol=1e-5
+        )
     assert ours["de76"].shape == (SIZE, SIZE)
-    assert ours["de76"].mean() < 0.85 * base["de76"].mean(), (ours["de76"].mean(), base["de76"].mean())
+    assert ours["de76"].mean() < 0.85 * base["de76"].mean(), (
+        ours["de76"].mean(),
+        base["de76"].mean(),
+    )
     assert ours["logerr"].mean() < 0.85 * base["logerr"].mean()
     assert np.mean(ours["de76"] < base["de76"]) > 0.75
 
@@ -247,7 +300,9 @@ def test_resume_after_crash_equals_uninterrupted(generated, reconstructed, tmp_p
     # What a hard kill can leave behind (no cleanup ran): a stray temporary file and a truncated
     # chunk without marker. Neither looks valid.
     (out / "chunks" / ".c000001.npy.dead.tmp").write_bytes(b"\x93NUMPY partial")
-    (out / "chunks" / "c000001.npy").write_bytes((full.path / "chunks" / "c000001.npy").read_bytes()[:1000])
+    (out / "chunks" / "c000001.npy").write_bytes(
+        (full.path / "chunks" / "c000001.npy").read_bytes()[:1000]
+    )
     assert store.chunk_status(1) == "missing"
     stats = {}
     btf.reconstruct_btf(paths["measurements"], out, chunk=CHUNK, progress=False, stats=stats)
@@ -256,7 +311,9 @@ def test_resume_after_crash_equals_uninterrupted(generated, reconstructed, tmp_p
     np.testing.assert_array_equal(btf.ChunkedStore.open(out).read(), full.read())
     # another configuration on the same folder is refused, before any work
     with pytest.raises(InputError, match="different"):
-        btf.reconstruct_btf(paths["measurements"], out, aj.Config(budget="aniso204"), chunk=CHUNK, progress=False)
+        btf.reconstruct_btf(
+            paths["measurements"], out, aj.Config(budget="aniso204"), chunk=CHUNK, progress=False
+        )
 
 
 def test_two_processes_share_the_chunks(generated, reconstructed, tmp_path, monkeypatch):
@@ -296,7 +353,7 @@ def test_sharded_over_8_devices_equals_one_device(generated, reconstructed, tmp_
         from abrdf_jax import btf
         from abrdf_jax.btf import _store
         assert len(jax.devices()) == 8, jax.devices()
-        m = {str(paths['measurements'])!r}
+        m = {str(paths["measurements"])!r}
         kw = dict(chunk={CHUNK}, block=4, progress=False, dtype="float32")
         for d in (8, 2, 1):
             s = {{}}
@@ -328,11 +385,22 @@ def test_sharded_over_8_devices_equals_one_device(generated, reconstructed, tmp_
         btf.reconstruct_btf(m, {str(tmp_path)!r} + "/crash", devices=1, **kw)
         print("SURVIVED", flush=True)
     """)
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=8", JAX_PLATFORMS="cpu")
+    env = dict(
+        os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=8", JAX_PLATFORMS="cpu"
+    )
     env.pop("JAX_ENABLE_X64", None)
-    res = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600,
-                         cwd=REPO)
-    assert res.returncode == -9 and "SURVIVED" not in res.stdout, (res.returncode, res.stderr[-3000:])
+    res = subprocess.run(
+        [sys.executable, "-c", script],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=REPO,
+    )
+    assert res.returncode == -9 and "SURVIVED" not in res.stdout, (
+        res.returncode,
+        res.stderr[-3000:],
+    )
     runs = [ln.split()[1:] for ln in res.stdout.splitlines() if ln.startswith("RUN")]
     assert runs == [[str(d), str(d), "operator", str(CHUNK), "2"] for d in (8, 2, 1)], runs
     one = btf.ChunkedStore.open(tmp_path / "r1").read()
@@ -351,8 +419,14 @@ def test_sharded_over_8_devices_equals_one_device(generated, reconstructed, tmp_
     assert any(n.startswith(".c000001.npy.") for n in left), left
     assert crash.done_chunks() == [0] and crash.chunk_status(1) == "missing"
     stats = {}
-    btf.reconstruct_btf(paths["measurements"], tmp_path / "crash", chunk=CHUNK, progress=False, dtype="float32",
-                        stats=stats)
+    btf.reconstruct_btf(
+        paths["measurements"],
+        tmp_path / "crash",
+        chunk=CHUNK,
+        progress=False,
+        dtype="float32",
+        stats=stats,
+    )
     assert stats["chunks_skipped"] == 1 and stats["chunks_done"] == 1
     assert not any(p.name.startswith(".") for p in (tmp_path / "crash" / "chunks").iterdir())
     resumed = btf.ChunkedStore.open(tmp_path / "crash")
@@ -372,7 +446,12 @@ def test_exr_per_pair_round_trip(generated, tmp_path):
     files = sorted(p.name for p in (tmp_path / "exr").glob("*.exr"))
     assert n == 204 == len(files)
     assert btf.pair_filename(75, 15, 30, 120) == "tl075_pl015_tv030_pv120.exr"
-    assert btf.parse_pair_filename("tl030_pl014.400_tv030_pv359.400.exr") == (30.0, 14.4, 30.0, 359.4)
+    assert btf.parse_pair_filename("tl030_pl014.400_tv030_pv359.400.exr") == (
+        30.0,
+        14.4,
+        30.0,
+        359.4,
+    )
     back = btf.read_exr_pairs(tmp_path / "exr", tmp_path / "store", chunk=CHUNK)
     assert back.kind == "measurements" and back.texel_shape == (SIZE, SIZE)
     np.testing.assert_array_equal(back.read(), meas.read())
@@ -381,8 +460,12 @@ def test_exr_per_pair_round_trip(generated, tmp_path):
     # without the index the names alone give the angles (to 0.001°) and the same images
     (tmp_path / "exr" / "pairs.json").unlink()
     named = btf.read_exr_pairs(tmp_path / "exr", tmp_path / "store2", chunk=CHUNK)
-    order = np.lexsort(np.array([meas.geometry[k] for k in ("phi_v", "theta_v", "phi_i", "theta_i")]))
-    np.testing.assert_allclose(np.array(named.geometry["phi_v"]), np.array(meas.geometry["phi_v"])[order], atol=1e-3)
+    order = np.lexsort(
+        np.array([meas.geometry[k] for k in ("phi_v", "theta_v", "phi_i", "theta_i")])
+    )
+    np.testing.assert_allclose(
+        np.array(named.geometry["phi_v"]), np.array(meas.geometry["phi_v"])[order], atol=1e-3
+    )
     np.testing.assert_array_equal(named.read(), meas.read()[:, order])
     assert named.geometry["budget"] == "aniso204" and abs(named.geometry["alpha_deg"] - 15.0) < 0.01
     (tmp_path / "exr" / files[0]).write_bytes(b"not an exr")
@@ -397,31 +480,82 @@ def test_cli_generate_reconstruct_evaluate(generated, reconstructed, tmp_path, c
     _, paths = generated
     full, _ = reconstructed
     root = tmp_path / "cli"
-    assert main(["btf", "generate", "-o", str(root), "--size", str(SIZE), "--seed", str(SEED),
-                 "--chunk", str(CHUNK), "-q"]) == 0
-    np.testing.assert_array_equal(btf.ChunkedStore.open(root / "measurements").read(),
-                                  btf.ChunkedStore.open(paths["measurements"]).read())
+    assert (
+        main(
+            [
+                "btf",
+                "generate",
+                "-o",
+                str(root),
+                "--size",
+                str(SIZE),
+                "--seed",
+                str(SEED),
+                "--chunk",
+                str(CHUNK),
+                "-q",
+            ]
+        )
+        == 0
+    )
+    np.testing.assert_array_equal(
+        btf.ChunkedStore.open(root / "measurements").read(),
+        btf.ChunkedStore.open(paths["measurements"]).read(),
+    )
     maps = np.load(root / "maps.npz")
     assert maps["height"].shape == (SIZE, SIZE) and maps["normal"].shape == (SIZE, SIZE, 3)
     out = tmp_path / "out"
     assert main(["btf", "reconstruct", str(root), "-o", str(out), "--chunk", str(CHUNK), "-q"]) == 0
     np.testing.assert_array_equal(btf.ChunkedStore.open(out).read(), full.read())
     capsys.readouterr()
-    assert main(["btf", "reconstruct", str(root / "measurements"), "-o", str(out), "--chunk", str(CHUNK), "-q"]) == 0
+    assert (
+        main(
+            [
+                "btf",
+                "reconstruct",
+                str(root / "measurements"),
+                "-o",
+                str(out),
+                "--chunk",
+                str(CHUNK),
+                "-q",
+            ]
+        )
+        == 0
+    )
     assert "0 chunks computed, 2 already done" in capsys.readouterr().out  # resumed: nothing to do
     png = tmp_path / "map.png"
-    assert main(["btf", "evaluate", str(out), str(root / "reference"), "--json", "--png", str(png)]) == 0
+    assert (
+        main(["btf", "evaluate", str(out), str(root / "reference"), "--json", "--png", str(png)])
+        == 0
+    )
     doc = json.loads(capsys.readouterr().out)
     want = btf.texel_metrics(full, paths["reference"], metrics=("de76", "logerr"))["de76"].mean()
     assert abs(doc["de76"]["mean"] - want) < 1e-6 * max(1.0, want) and png.stat().st_size > 1000
     # bad input: one line, exit status 2
     assert main(["btf", "reconstruct", str(tmp_path / "nothing"), "-o", str(tmp_path / "o2")]) == 2
     assert "not found" in capsys.readouterr().err
-    assert main(["btf", "reconstruct", str(root / "reference"), "-o", str(tmp_path / "o3"), "-q"]) == 2
+    assert (
+        main(["btf", "reconstruct", str(root / "reference"), "-o", str(tmp_path / "o3"), "-q"]) == 2
+    )
     assert "expected measurements" in capsys.readouterr().err
     assert main(["btf", "generate", "-o", str(tmp_path / "g"), "--size", "0"]) == 2
     capsys.readouterr()
-    assert main(["btf", "reconstruct", str(root), "-o", str(tmp_path / "o4"), "--coordinator", "h:1", "-q"]) == 2
+    assert (
+        main(
+            [
+                "btf",
+                "reconstruct",
+                str(root),
+                "-o",
+                str(tmp_path / "o4"),
+                "--coordinator",
+                "h:1",
+                "-q",
+            ]
+        )
+        == 2
+    )
     assert "together" in capsys.readouterr().err
     assert main(["btf", "reconstruct", str(root), "-o", str(root / "maps.npz"), "-q"]) == 2
     assert "not a folder" in capsys.readouterr().err
@@ -440,13 +574,27 @@ def test_per_texel_model_choice(tmp_path):
     names = ("ggx-plastic", "ward-brushed-steel", "lambert-clay", "ggx-aniso-metal")
     samples = [aj.sample(get_material(n), aj.Config(budget="aniso204")) for n in names]
     s0 = samples[0]
-    geometry = dict(theta_i=s0.theta_i.tolist(), phi_i=s0.phi_i.tolist(), theta_v=s0.theta_v.tolist(),
-                    phi_v=s0.phi_v.tolist(), alpha_deg=15.0, budget="aniso204")
-    meas = btf.ChunkedStore.create(tmp_path / "meas", kind="measurements", texel_shape=(2, 2),
-                                   item_shape=(len(s0), 3), chunk=4, geometry=geometry)
+    geometry = dict(
+        theta_i=s0.theta_i.tolist(),
+        phi_i=s0.phi_i.tolist(),
+        theta_v=s0.theta_v.tolist(),
+        phi_v=s0.phi_v.tolist(),
+        alpha_deg=15.0,
+        budget="aniso204",
+    )
+    meas = btf.ChunkedStore.create(
+        tmp_path / "meas",
+        kind="measurements",
+        texel_shape=(2, 2),
+        item_shape=(len(s0), 3),
+        chunk=4,
+        geometry=geometry,
+    )
     y = np.stack([np.asarray(s.rgb, np.float32) for s in samples])
     meas.write_chunk(0, y)
-    out = btf.reconstruct_btf(meas, tmp_path / "rec", chunk=4, progress=False, dtype="float32", model="auto")
+    out = btf.reconstruct_btf(
+        meas, tmp_path / "rec", chunk=4, progress=False, dtype="float32", model="auto"
+    )
 
     decided = btf.isotropy_map(meas, chunk=4)
     truth = [isotropy_test(s, alpha_deg=15.0).isotropic for s in samples]
@@ -454,8 +602,14 @@ def test_per_texel_model_choice(tmp_path):
     assert decided["fraction_isotropic"] == 0.5
 
     config = btf.default_config()
-    fn = _batch._chunk_fn(config, aj.Params.default(config, alpha_deg=15.0, dtype=jnp.float32), meas.geometry,
-                          "auto", jnp.float32, "auto")  # the map reconstruct_btf built (cached)
+    fn = _batch._chunk_fn(
+        config,
+        aj.Params.default(config, alpha_deg=15.0, dtype=jnp.float32),
+        meas.geometry,
+        "auto",
+        jnp.float32,
+        "auto",
+    )  # the map reconstruct_btf built (cached)
     assert isinstance(fn, btf.ModelChoiceChunkFunction) and fn.backend == "operator+choice"
     iso, aniso = np.asarray(fn.iso(jnp.asarray(y))), np.asarray(fn.aniso(jnp.asarray(y)))
     expected = np.where(np.asarray(truth)[:, None, None], iso, aniso)
@@ -463,7 +617,13 @@ def test_per_texel_model_choice(tmp_path):
     assert np.abs(iso[1] - aniso[1]).max() > 1e-2  # the two models differ on the anisotropic texel
 
     with pytest.raises(InputError, match="model='auto'"):
-        btf.reconstruct_btf(meas, tmp_path / "rec2", aj.Config.recommended("iso102"), chunk=4, progress=False,
-                            model="auto")
+        btf.reconstruct_btf(
+            meas,
+            tmp_path / "rec2",
+            aj.Config.recommended("iso102"),
+            chunk=4,
+            progress=False,
+            model="auto",
+        )
     with pytest.raises(InputError, match="model must be"):
         btf.reconstruct_btf(meas, tmp_path / "rec3", chunk=4, progress=False, model="best")

@@ -24,7 +24,11 @@ def run_cli(*args, cwd):
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     return subprocess.run(
         [sys.executable, "-m", "abrdf_jax.cli", *map(str, args)],
-        cwd=cwd, env=env, capture_output=True, text=True, timeout=300,
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
 
 
@@ -77,7 +81,9 @@ def test_sample_reconstruct_evaluate(tmp_path, iso_material):
     # Keep a copy of the reference to compare against.
     from abrdf_jax import materials
 
-    io.write_table(tmp_path / "ref.npz", materials.dense_table(materials.get_material(iso_material)))
+    io.write_table(
+        tmp_path / "ref.npz", materials.dense_table(materials.get_material(iso_material))
+    )
 
     proc = run_cli("reconstruct", "meas.csv", "-o", "rec.npz", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
@@ -101,7 +107,9 @@ def test_folder_mode_reconstructs_every_file(tmp_path):
     src.mkdir()
     for k, (name, budget) in enumerate((("a", "iso102"), ("b", "iso102"), ("c", "aniso204"))):
         config = aj.Config(budget=budget)
-        io.write_samples_csv(src / f"{name}.csv", aj.sample(_table(k, budget == "aniso204"), config))
+        io.write_samples_csv(
+            src / f"{name}.csv", aj.sample(_table(k, budget == "aniso204"), config)
+        )
     (src / "notes.txt").write_text("not a measurement")  # ignored: only *.csv are inputs
     proc = run_cli("reconstruct", src, "-o", tmp_path / "out", "--format", "exr", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
@@ -180,15 +188,30 @@ def test_in_process_errors(tmp_path, capsys, monkeypatch):
         (["demo", "-o", "fig.gif"], "fig.gif"),
         (["demo", "--materials", "0"], "--materials"),
         # --preset, --model NAME and --params each fix the model: one at a time
-        (["reconstruct", "m.csv", "-o", "x.npz", "--preset", "paper", "--model", "iso"], "both fix the model"),
-        (["reconstruct", "m.csv", "-o", "x.npz", "--preset", "paper", "--params", "p.json"], "both fix the model"),
-        (["reconstruct", "m.csv", "-o", "x.npz", "--model", "auto", "--preset", "paper"], "--model auto"),
-        (["btf", "reconstruct", "m.csv", "-o", "o", "--preset", "paper", "--params", "p.json"], "--preset paper"),
+        (
+            ["reconstruct", "m.csv", "-o", "x.npz", "--preset", "paper", "--model", "iso"],
+            "both fix the model",
+        ),
+        (
+            ["reconstruct", "m.csv", "-o", "x.npz", "--preset", "paper", "--params", "p.json"],
+            "both fix the model",
+        ),
+        (
+            ["reconstruct", "m.csv", "-o", "x.npz", "--model", "auto", "--preset", "paper"],
+            "--model auto",
+        ),
+        (
+            ["btf", "reconstruct", "m.csv", "-o", "o", "--preset", "paper", "--params", "p.json"],
+            "--preset paper",
+        ),
     ]
     for argv, name in cases:
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
-        assert err.startswith("abrdf-jax: error:") and name in err and "Traceback" not in err, (argv, err)
+        assert err.startswith("abrdf-jax: error:") and name in err and "Traceback" not in err, (
+            argv,
+            err,
+        )
     assert listing(tmp_path) == ["m.csv", "t.npz"]
     # A usage error is argparse's (exit 2); -v shows tracebacks.
     assert main(["reconstruct", "m.csv"]) == 2
@@ -243,7 +266,9 @@ def test_internal_errors_exit_1_with_traceback(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert "Traceback" in err and "ValueError: a bug" in err
     last = err.strip().splitlines()[-1]
-    assert last.startswith("abrdf-jax: internal error (ValueError: a bug)") and "report" in last, last
+    assert last.startswith("abrdf-jax: internal error (ValueError: a bug)") and "report" in last, (
+        last
+    )
     assert f"abrdf-jax {version()}" in last
     assert listing(tmp_path) == ["t.npz"]
 
@@ -266,7 +291,11 @@ def test_preset_fixes_the_model(tmp_path, capsys, iso_material):
         out = tmp_path / f"{preset}.npz"
         assert main(["reconstruct", str(meas), "-o", str(out), "--preset", preset]) == 0
         doc = json.loads((tmp_path / f"{preset}.model.json").read_text())
-        assert doc["how"] == "preset" and doc["model"] == model and doc["reason"].startswith(f"--preset {preset}:")
+        assert (
+            doc["how"] == "preset"
+            and doc["model"] == model
+            and doc["reason"].startswith(f"--preset {preset}:")
+        )
         config = aj.preset(preset, "iso102")
         expected = aj.reconstruct(samples, config, aj.Params.default(config))
         np.testing.assert_allclose(io.read_table(out), expected, rtol=1e-5, atol=1e-7)

@@ -29,10 +29,16 @@ NO_JAX_CASES = [
     (["btf", "reconstruct", "--help"], 0),
     (["reconstruct", "bad.csv", "-o", "rec.npz"], 2),  # a malformed CSV (line 3)
     (["reconstruct", "empty.csv", "-o", "rec.npz"], 2),
-    (["reconstruct", "header.csv", "bad.csv", "-o", "out"], 2),  # several inputs, each read and checked
+    (
+        ["reconstruct", "header.csv", "bad.csv", "-o", "out"],
+        2,
+    ),  # several inputs, each read and checked
     (["reconstruct", "missing.csv", "-o", "rec.npz"], 2),  # a missing file
     (["reconstruct", "bad.csv", "-o", "rec.png"], 2),  # a bad extension
-    (["reconstruct", "bad.csv", "-o", "rec.npz", "--preset", "nope"], 2),  # a bad option value (argparse)
+    (
+        ["reconstruct", "bad.csv", "-o", "rec.npz", "--preset", "nope"],
+        2,
+    ),  # a bad option value (argparse)
     (["reconstruct", "bad.csv", "-o", "rec.npz", "--model", "nope"], 2),
     (["reconstruct", "bad.csv", "-o", "rec.npz", "--tol", "-1"], 2),
     (["reconstruct", "bad.csv", "-o", "rec.npz", "--preset", "paper", "--model", "iso"], 2),
@@ -65,14 +71,22 @@ print(json.dumps(report))
 def _run(cases, cwd):
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run([sys.executable, "-c", _SCRIPT, json.dumps(cases)], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-c", _SCRIPT, json.dumps(cases)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     return json.loads(proc.stdout.strip().splitlines()[-1]), proc.stderr
 
 
 def test_help_and_input_errors_import_no_jax(tmp_path):
-    (tmp_path / "bad.csv").write_text(HEADER + "\n30,15,30,0,0.1,0.2,0.3\n30,0,30,15,0.1,oops,0.3\n")
+    (tmp_path / "bad.csv").write_text(
+        HEADER + "\n30,15,30,0,0.1,0.2,0.3\n30,0,30,15,0.1,oops,0.3\n"
+    )
     (tmp_path / "empty.csv").write_text("")
     (tmp_path / "header.csv").write_text(HEADER + "\n")  # no data rows
     np.savez(tmp_path / "shape.npz", abrdf=np.zeros((80, 81, 3), np.float32))
@@ -81,7 +95,12 @@ def test_help_and_input_errors_import_no_jax(tmp_path):
         assert code == want, (argv, code, err)
         assert not jax_loaded, f"{argv} imported jax"
     assert "bad.csv:3:" in err and "abrdf-jax: error:" in err and "Traceback" not in err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.csv", "empty.csv", "header.csv", "shape.npz"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "bad.csv",
+        "empty.csv",
+        "header.csv",
+        "shape.npz",
+    ]
 
 
 def test_materials_listing_imports_no_jax(tmp_path):
@@ -100,7 +119,9 @@ def test_subcommands_import_only_the_shared_module():
         if path.name in ("__init__.py", "__main__.py"):
             continue
         for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.ImportFrom) and node.level == 1:  # "from . import x", "from .x import y"
+            if (
+                isinstance(node, ast.ImportFrom) and node.level == 1
+            ):  # "from . import x", "from .x import y"
                 targets = [node.module] if node.module else [a.name for a in node.names]
                 allowed = {"_common"} if path.name != "_common.py" else set()
                 assert set(targets) <= allowed, (path.name, targets)
@@ -144,5 +165,7 @@ def test_help_defaults_match_the_package():
     assert f"default {select.TOL:g}" in helps[("reconstruct",), "tol"]
     for path in (("reconstruct",), ("fit", "self"), ("fit", "population"), ("btf", "reconstruct")):
         text = " ".join(helps[path, "preset"].split())
-        assert "abrdf_jax.preset(NAME, budget)" in text and all(name in text for name in aj.PRESETS), path
+        assert "abrdf_jax.preset(NAME, budget)" in text and all(
+            name in text for name in aj.PRESETS
+        ), path
     assert "default operator" in " ".join(helps[("btf", "reconstruct"), "preset"].split())

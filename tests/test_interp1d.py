@@ -38,7 +38,9 @@ def test_cubic_converges_on_smooth_data():
     errs = []
     for n in (12, 24, 48):
         t, y = _slice(n, n, lambda t: np.cos(2 * t))
-        errs.append(float(jnp.max(jnp.abs(periodic_interp(t, y, n, q, "cubic")[:, 0] - jnp.cos(2 * q)))))
+        errs.append(
+            float(jnp.max(jnp.abs(periodic_interp(t, y, n, q, "cubic")[:, 0] - jnp.cos(2 * q))))
+        )
     assert errs[1] < errs[0] / 4 and errs[2] < errs[1] / 4  # better than first order
 
 

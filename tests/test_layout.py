@@ -43,7 +43,11 @@ def import_graph() -> dict[str, set[str]]:
         for node in ast.walk(ast.parse(path.read_text())):
             targets = []
             if isinstance(node, ast.ImportFrom):
-                base = _resolve(mod, is_pkg, node.level, node.module) if node.level else (node.module or "")
+                base = (
+                    _resolve(mod, is_pkg, node.level, node.module)
+                    if node.level
+                    else (node.module or "")
+                )
                 targets.append(base)
                 targets.extend(f"{base}.{a.name}" for a in node.names)
             elif isinstance(node, ast.Import):
@@ -56,6 +60,7 @@ def import_graph() -> dict[str, set[str]]:
 
 def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
     """A cycle of the graph, ignoring a package's imports of its own sub-modules (its re-exports)."""
+
     def edges(m):
         return {t for t in graph[m] if not t.startswith(m + ".")}
 
@@ -67,7 +72,7 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
         stack.append(m)
         for t in sorted(edges(m)):
             if state.get(t) == 1:
-                return stack[stack.index(t):] + [t]
+                return stack[stack.index(t) :] + [t]
             if t not in state:
                 found = visit(t)
                 if found:
@@ -91,8 +96,11 @@ def test_no_import_cycle():
 
 @pytest.mark.parametrize("folder", ["abrdf_jax", "benchmarks"])
 def test_no_module_over_500_lines(folder):
-    long = {str(p.relative_to(ROOT)): n for p in (ROOT / folder).rglob("*.py")
-            if (n := len(p.read_text().splitlines())) > MAX_LINES}
+    long = {
+        str(p.relative_to(ROOT)): n
+        for p in (ROOT / folder).rglob("*.py")
+        if (n := len(p.read_text().splitlines())) > MAX_LINES
+    }
     assert not long, long
 
 
@@ -107,8 +115,17 @@ def test_no_private_names_outside_the_package():
 
 
 def _imports_jax(code: str) -> bool:
-    out = subprocess.run([sys.executable, "-c", code + "\nimport sys\nprint('JAX' if 'jax' in sys.modules else 'NOJAX')"],
-                         capture_output=True, text=True, cwd=ROOT, timeout=120)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            code + "\nimport sys\nprint('JAX' if 'jax' in sys.modules else 'NOJAX')",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
     assert out.stdout.strip().splitlines()[-1] in ("JAX", "NOJAX"), out.stderr
     return out.stdout.strip().splitlines()[-1] == "JAX"
 

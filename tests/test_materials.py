@@ -18,7 +18,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def vec(theta_deg, phi_deg):
-    return to_vector(jnp.deg2rad(jnp.asarray(theta_deg, float)), jnp.deg2rad(jnp.asarray(phi_deg, float)))
+    return to_vector(
+        jnp.deg2rad(jnp.asarray(theta_deg, float)), jnp.deg2rad(jnp.asarray(phi_deg, float))
+    )
 
 
 # One batch size for the random directions of all tests (= 81 x 81), so that every model
@@ -117,7 +119,9 @@ def test_nbrdf_check_values(data_dir, name, angles, ref):
     f = m.brdf(vec(*angles[:2]), vec(*angles[2:]))
     np.testing.assert_allclose(f, ref, rtol=2e-5)
     abrdf = m(vec(*angles[:2]), vec(*angles[2:]))
-    np.testing.assert_allclose(abrdf, np.asarray(ref) * math.cos(math.radians(angles[0])), rtol=2e-5)
+    np.testing.assert_allclose(
+        abrdf, np.asarray(ref) * math.cos(math.radians(angles[0])), rtol=2e-5
+    )
 
 
 def test_nbrdf_input_vector():
@@ -160,8 +164,9 @@ def test_nbrdf_all_tables_float64(data_dir, nbrdf_stack):
     np.testing.assert_allclose(ours, ref, rtol=3e-7, atol=1e-30)
     # dense_table of a single network goes through the same code.
     k = list(t["names"]).index("gold-paint")
-    np.testing.assert_allclose(M.dense_table(M.load_nbrdf("gold-paint", data_dir), np.float64),
-                               ref[k], rtol=3e-7)
+    np.testing.assert_allclose(
+        M.dense_table(M.load_nbrdf("gold-paint", data_dir), np.float64), ref[k], rtol=3e-7
+    )
 
 
 def test_nbrdf_all_tables_float32(data_dir, nbrdf_stack):
@@ -261,7 +266,9 @@ def test_values_and_gradients_finite(name, rng):
     if name == "ggx":
         assert all_finite(all_grads(eqx.tree_at(lambda q: q.alpha_x, m, jnp.asarray(0.0)), wi, wv))
     if name == "rough":
-        flat = eqx.tree_at(lambda q: (q.groove_slope, q.fill), m, (jnp.asarray(0.0), jnp.asarray(0.0)))
+        flat = eqx.tree_at(
+            lambda q: (q.groove_slope, q.fill), m, (jnp.asarray(0.0), jnp.asarray(0.0))
+        )
         assert all_finite(all_grads(flat, wi, wv))
 
 
@@ -284,14 +291,21 @@ def test_vmap_over_parameters(rng):
     wi, wv = hemisphere(rng), hemisphere(rng)
     alphas = jnp.array([0.1, 0.2, 0.4])
     # Parameters are traced: a model built inside vmap/jit from traced values works.
-    batched = jax.jit(jax.vmap(lambda ax, ay: M.GGX(RGB, 0.5, ax, ay)(wi, wv)))(alphas, alphas[::-1])
+    batched = jax.jit(jax.vmap(lambda ax, ay: M.GGX(RGB, 0.5, ax, ay)(wi, wv)))(
+        alphas, alphas[::-1]
+    )
     for k in range(3):
-        np.testing.assert_allclose(batched[k], M.GGX(RGB, 0.5, alphas[k], alphas[2 - k])(wi, wv), rtol=1e-12)
+        np.testing.assert_allclose(
+            batched[k], M.GGX(RGB, 0.5, alphas[k], alphas[2 - k])(wi, wv), rtol=1e-12
+        )
     # A module with a leading parameter axis, vmapped over that axis.
     stacked = M.Ward(RGB, 0.3, alphas, alphas[::-1])
-    axes = eqx.tree_at(lambda q: (q.diffuse, q.specular, q.alpha_x, q.alpha_y, q.rotation),
-                       jax.tree_util.tree_map(lambda _: None, stacked), (None, None, 0, 0, None),
-                       is_leaf=lambda x: x is None)
+    axes = eqx.tree_at(
+        lambda q: (q.diffuse, q.specular, q.alpha_x, q.alpha_y, q.rotation),
+        jax.tree_util.tree_map(lambda _: None, stacked),
+        (None, None, 0, 0, None),
+        is_leaf=lambda x: x is None,
+    )
     out = eqx.filter_jit(eqx.filter_vmap(lambda mm: mm(wi, wv), in_axes=(axes,)))(stacked)
     np.testing.assert_allclose(out[1], M.Ward(RGB, 0.3, 0.2, 0.2)(wi, wv), rtol=1e-12)
 
@@ -321,13 +335,18 @@ def test_rough_structured_not_reciprocal():
     assert (np.abs(a - b) / np.maximum(a, b)).max() > 0.05
     # Each non-reciprocal ingredient alone breaks reciprocity; without any of them it holds.
     base = dict(diffuse=RGB, specular_f0=0.3, roughness=0.25, groove_slope=0.6)
-    recip = M.RoughStructured(**base, fill=0.0, forward=0.0, shadow_sharpness=6.0, mask_sharpness=6.0)
+    recip = M.RoughStructured(
+        **base, fill=0.0, forward=0.0, shadow_sharpness=6.0, mask_sharpness=6.0
+    )
     np.testing.assert_allclose(recip(wi, wv) / wi[:, 2:], recip(wv, wi) / wv[:, 2:], rtol=1e-10)
     filled = eqx.tree_at(lambda q: q.fill, recip, jnp.asarray(0.4))
     np.testing.assert_allclose(filled(wi, wv) / wi[:, 2:], filled(wv, wi) / wv[:, 2:], rtol=1e-10)
     for change in (dict(forward=0.3), dict(shadow_sharpness=2.0)):
-        m = eqx.tree_at(lambda q: tuple(getattr(q, k) for k in change), recip,
-                        tuple(jnp.asarray(v) for v in change.values()))
+        m = eqx.tree_at(
+            lambda q: tuple(getattr(q, k) for k in change),
+            recip,
+            tuple(jnp.asarray(v) for v in change.values()),
+        )
         a, b = m(wi, wv) / wi[:, 2:], m(wv, wi) / wv[:, 2:]
         # (pairs where the lit facet is hidden from the view are black both ways without fill)
         assert (np.abs(a - b) / np.maximum(np.maximum(a, b), 1e-12)).max() > 0.02, change
@@ -336,14 +355,24 @@ def test_rough_structured_not_reciprocal():
 def test_rough_structured_limits(rng):
     wi, wv = hemisphere(rng), hemisphere(rng)
     # A flat surface (no grooves, no forward lobe) is the isotropic GGX model with a Lambertian base.
-    flat = M.RoughStructured(RGB, specular_f0=0.3, roughness=0.2, groove_slope=0.0, fill=0.5,
-                             forward=0.0, shadow_sharpness=60.0, mask_sharpness=60.0)
+    flat = M.RoughStructured(
+        RGB,
+        specular_f0=0.3,
+        roughness=0.2,
+        groove_slope=0.0,
+        fill=0.5,
+        forward=0.0,
+        shadow_sharpness=60.0,
+        mask_sharpness=60.0,
+    )
     np.testing.assert_allclose(flat(wi, wv), M.GGX(RGB, 0.3, 0.2, 0.2)(wi, wv), rtol=1e-12)
     # With fill = 1 the diffuse layer sees cos(g) cos(theta_i) on both facets (no shadows).
     g = 0.5
     full = M.RoughStructured(RGB, groove_slope=g, fill=1.0, forward=0.0)
     glossy = M.RoughStructured(0.0, groove_slope=g, fill=1.0, forward=0.0)
-    np.testing.assert_allclose(full(wi, wv) - glossy(wi, wv), RGB / np.pi * np.cos(g) * wi[:, 2:], rtol=1e-10)
+    np.testing.assert_allclose(
+        full(wi, wv) - glossy(wi, wv), RGB / np.pi * np.cos(g) * wi[:, 2:], rtol=1e-10
+    )
     # The forward lobe is a von Mises-Fisher term added on top.
     fwd = eqx.tree_at(lambda q: q.forward, full, jnp.asarray(0.2))
     axis = np.asarray(M.RoughStructured(0.0).forward_lift)
@@ -351,7 +380,9 @@ def test_rough_structured_limits(rng):
     c /= np.linalg.norm(c, axis=-1, keepdims=True)
     k = 4.0
     lobe = 0.2 * wi[:, 2] * k / (2 * np.pi) * np.exp(k * (np.sum(c * wv, -1) - 1))
-    np.testing.assert_allclose(fwd(wi, wv) - full(wi, wv), np.repeat(lobe[:, None], 3, 1), rtol=1e-10)
+    np.testing.assert_allclose(
+        fwd(wi, wv) - full(wi, wv), np.repeat(lobe[:, None], 3, 1), rtol=1e-10
+    )
 
 
 ISO = {
@@ -384,8 +415,11 @@ def test_anisotropic_not_invariant(name, rng):
 
 @pytest.mark.parametrize(
     "cls, swap",
-    [(M.Ward, ("alpha_x", "alpha_y")), (M.GGX, ("alpha_x", "alpha_y")),
-     (M.AshikhminShirley, ("n_u", "n_v"))],
+    [
+        (M.Ward, ("alpha_x", "alpha_y")),
+        (M.GGX, ("alpha_x", "alpha_y")),
+        (M.AshikhminShirley, ("n_u", "n_v")),
+    ],
 )
 def test_rotation_quarter_turn_swaps_axes(cls, swap, rng):
     wi, wv = hemisphere(rng), hemisphere(rng)
@@ -453,7 +487,11 @@ def test_registry_materials_behave_as_declared(name, rng):
     wi, wv = hemisphere(rng, zmin=0.1), hemisphere(rng, zmin=0.1)
     a = m(wi, wv)
     rot = m(rotate_z(wi, 0.9), rotate_z(wv, 0.9))
-    assert np.abs(rot - a).max() / a.max() < 1e-9 if info["isotropic"] else np.abs(rot - a).max() / a.max() > 0.01
+    assert (
+        np.abs(rot - a).max() / a.max() < 1e-9
+        if info["isotropic"]
+        else np.abs(rot - a).max() / a.max() > 0.01
+    )
     rec = np.abs(m(wv, wi) / wv[:, 2:] - a / wi[:, 2:]) / (a / wi[:, 2:])
     assert rec.max() < 1e-9 if info["reciprocal"] else rec.max() > 0.05
 
@@ -465,11 +503,19 @@ def test_dense_table_convention():
     theta, phi = ubo_grid()
     # Row = illumination: each row is constant over the views and scales with cos(theta_i).
     np.testing.assert_allclose(t, t[:, :1, :].repeat(81, 1), rtol=1e-6)
-    np.testing.assert_allclose(t[:, 0, :], np.cos(np.deg2rad(theta))[:, None] * RGB / np.pi, rtol=1e-6)
+    np.testing.assert_allclose(
+        t[:, 0, :], np.cos(np.deg2rad(theta))[:, None] * RGB / np.pi, rtol=1e-6
+    )
     # The same by name, and for an asymmetric material table[i, v] = material(w_i, w_v).
-    np.testing.assert_allclose(M.dense_table("lambert-clay"), M.dense_table(M.get_material("lambert-clay")))
+    np.testing.assert_allclose(
+        M.dense_table("lambert-clay"), M.dense_table(M.get_material("lambert-clay"))
+    )
     g = M.get_material("rough-grooves")
     t64 = M.dense_table(g, np.float64)
     i, v = 57, 3
-    np.testing.assert_allclose(t64[i, v], g(vec(theta[i], phi[i]), vec(theta[v], phi[v])), rtol=1e-12)
-    assert not np.allclose(t64[i, v], t64[v, i] * np.cos(np.deg2rad(theta[i])) / np.cos(np.deg2rad(theta[v])))
+    np.testing.assert_allclose(
+        t64[i, v], g(vec(theta[i], phi[i]), vec(theta[v], phi[v])), rtol=1e-12
+    )
+    assert not np.allclose(
+        t64[i, v], t64[v, i] * np.cos(np.deg2rad(theta[i])) / np.cos(np.deg2rad(theta[v]))
+    )

@@ -38,9 +38,22 @@ def test_merl_test_subset_iso102(data_dir):
     de = {"paper": [], "best": [], "fill": [], "scipy": []}
     for k in range(len(pick)):
         m = jax.tree_util.tree_map(lambda x: x[k], meas).to_samples()
-        rec_sc = reconstruct_scipy(m.theta_i, m.phi_i, m.theta_v, m.phi_v, m.rgb, kernel=paper.kernel,
-                                   widths=np.asarray(p.widths), smoothing=float(p.reg))
-        for key, rec in (("paper", rec_paper[k]), ("best", rec_best[k]), ("fill", rec_fill[k]), ("scipy", rec_sc)):
+        rec_sc = reconstruct_scipy(
+            m.theta_i,
+            m.phi_i,
+            m.theta_v,
+            m.phi_v,
+            m.rgb,
+            kernel=paper.kernel,
+            widths=np.asarray(p.widths),
+            smoothing=float(p.reg),
+        )
+        for key, rec in (
+            ("paper", rec_paper[k]),
+            ("best", rec_best[k]),
+            ("fill", rec_fill[k]),
+            ("scipy", rec_sc),
+        ):
             de[key].append(float(evaluate(rec, ref[k])["de76"]))
     mean = {k: float(np.mean(v)) for k, v in de.items()}
     print(mean)

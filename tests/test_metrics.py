@@ -98,16 +98,22 @@ def test_matrix_is_colour_sciences_derived_matrix():
     # RGB white maps to the Lab white: L* = 100, a* = b* = 0
     np.testing.assert_allclose(M.srgb_to_lab(jnp.ones(3)), [100.0, 0.0, 0.0], atol=1e-12)
     # the rounded IEC constants differ at the 1e-4 level only
-    np.testing.assert_allclose(M.SRGB_TO_XYZ, colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ, atol=1e-4)
+    np.testing.assert_allclose(
+        M.SRGB_TO_XYZ, colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ, atol=1e-4
+    )
 
 
 def test_srgb_encode_matches_colour(rng):
     t = np.concatenate([[0.0, 0.0031308, 0.0031309, 1.0, 1e-9], rng.uniform(0, 1, 500)])
-    np.testing.assert_allclose(M.srgb_encode(t), colour.cctf_encoding(t, "sRGB"), rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(
+        M.srgb_encode(t), colour.cctf_encoding(t, "sRGB"), rtol=1e-13, atol=1e-15
+    )
 
 
 def test_lab_matches_colour(rng):
-    t = np.concatenate([np.zeros((1, 3)), rng.uniform(0, 1, (500, 3)), rng.uniform(0, 1e-3, (50, 3))])
+    t = np.concatenate(
+        [np.zeros((1, 3)), rng.uniform(0, 1, (500, 3)), rng.uniform(0, 1e-3, (50, 3))]
+    )
     np.testing.assert_allclose(M.srgb_to_lab(t), _colour_lab(t), rtol=1e-10, atol=1e-10)
 
 
@@ -138,7 +144,9 @@ def test_de2000_matches_colour_on_lab(rng):
     lab2[:50] = lab1[:50]  # identical
     lab1[50:100, 1:] = 0.0  # neutral
     expected = colour.delta_E(lab1, lab2, method="CIE 2000")
-    np.testing.assert_allclose(de2000_pairs(jnp.asarray(lab1), jnp.asarray(lab2)), expected, atol=1e-9)
+    np.testing.assert_allclose(
+        de2000_pairs(jnp.asarray(lab1), jnp.asarray(lab2)), expected, atol=1e-9
+    )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -260,7 +268,9 @@ def test_check_grads_smooth(rng):
     # cotangents, so every metric's gradient is checked at once (one compilation, not five).
     ref = rng.uniform(0.5, 2.0, (*SHAPE[:-1], 1)) * rng.uniform(0.6, 1.4, SHAPE)
     # each pair brighter or darker by 10-30 % (never close to ref: the norms stay far from their kink)
-    scale = np.exp(rng.choice([-1.0, 1.0], (*SHAPE[:-1], 1)) * rng.uniform(0.1, 0.3, (*SHAPE[:-1], 1)))
+    scale = np.exp(
+        rng.choice([-1.0, 1.0], (*SHAPE[:-1], 1)) * rng.uniform(0.1, 0.3, (*SHAPE[:-1], 1))
+    )
     rec = ref * scale * rng.uniform(0.98, 1.02, SHAPE)
     check_grads(lambda r: M.evaluate(r, ref), (rec,), order=1, modes=("rev",))
 

@@ -53,8 +53,13 @@ def test_group_tolerates_off_slice_and_estimates_alpha():
     cfg = aj.Config(budget="iso102")
     p = aj.Params.default(cfg, alpha_deg=20.0)
     s = aj.sample(smooth_model, cfg, p)
-    extra = aj.Samples(np.array([45.0, 30.0]), np.array([10.0, 33.0]), np.array([45.0, 30.0]),
-                       np.array([100.0, 70.0]), np.ones((2, 3)))
+    extra = aj.Samples(
+        np.array([45.0, 30.0]),
+        np.array([10.0, 33.0]),
+        np.array([45.0, 30.0]),
+        np.array([100.0, 70.0]),
+        np.ones((2, 3)),
+    )
     s2 = aj.Samples.concatenate([s, extra])
     assert abs(aj.estimate_alpha(s2) - 20.0) < 1e-6
     meas, rep = aj.group_slices(s2, alpha_deg=None)
@@ -63,7 +68,9 @@ def test_group_tolerates_off_slice_and_estimates_alpha():
 
 
 def test_group_without_diagonal_slices_fails():
-    s = aj.Samples(np.array([45.0]), np.array([10.0]), np.array([45.0]), np.array([100.0]), np.ones((1, 3)))
+    s = aj.Samples(
+        np.array([45.0]), np.array([10.0]), np.array([45.0]), np.array([100.0]), np.ones((1, 3))
+    )
     with pytest.raises(aj.InputError, match="no sample lies on a diagonal slice"):
         aj.group_slices(s)
 
@@ -117,7 +124,9 @@ def test_scaling_input_scales_output_linear_rules():
     cfg = aj.Config(budget="aniso204", rule="crossing")
     meas = aj.sample(smooth_model, cfg, as_measurements=True)
     a = aj.reconstruct(meas, cfg)
-    b = aj.reconstruct(aj.Measurements(meas.t, 3.0 * meas.y, meas.count, meas.pairs, meas.has_axial), cfg)
+    b = aj.reconstruct(
+        aj.Measurements(meas.t, 3.0 * meas.y, meas.count, meas.pairs, meas.has_axial), cfg
+    )
     np.testing.assert_allclose(b, 3.0 * a, rtol=1e-9, atol=1e-12)
 
 

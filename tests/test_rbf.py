@@ -25,10 +25,18 @@ def test_matches_scipy(kernel, reg, rng):
     xq = points(rng, 40)
     widths = np.array([0.7, 1.3, 0.9, 2.0])
     degree = max(min_degree(kernel), 0) if kernel in ("gaussian",) else None
-    ours = rbf_interpolate(jnp.asarray(x), jnp.asarray(y), jnp.asarray(xq), jnp.asarray(widths), kernel, reg, degree)
+    ours = rbf_interpolate(
+        jnp.asarray(x), jnp.asarray(y), jnp.asarray(xq), jnp.asarray(widths), kernel, reg, degree
+    )
     sp_degree = min_degree(kernel) if degree is None else degree
-    ref = RBFInterpolator(x / widths, y, kernel=SCIPY_NAME.get(kernel, kernel), epsilon=1.0,
-                          smoothing=reg, degree=sp_degree)(xq / widths)
+    ref = RBFInterpolator(
+        x / widths,
+        y,
+        kernel=SCIPY_NAME.get(kernel, kernel),
+        epsilon=1.0,
+        smoothing=reg,
+        degree=sp_degree,
+    )(xq / widths)
     np.testing.assert_allclose(ours, ref, rtol=1e-7, atol=1e-8)
 
 
@@ -43,7 +51,15 @@ def test_interpolates_at_centres(kernel, rng):
 def test_constant_tail_reproduces_constants(rng):
     x = points(rng, 30)
     y = np.full((30, 1), 3.5)
-    out = rbf_interpolate(jnp.asarray(x), jnp.asarray(y), jnp.asarray(points(rng, 10) * 3), jnp.ones(4), "gaussian", 1e-3, 0)
+    out = rbf_interpolate(
+        jnp.asarray(x),
+        jnp.asarray(y),
+        jnp.asarray(points(rng, 10) * 3),
+        jnp.ones(4),
+        "gaussian",
+        1e-3,
+        0,
+    )
     np.testing.assert_allclose(out, 3.5, rtol=1e-10)
 
 

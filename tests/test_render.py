@@ -78,7 +78,9 @@ def test_shared_exposure_and_defaults():
     assert np.mean(abrdf_image(2 * ref, e)) > np.mean(abrdf_image(ref, e)) + 0.05
     # Its own exposure would hide the difference.
     np.testing.assert_allclose(abrdf_image(2 * ref), abrdf_image(ref), atol=1e-6)
-    np.testing.assert_allclose(metrics.srgb_encode(metrics.tonemap(np.array([[1.0, 0.0, -1.0]])))[0, 1:], 0.0)
+    np.testing.assert_allclose(
+        metrics.srgb_encode(metrics.tonemap(np.array([[1.0, 0.0, -1.0]])))[0, 1:], 0.0
+    )
 
 
 @pytest.mark.parametrize(
@@ -122,8 +124,14 @@ def test_interpolation_reproduces_additive_affine_tables(rng):
     ti, tv = rng.uniform(0, 70, q), rng.uniform(0, 70, q)
     wi, wv = _vec(ti, rng.uniform(0, 360, q)), _vec(tv, rng.uniform(0, 360, q))
     (xi, yi), (xv, yv) = _projected(wi), _projected(wv)
-    expected = (a[0] + xi[:, None] * a[1] / 90 + yi[:, None] * a[2] / 90
-                + b[0] + xv[:, None] * b[1] / 90 + yv[:, None] * b[2] / 90)
+    expected = (
+        a[0]
+        + xi[:, None] * a[1] / 90
+        + yi[:, None] * a[2] / 90
+        + b[0]
+        + xv[:, None] * b[1] / 90
+        + yv[:, None] * b[2] / 90
+    )
     np.testing.assert_allclose(interpolate_table(table, wi, wv), expected, atol=1e-10)
 
 
@@ -146,7 +154,9 @@ def test_interpolation_is_continuous_bounded_and_zero_below_horizon(rng):
     ring75 = np.nonzero(ubo_grid()[0] == 75.0)[0]
     horizon = _vec(np.full(24, 89.999999), ubo_grid()[1][ring75])
     np.testing.assert_allclose(
-        interpolate_table(table, horizon, _grid_vectors()[:24]), table[ring75, np.arange(24)], atol=1e-6
+        interpolate_table(table, horizon, _grid_vectors()[:24]),
+        table[ring75, np.arange(24)],
+        atol=1e-6,
     )
 
 
@@ -230,8 +240,11 @@ def test_sphere_shows_anisotropy_orientation():
 def test_comparison_figure_writes_png(tmp_path):
     ref = _lambert()
     m = {"de76": 1.5, "de2000": 1.0, "rmse8": 3.0, "psnr": 38.6, "logerr": 0.01}
-    out = comparison_figure([("lambert", ref, ref * 0.9, m), ("same", ref, ref, None)],
-                            tmp_path / "fig.png", sphere_size=48)
+    out = comparison_figure(
+        [("lambert", ref, ref * 0.9, m), ("same", ref, ref, None)],
+        tmp_path / "fig.png",
+        sphere_size=48,
+    )
     data = (tmp_path / "fig.png").read_bytes()
     assert out == tmp_path / "fig.png"
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 2000

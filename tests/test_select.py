@@ -17,17 +17,26 @@ CFG_A = aj.Config.recommended("aniso204")
 
 def _noisy(meas: aj.Measurements, sigma: float, rng) -> aj.Measurements:
     y = np.asarray(meas.y) * (1.0 + sigma * rng.standard_normal(meas.y.shape))
-    return aj.Measurements(meas.t, jnp.asarray(y, meas.y.dtype), meas.count, meas.pairs, meas.has_axial)
+    return aj.Measurements(
+        meas.t, jnp.asarray(y, meas.y.dtype), meas.count, meas.pairs, meas.has_axial
+    )
 
 
 @pytest.fixture(scope="module")
 def plastic():
-    return aj.sample(materials.get_material("ggx-plastic"), CFG_A, aj.Params.default(CFG_A), as_measurements=True)
+    return aj.sample(
+        materials.get_material("ggx-plastic"), CFG_A, aj.Params.default(CFG_A), as_measurements=True
+    )
 
 
 @pytest.fixture(scope="module")
 def steel():
-    return aj.sample(materials.get_material("ward-brushed-steel"), CFG_A, aj.Params.default(CFG_A), as_measurements=True)
+    return aj.sample(
+        materials.get_material("ward-brushed-steel"),
+        CFG_A,
+        aj.Params.default(CFG_A),
+        as_measurements=True,
+    )
 
 
 # -- the isotropy test ----------------------------------------------------------------------------
@@ -36,7 +45,9 @@ def steel():
 def test_chi2_survival_matches_scipy():
     stats = pytest.importorskip("scipy.stats")
     for q, dof in [(0.3, 1), (3.0, 2), (10.0, 5), (95.0, 96), (150.0, 96), (400.0, 96), (0.0, 4)]:
-        np.testing.assert_allclose(select.chi2_sf(q, dof), stats.chi2.sf(q, dof), rtol=1e-9, atol=1e-300)
+        np.testing.assert_allclose(
+            select.chi2_sf(q, dof), stats.chi2.sf(q, dof), rtol=1e-9, atol=1e-300
+        )
 
 
 @pytest.mark.parametrize("sigma", [0.0, 0.03])
@@ -64,7 +75,9 @@ def test_isotropy_statistic_by_hand(rng):
     q = np.sum(r**2) / sigma**2
     np.testing.assert_allclose(rep.statistic, q / (4 * (n - 1)), rtol=1e-6)
     np.testing.assert_allclose(rep.p_value, select.chi2_sf(q, 4 * (n - 1)), rtol=1e-6)
-    np.testing.assert_allclose(rep.effect, np.sqrt(max(np.sum(r**2) - 4 * (n - 1) * sigma**2, 0) / (4 * n)), rtol=1e-6)
+    np.testing.assert_allclose(
+        rep.effect, np.sqrt(max(np.sum(r**2) - 4 * (n - 1) * sigma**2, 0) / (4 * n)), rtol=1e-6
+    )
     # A larger given noise explains the same variation: isotropic.
     assert select.isotropy_test(meas, noise=0.5).isotropic
     # Without axial slices there is nothing to test.
@@ -88,9 +101,13 @@ def test_noise_estimate_recovers_sigma(rng):
 def test_tolerance_rule_picks_the_simplest_within_tol():
     errors = {"a": 1.00, "b": 1.04, "c": 1.20, "d": float("nan"), "e": 1.049}
     ranks = {"a": 3, "b": 1, "c": 0, "d": -1, "e": 1}
-    assert select.tolerance_choice(errors, ranks, 0.05)[0] == "b"  # rank 1, the lower error of the tie
+    assert (
+        select.tolerance_choice(errors, ranks, 0.05)[0] == "b"
+    )  # rank 1, the lower error of the tie
     assert select.tolerance_choice(errors, ranks, 0.0)[0] == "a"  # no tolerance: the best
-    assert select.tolerance_choice(errors, ranks, 0.25)[0] == "c"  # the simplest with a finite error
+    assert (
+        select.tolerance_choice(errors, ranks, 0.25)[0] == "c"
+    )  # the simplest with a finite error
     name, reason = select.tolerance_choice(errors, ranks, 0.01)
     assert name == "a" and "worse" in reason
     with pytest.raises(aj.InputError, match="finite"):
@@ -105,13 +122,17 @@ def test_tolerance_rule_picks_the_simplest_within_tol():
 @pytest.fixture(scope="module")
 def steel_errors(steel):
     """Held-out errors of the default anisotropic candidates (the compile select_model reuses)."""
-    return select.held_out_errors(steel, {n: select.CANDIDATES[n].config() for n in select.DEFAULT_ANISO}, k=4)
+    return select.held_out_errors(
+        steel, {n: select.CANDIDATES[n].config() for n in select.DEFAULT_ANISO}, k=4
+    )
 
 
 def test_held_out_error_equals_selfcalibration_sample_folds(steel, steel_errors):
     """One stacked solve gives SelfCalibration(folds='samples')'s loss (its definition, not a copy)."""
     cfg = select.CANDIDATES["aniso-crossing"].config()
-    prob, data, params = tuning.SelfCalibration.from_samples(steel, cfg, aj.Params.default(cfg), folds="samples", k=4)
+    prob, data, params = tuning.SelfCalibration.from_samples(
+        steel, cfg, aj.Params.default(cfg), folds="samples", k=4
+    )
     loss = tuning.held_out_loss(prob, data, params)
     err = steel_errors["aniso-crossing"]
     n_valid = int(np.sum(np.asarray(data["test_mask"])))
@@ -122,7 +143,9 @@ def test_held_out_error_equals_selfcalibration_sample_folds(steel, steel_errors)
 def test_select_model(plastic, steel, steel_errors):
     sel = select.select_model(steel)
     assert not sel.isotropy.isotropic and sel.config.budget == "aniso204"
-    assert sel.errors == pytest.approx(steel_errors, rel=1e-12) and all(np.isfinite(list(sel.errors.values())))
+    assert sel.errors == pytest.approx(steel_errors, rel=1e-12) and all(
+        np.isfinite(list(sel.errors.values()))
+    )
     # The tolerance rule on the reported errors gives the reported choice.
     assert sel.name == select.tolerance_choice(sel.errors, sel.ranks, sel.tol)[0]
     assert sel.errors["iso"] > (1 + sel.tol) * min(sel.errors.values())  # anisotropy matters here
@@ -149,7 +172,9 @@ def test_sample_count_curve_matches_direct_sampling():
         p = aj.Params.default(c)
         rec = aj.reconstruct(aj.sample(mat, c, p, as_measurements=True), c, p)
         np.testing.assert_allclose(err, float(aj.metrics.evaluate(rec, ref)["de76"]), rtol=1e-5)
-    tight = select.sample_count_curve(mat, counts=(8, 16), config=cfg, target=min(curve.errors) * 0.5)
+    tight = select.sample_count_curve(
+        mat, counts=(8, 16), config=cfg, target=min(curve.errors) * 0.5
+    )
     assert tight.needed is None
 
 
@@ -178,7 +203,9 @@ def test_cli_model_auto_and_fixed(tmp_path, capsys):
     assert doc["reason"] in text and "held-out log RMS" in text
     cfg = select.CANDIDATES[doc["model"]].config()
     samples = aj.io.read_samples_csv(meas)
-    expected = aj.reconstruct(samples, cfg, aj.Params.default(cfg, alpha_deg=doc["params"]["alpha_deg"]))
+    expected = aj.reconstruct(
+        samples, cfg, aj.Params.default(cfg, alpha_deg=doc["params"]["alpha_deg"])
+    )
     np.testing.assert_allclose(aj.io.read_table(out), expected, rtol=1e-5, atol=1e-7)
 
     # --model iso forces the diagonal-only model on the same anisotropic data.
@@ -188,14 +215,18 @@ def test_cli_model_auto_and_fixed(tmp_path, capsys):
     assert doc["model"] == "iso" and doc["how"] == "fixed" and doc["config"]["budget"] == "iso102"
     assert "iso102" in capsys.readouterr().out
     cfg = select.CANDIDATES["iso"].config()
-    expected = aj.reconstruct(samples, cfg, aj.Params.default(cfg, alpha_deg=doc["params"]["alpha_deg"]))
+    expected = aj.reconstruct(
+        samples, cfg, aj.Params.default(cfg, alpha_deg=doc["params"]["alpha_deg"])
+    )
     np.testing.assert_allclose(aj.io.read_table(out_iso), expected, rtol=1e-5, atol=1e-7)
 
     # Bad choices fail before any work, naming the problem; nothing is written.
     bad = tmp_path / "bad.npz"
-    for argv, match in ((["--model", "nope"], "unknown model 'nope'"),
-                        (["--model", "aniso", "--isotropic"], "--isotropic"),
-                        (["--model", "iso", "--params", str(meas)], "both fix the model")):
+    for argv, match in (
+        (["--model", "nope"], "unknown model 'nope'"),
+        (["--model", "aniso", "--isotropic"], "--isotropic"),
+        (["--model", "iso", "--params", str(meas)], "both fix the model"),
+    ):
         assert main(["reconstruct", str(meas), "-o", str(bad), *argv]) == 2
         assert match in capsys.readouterr().err
     assert not bad.exists() and not (tmp_path / "bad.model.json").exists()

@@ -46,7 +46,9 @@ def test_guard_engages_on_duplicated_samples(kernel, rng):
     interp, info = fit_rbf_info(x, y, widths, kernel, 0.0)
     assert int(info.retries) == 1 and bool(info.ok)
     norm1 = float(jnp.max(jnp.sum(jnp.abs(aj._rbf.gram(x, widths, kernel)), axis=0)))
-    np.testing.assert_allclose(float(info.reg), GUARD_FACTOR * np.finfo(np.float64).eps * norm1, rtol=1e-10)
+    np.testing.assert_allclose(
+        float(info.reg), GUARD_FACTOR * np.finfo(np.float64).eps * norm1, rtol=1e-10
+    )
     assert float(info.cond) * np.finfo(np.float64).eps < 1
     out = interp(x)
     assert np.all(np.isfinite(out))
@@ -89,9 +91,16 @@ def _edge_batch(cfg, dtype, model="lambert-clay"):
     valid = (np.arange(y.shape[1])[None, :] < np.asarray(base.count)[:, None])[..., None]
     peak = y.copy()
     peak[1, 0] = 1e4 * y.max()  # one sample of one slice dominates
-    neg = np.where(valid & (np.random.default_rng(1).random(y.shape[:2])[..., None] < 0.05), -0.01 * y.mean(), y)
+    neg = np.where(
+        valid & (np.random.default_rng(1).random(y.shape[:2])[..., None] < 0.05),
+        -0.01 * y.mean(),
+        y,
+    )
     ys = [np.zeros_like(y), np.where(valid, 0.3, 0.0) * np.ones_like(y), peak, neg]
-    items = [aj.Measurements(base.t, jnp.asarray(v, dtype), base.count, base.pairs, base.has_axial) for v in ys]
+    items = [
+        aj.Measurements(base.t, jnp.asarray(v, dtype), base.count, base.pairs, base.has_axial)
+        for v in ys
+    ]
     return aj.stack_measurements(items), params
 
 
@@ -127,7 +136,10 @@ def test_missing_slice_falls_back_to_the_other(rng):
     """A slice with no samples never feeds padding into a rule: eq. (5) (or the axial slice) instead."""
     nmax = 8
     t = jnp.asarray(np.sort(rng.uniform(0, 2 * np.pi, nmax)))
-    ya, yd = jnp.asarray(rng.uniform(0.1, 1, (nmax, 3))), jnp.asarray(rng.uniform(0.1, 1, (nmax, 3)))
+    ya, yd = (
+        jnp.asarray(rng.uniform(0.1, 1, (nmax, 3))),
+        jnp.asarray(rng.uniform(0.1, 1, (nmax, 3))),
+    )
     other = jnp.asarray(rng.uniform(5, 9, (nmax, 3)))  # values a missing slice must not influence
     pi_, pv = jnp.asarray(rng.uniform(0, 2 * np.pi, 16)), jnp.asarray(rng.uniform(0, 2 * np.pi, 16))
 
@@ -141,12 +153,20 @@ def test_missing_slice_falls_back_to_the_other(rng):
     np.testing.assert_allclose(no_axial, jnp.broadcast_to(diag, no_axial.shape), rtol=1e-12)
     no_diag = every_rule(alpha, ya, 6, other, 0)
     keep = np.array([k for k, r in enumerate(RULES) if r != "diagonal"])
-    assert np.all(np.isfinite(no_diag)) and float(jnp.min(no_diag[keep[0]])) >= 0.1  # the axial slice's values
-    np.testing.assert_allclose(no_diag[keep], jnp.broadcast_to(no_diag[keep[0]], no_diag[keep].shape), rtol=1e-12)
+    assert (
+        np.all(np.isfinite(no_diag)) and float(jnp.min(no_diag[keep[0]])) >= 0.1
+    )  # the axial slice's values
+    np.testing.assert_allclose(
+        no_diag[keep], jnp.broadcast_to(no_diag[keep[0]], no_diag[keep].shape), rtol=1e-12
+    )
     # filip2012 reads the slices' extremes (±inf over an empty slice): gradients stay finite, and
     # the missing slice's values get none.
-    ga, gy = jax.jit(jax.grad(lambda a, y: jnp.sum(subspace(t, y, 0, t, yd, 7, pi_, pv, a, rule="filip2012") ** 2),
-                              argnums=(0, 1)))(alpha, ya)
+    ga, gy = jax.jit(
+        jax.grad(
+            lambda a, y: jnp.sum(subspace(t, y, 0, t, yd, 7, pi_, pv, a, rule="filip2012") ** 2),
+            argnums=(0, 1),
+        )
+    )(alpha, ya)
     assert np.isfinite(ga) and np.all(np.isfinite(gy)) and not np.any(gy)
 
 
@@ -155,9 +175,13 @@ def test_an_elevation_pair_without_samples_is_left_out():
     meas = aj.sample(aj.materials.get_material("ward-brushed-steel"), cfg, as_measurements=True)
     s = meas.to_samples().to_numpy()
     keep = ~((np.asarray(s.theta_i) == 75) & (np.asarray(s.theta_v) == 75))
-    part = aj.Samples(*(np.asarray(a)[keep] for a in (s.theta_i, s.phi_i, s.theta_v, s.phi_v, s.rgb)))
+    part = aj.Samples(
+        *(np.asarray(a)[keep] for a in (s.theta_i, s.phi_i, s.theta_v, s.phi_v, s.rgb))
+    )
     m, report = group_slices(part, 15.0)
-    assert m.pairs == ((30.0, 30.0), (30.0, 75.0), (75.0, 30.0)) and report["dropped_pairs"] == [(75.0, 75.0)]
+    assert m.pairs == ((30.0, 30.0), (30.0, 75.0), (75.0, 30.0)) and report["dropped_pairs"] == [
+        (75.0, 75.0)
+    ]
     assert all(c > 0 for c in report["counts"])
     full, report = group_slices(s, 15.0)
     assert len(full.pairs) == 4 and report["dropped_pairs"] == []
@@ -172,7 +196,10 @@ def test_check_finite_refuses_nan_and_inf():
     check_finite(table, "m.csv")
     table[3, 4, 1] = np.inf
     table[5, 0, 0] = np.nan
-    with pytest.raises(InputError, match=r"m.csv: the reconstruction holds 2 NaN or infinite value\(s\) \(first at index \(3, 4, 1\)\)"):
+    with pytest.raises(
+        InputError,
+        match=r"m.csv: the reconstruction holds 2 NaN or infinite value\(s\) \(first at index \(3, 4, 1\)\)",
+    ):
         check_finite(table, "m.csv")
 
 
@@ -183,14 +210,21 @@ def test_cli_overflow_exits_2_and_writes_nothing(tmp_path, capsys, monkeypatch):
     meas = aj.sample(aj.materials.get_material("ggx-plastic"), cfg, as_measurements=True)
     s = meas.to_samples().to_numpy()
     rows = np.column_stack([s.theta_i, s.phi_i, s.theta_v, s.phi_v, np.asarray(s.rgb) * 1e37])
-    (tmp_path / "big.csv").write_text("theta_i,phi_i,theta_v,phi_v,r,g,b\n"
-                                      + "".join(",".join(repr(float(v)) for v in r) + "\n" for r in rows))
+    (tmp_path / "big.csv").write_text(
+        "theta_i,phi_i,theta_v,phi_v,r,g,b\n"
+        + "".join(",".join(repr(float(v)) for v in r) + "\n" for r in rows)
+    )
     status = main(["reconstruct", "big.csv", "-o", "rec.npz", "--preset", "paper"])
     err = capsys.readouterr().err
     assert status == 2, err
-    assert err.startswith("abrdf-jax: error: big.csv: the reconstruction holds") and "nothing was written" in err
+    assert (
+        err.startswith("abrdf-jax: error: big.csv: the reconstruction holds")
+        and "nothing was written" in err
+    )
     assert not (tmp_path / "rec.npz").exists()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.csv"]  # no temporary file left either
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "big.csv"
+    ]  # no temporary file left either
 
 
 # ---------------------------------------------------------------------------------------------

@@ -9,7 +9,9 @@ from abrdf_jax import subspace
 from abrdf_jax._slices import slice_angles
 
 N = 24
-ALPHA = 2 * 2 * np.pi / N  # 30 deg: the crossings fall on knots, so linear interpolation is exact there
+ALPHA = (
+    2 * 2 * np.pi / N
+)  # 30 deg: the crossings fall on knots, so linear interpolation is exact there
 
 
 def f(s):

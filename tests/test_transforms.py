@@ -43,7 +43,9 @@ def model(wi, wv, scale=1.0):
 def _targets(q, seed=7):
     rng = np.random.default_rng(seed)
     return tuple(
-        aj.to_vector(jnp.asarray(rng.uniform(0.1, 1.3, q)), jnp.asarray(rng.uniform(0.0, 2 * np.pi, q)))
+        aj.to_vector(
+            jnp.asarray(rng.uniform(0.1, 1.3, q)), jnp.asarray(rng.uniform(0.0, 2 * np.pi, q))
+        )
         for _ in range(2)
     )
 
@@ -89,7 +91,9 @@ def _listener(event, *args, **kwargs):
             seen.append(event)
 
 
-jax.monitoring.register_event_duration_secs_listener(_listener)  # once per session; idle when closed
+jax.monitoring.register_event_duration_secs_listener(
+    _listener
+)  # once per session; idle when closed
 
 
 @contextlib.contextmanager
@@ -107,7 +111,9 @@ def traces():
 
 
 def _members(stacked):
-    return [jax.tree_util.tree_map(lambda x, k=k: x[k], stacked) for k in range(stacked.count.shape[0])]
+    return [
+        jax.tree_util.tree_map(lambda x, k=k: x[k], stacked) for k in range(stacked.count.shape[0])
+    ]
 
 
 def test_reconstruct_jit_equals_eager():
@@ -130,7 +136,9 @@ def test_reconstruct_batch_and_vmap_equal_the_loop():
     members = _members(stacked)
     batch = aj.reconstruct_batch(stacked, cfg, p, targets=TARGETS)
     assert batch.shape == (3, Q, 3)
-    _close(jax.jit(lambda m, q: aj.reconstruct_batch(m, cfg, q, targets=TARGETS))(stacked, p), batch)
+    _close(
+        jax.jit(lambda m, q: aj.reconstruct_batch(m, cfg, q, targets=TARGETS))(stacked, p), batch
+    )
     loop = jnp.stack([aj.reconstruct(m, cfg, p, targets=TARGETS) for m in members])
     _close(batch, loop)
     _close(aj.reconstruct_batch(members, cfg, p, targets=TARGETS), loop)  # a list is stacked
@@ -142,11 +150,18 @@ def test_reconstruct_vmap_over_params_equals_loop():
     cfg = CONFIGS["iso-paper"]
     p = aj.Params.default(cfg)
     meas = _measure(cfg, p)
-    ps = aj.Params(jnp.deg2rad(jnp.asarray([12.0, 15.0, 19.0])), jnp.stack([p.widths * f for f in (0.8, 1.0, 1.3)]),
-                   jnp.asarray([1e-3, 1e-2, 3e-2]))
+    ps = aj.Params(
+        jnp.deg2rad(jnp.asarray([12.0, 15.0, 19.0])),
+        jnp.stack([p.widths * f for f in (0.8, 1.0, 1.3)]),
+        jnp.asarray([1e-3, 1e-2, 3e-2]),
+    )
     got = jax.vmap(lambda q: aj.reconstruct(meas, cfg, q, targets=TARGETS))(ps)
-    want = jnp.stack([aj.reconstruct(meas, cfg, aj.Params(a, w, r), targets=TARGETS)
-                      for a, w, r in zip(ps.alpha, ps.widths, ps.reg)])
+    want = jnp.stack(
+        [
+            aj.reconstruct(meas, cfg, aj.Params(a, w, r), targets=TARGETS)
+            for a, w, r in zip(ps.alpha, ps.widths, ps.reg)
+        ]
+    )
     _close(got, want)
 
 
@@ -154,8 +169,13 @@ def _leaves(p):
     """The scalar coordinates of a Params: (name, getter, setter)."""
     out = [("alpha", lambda q: q.alpha, lambda q, v: aj.Params(v, q.widths, q.reg))]
     for k in range(4):
-        out.append((f"widths[{k}]", lambda q, k=k: q.widths[k],
-                    lambda q, v, k=k: aj.Params(q.alpha, q.widths.at[k].set(v), q.reg)))
+        out.append(
+            (
+                f"widths[{k}]",
+                lambda q, k=k: q.widths[k],
+                lambda q, v, k=k: aj.Params(q.alpha, q.widths.at[k].set(v), q.reg),
+            )
+        )
     out.append(("reg", lambda q: q.reg, lambda q, v: aj.Params(q.alpha, q.widths, v)))
     return out
 
@@ -167,11 +187,15 @@ def _check_fd(value_and_grad, p, rel_step=1e-5, rtol=1e-5):
     for name, get, put in _leaves(p):
         x = float(get(p))
         h = rel_step * max(abs(x), 1e-2)
-        fd = (float(value_and_grad(put(p, x + h))[0]) - float(value_and_grad(put(p, x - h))[0])) / (2 * h)
+        fd = (float(value_and_grad(put(p, x + h))[0]) - float(value_and_grad(put(p, x - h))[0])) / (
+            2 * h
+        )
         g = float(get(grad))
         assert np.isfinite(g) and g != 0.0, f"d loss / d {name} = {g}"
         scale = max(abs(fd), 1e-6 * abs(float(value)))
-        assert abs(g - fd) <= rtol * scale, f"d loss / d {name}: grad {g:.10g}, central difference {fd:.10g}"
+        assert abs(g - fd) <= rtol * scale, (
+            f"d loss / d {name}: grad {g:.10g}, central difference {fd:.10g}"
+        )
 
 
 @pytest.mark.parametrize("name", list(CONFIGS))
@@ -207,7 +231,10 @@ def test_reconstruct_batch_grad_matches_a_directional_difference():
         return aj.Params(p.alpha + t * d.alpha, p.widths + t * d.widths, p.reg + t * d.reg)
 
     fd = (float(loss(at(h))[0]) - float(loss(at(-h))[0])) / (2 * h)
-    directional = sum(float(jnp.sum(a * b)) for a, b in zip(jax.tree_util.tree_leaves(g), jax.tree_util.tree_leaves(d)))
+    directional = sum(
+        float(jnp.sum(a * b))
+        for a, b in zip(jax.tree_util.tree_leaves(g), jax.tree_util.tree_leaves(d))
+    )
     np.testing.assert_allclose(directional, fd, rtol=1e-6)
     assert all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(g))
 
@@ -230,7 +257,9 @@ def test_operator_jit_eager_vmap_loop_grad_and_no_retrace():
     # vmap == loop
     _close(jax.vmap(op)(ys), jnp.stack([op(y) for y in ys]))
     # grad in the values (log space: not linear) against a central difference along a direction
-    w = jnp.where(stacked.mask[..., None], jnp.asarray(np.random.default_rng(1).normal(size=ys.shape)), 0.0)
+    w = jnp.where(
+        stacked.mask[..., None], jnp.asarray(np.random.default_rng(1).normal(size=ys.shape)), 0.0
+    )
 
     def loss_y(y):
         return jnp.sum(op(y) ** 2)
@@ -243,7 +272,9 @@ def test_operator_jit_eager_vmap_loop_grad_and_no_retrace():
     truth = model(*TARGETS)
 
     def loss_p(q):
-        return jnp.sum((aj.compile_operator(cfg, q, template, targets=TARGETS)(ys) - truth[None]) ** 2)
+        return jnp.sum(
+            (aj.compile_operator(cfg, q, template, targets=TARGETS)(ys) - truth[None]) ** 2
+        )
 
     _check_fd(jax.jit(jax.value_and_grad(loss_p)), p)
     # new values, new parameters of the same shapes: neither the apply nor the build is traced again
@@ -262,7 +293,9 @@ def test_operator_jit_eager_vmap_loop_grad_and_no_retrace():
 
 def test_sample_jit_eager_vmap_loop_and_grad_in_alpha():
     cfg = aj.Config(budget="aniso204", **SMALL)
-    p = aj.Params.default(cfg, alpha_deg=ALPHA_DEG)  # off the grid azimuths (sample_table is bilinear)
+    p = aj.Params.default(
+        cfg, alpha_deg=ALPHA_DEG
+    )  # off the grid azimuths (sample_table is bilinear)
     theta, phi = aj.ubo_grid()
     w = aj.to_vector(jnp.deg2rad(jnp.asarray(theta)), jnp.deg2rad(jnp.asarray(phi)))
     table = model(jnp.broadcast_to(w[:, None], (81, 81, 3)), jnp.broadcast_to(w[None], (81, 81, 3)))
@@ -279,9 +312,17 @@ def test_sample_jit_eager_vmap_loop_and_grad_in_alpha():
         assert isinstance(jitted, aj.Measurements) and jitted.pairs == eager.pairs
         _close(jitted.y, eager.y, rtol=1e-12)
         np.testing.assert_array_equal(jitted.count, eager.count)
-        _close(jax.vmap(fn)(ps).y, jnp.stack([fn(aj.Params(a, p.widths, p.reg)).y for a in alphas]), rtol=1e-12)
+        _close(
+            jax.vmap(fn)(ps).y,
+            jnp.stack([fn(aj.Params(a, p.widths, p.reg)).y for a in alphas]),
+            rtol=1e-12,
+        )
         # grad: α moves every sample; widths and λ do not enter the sampling
-        wts = jnp.where(eager.mask[..., None], jnp.asarray(np.random.default_rng(2).normal(size=eager.y.shape)), 0.0)
+        wts = jnp.where(
+            eager.mask[..., None],
+            jnp.asarray(np.random.default_rng(2).normal(size=eager.y.shape)),
+            0.0,
+        )
 
         @jax.jit
         @jax.value_and_grad
@@ -291,8 +332,10 @@ def test_sample_jit_eager_vmap_loop_and_grad_in_alpha():
         _, g = loss(p)
         assert float(jnp.max(jnp.abs(g.widths))) == 0.0 and float(g.reg) == 0.0
         h = 1e-6
-        fd = (float(loss(aj.Params(p.alpha + h, p.widths, p.reg))[0])
-              - float(loss(aj.Params(p.alpha - h, p.widths, p.reg))[0])) / (2 * h)
+        fd = (
+            float(loss(aj.Params(p.alpha + h, p.widths, p.reg))[0])
+            - float(loss(aj.Params(p.alpha - h, p.widths, p.reg))[0])
+        ) / (2 * h)
         np.testing.assert_allclose(float(g.alpha), fd, rtol=1e-6)
 
 
@@ -313,12 +356,20 @@ def test_reconstruct_does_not_retrace_for_new_values_params_or_an_equal_config()
     cases = {
         "new values": (meas.replace(y=new_y), stacked.replace(y=stacked.y[::-1]), p, cfg, TARGETS),
         "new alpha": (meas, stacked, p.with_alpha_deg(18.0), cfg, TARGETS),
-        "new params from floats": (meas, stacked, aj.Params(0.2, [0.5, 0.4, 0.6, 0.5], 3e-3), cfg, TARGETS),
+        "new params from floats": (
+            meas,
+            stacked,
+            aj.Params(0.2, [0.5, 0.4, 0.6, 0.5], 3e-3),
+            cfg,
+            TARGETS,
+        ),
         "an equal new Config": (meas, stacked, p, aj.Config(budget="iso102", **SMALL), TARGETS),
         "new targets": (meas, stacked, p, cfg, tuple(jnp.flip(t, 0) for t in TARGETS)),
     }
     with traces() as control:
-        jax.jit(lambda x: x * 2)(jnp.zeros(17)).block_until_ready()  # a fresh shape: the counter works
+        jax.jit(lambda x: x * 2)(
+            jnp.zeros(17)
+        ).block_until_ready()  # a fresh shape: the counter works
     assert control, "the trace counter saw no event for a fresh jit"
     traced = {}
     for name, (m, batch, q, c, t) in cases.items():

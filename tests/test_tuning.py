@@ -49,7 +49,9 @@ def test_param_space_round_trip():
 
 def test_param_space_clips_into_bounds():
     space = tuning.ParamSpace()
-    q = space.to_params({"log_widths": jnp.full(4, 50.0), "log_reg": jnp.asarray(-80.0)}, aj.Params.default())
+    q = space.to_params(
+        {"log_widths": jnp.full(4, 50.0), "log_reg": jnp.asarray(-80.0)}, aj.Params.default()
+    )
     assert np.all(np.isfinite(q.widths)) and float(q.widths[0]) == pytest.approx(20.0)
     assert float(q.reg) == pytest.approx(1e-9)
 
@@ -80,7 +82,9 @@ def test_population_gradient_in_alpha_matches_finite_differences():
     mat = materials.get_material("ward-brushed-steel")
     ref = jnp.asarray(materials.dense_table(mat, np.float64))[None]
     p0 = aj.Params.default(cfg)
-    prob = tuning.Population(config=cfg, space=tuning.ParamSpace(widths="shared", reg=False, alpha=True))
+    prob = tuning.Population(
+        config=cfg, space=tuning.ParamSpace(widths="shared", reg=False, alpha=True)
+    )
     # The continuous model as the source: its samples are smooth in α (a table's are piecewise
     # linear in azimuth, with kinks at the grid nodes that finite differences would straddle).
     source = jax.tree_util.tree_map(lambda x: jnp.asarray(x)[None], mat)
@@ -106,11 +110,13 @@ class _Quadratic(AbstractProblem):
     def residuals(self, theta, data):
         p = self.space.to_params(theta, data["base"])
         t = jnp.asarray(self.target)
-        return jnp.concatenate([
-            data["scale"] * (jnp.log(p.widths) - jnp.log(t[:4])),
-            jnp.atleast_1d(jnp.log(p.reg) - jnp.log(t[4])),
-            jnp.atleast_1d(p.alpha - jnp.deg2rad(t[5])),
-        ])
+        return jnp.concatenate(
+            [
+                data["scale"] * (jnp.log(p.widths) - jnp.log(t[:4])),
+                jnp.atleast_1d(jnp.log(p.reg) - jnp.log(t[4])),
+                jnp.atleast_1d(p.alpha - jnp.deg2rad(t[5])),
+            ]
+        )
 
 
 @pytest.mark.parametrize("solver", tuning.SOLVERS)
@@ -118,7 +124,9 @@ def test_each_solver_finds_a_known_optimum(solver):
     space = tuning.ParamSpace(widths="per_dim", reg=True, alpha=True)
     prob = _Quadratic(config=aj.Config(), space=space)
     p0 = aj.Params(jnp.deg2rad(15.0), jnp.full(4, 1.0), jnp.asarray(1e-2))
-    res = tuning.fit(prob, {"scale": jnp.asarray(3.0)}, p0, solver=solver, max_steps=200, atol=1e-10, rtol=1e-10)
+    res = tuning.fit(
+        prob, {"scale": jnp.asarray(3.0)}, p0, solver=solver, max_steps=200, atol=1e-10, rtol=1e-10
+    )
     assert res.ok, res.message
     assert res.loss_final < 1e-6 * res.loss_initial
     np.testing.assert_allclose(res.params.widths, [0.5, 0.8, 1.2, 2.0], rtol=1e-3)
@@ -156,7 +164,9 @@ def test_population_recovers_a_known_width():
     ref = aj.reconstruct(meas, cfg, p_true)[None]
     prob = tuning.Population(config=cfg, space=tuning.ParamSpace(widths="shared", reg=False))
     p0 = aj.Params(p_true.alpha, jnp.full(4, 0.6), p_true.reg)
-    res = tuning.fit(prob, tuning.Population.make_data(table, ref, p0), p0, solver="lm", max_steps=30)
+    res = tuning.fit(
+        prob, tuning.Population.make_data(table, ref, p0), p0, solver="lm", max_steps=30
+    )
     assert res.ok and res.loss_final < 1e-3 * res.loss_initial
     np.testing.assert_allclose(res.params.widths, 0.35, rtol=1e-3)
 
@@ -167,7 +177,9 @@ def test_population_recovers_a_known_width():
 def test_new_data_and_parameters_never_retrace(plastic_meas, clay_meas):
     meas_a, p0 = plastic_meas
     meas_b, _ = clay_meas
-    prob, data_a, params = tuning.SelfCalibration.from_samples(meas_a, CFG_ISO, p0, space=tuning.ParamSpace(widths="shared"))
+    prob, data_a, params = tuning.SelfCalibration.from_samples(
+        meas_a, CFG_ISO, p0, space=tuning.ParamSpace(widths="shared")
+    )
     data_b = prob.make_data(meas_b, params)
     l_a = tuning.held_out_loss(prob, data_a, params)
     n = TRACE_COUNT["residuals"]
@@ -189,11 +201,15 @@ def test_new_data_and_parameters_never_retrace(plastic_meas, clay_meas):
 
 def test_selfcal_sample_folds_shapes(plastic_meas):
     meas, p0 = plastic_meas
-    prob, data, params = tuning.SelfCalibration.from_samples(meas, CFG_ISO, p0, folds="samples", k=3)
+    prob, data, params = tuning.SelfCalibration.from_samples(
+        meas, CFG_ISO, p0, folds="samples", k=3
+    )
     # Every measured sample is held out exactly once.
     assert int(np.sum(np.asarray(data["test_mask"]))) == meas.n_samples
     with pytest.raises(aj.InputError, match="alpha"):
-        tuning.SelfCalibration(config=CFG_ISO, space=tuning.ParamSpace(alpha=True), pairs=meas.pairs)
+        tuning.SelfCalibration(
+            config=CFG_ISO, space=tuning.ParamSpace(alpha=True), pairs=meas.pairs
+        )
 
 
 # -- parameter files ----------------------------------------------------------------------------
@@ -214,9 +230,18 @@ def test_param_file_round_trip(tmp_path):
     [
         ("{not json", r"p.json:1: not valid JSON"),
         ('{"format": "other"}', "not an abrdf_jax parameter file"),
-        ('{"format": "abrdf_jax.params/1", "config": {"kernel": "nope"}, "params": {}}', "bad config"),
-        ('{"format": "abrdf_jax.params/1", "config": {}, "params": {"alpha_deg": 15, "widths": [1, 1, 1], "reg": 0.1}}', "4 entries"),
-        ('{"format": "abrdf_jax.params/1", "config": {}, "params": {"alpha_deg": 15, "widths": [1, 1, -1, 1], "reg": 0.1}}', "out of range"),
+        (
+            '{"format": "abrdf_jax.params/1", "config": {"kernel": "nope"}, "params": {}}',
+            "bad config",
+        ),
+        (
+            '{"format": "abrdf_jax.params/1", "config": {}, "params": {"alpha_deg": 15, "widths": [1, 1, 1], "reg": 0.1}}',
+            "4 entries",
+        ),
+        (
+            '{"format": "abrdf_jax.params/1", "config": {}, "params": {"alpha_deg": 15, "widths": [1, 1, -1, 1], "reg": 0.1}}',
+            "out of range",
+        ),
     ],
 )
 def test_param_file_errors_name_the_file(tmp_path, text, match):
@@ -240,8 +265,27 @@ def test_cli_fit_then_reconstruct_with_params(tmp_path, capsys):
     from abrdf_jax.cli import main
 
     params = tmp_path / "p.json"
-    assert main(["fit", "population", "--materials", "ggx-plastic,ward-brushed-steel", "-o", str(params),
-                 "--steps", "2", "--widths", "shared", "--fixed-reg", "--solver", "bfgs", "-q"]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                "population",
+                "--materials",
+                "ggx-plastic,ward-brushed-steel",
+                "-o",
+                str(params),
+                "--steps",
+                "2",
+                "--widths",
+                "shared",
+                "--fixed-reg",
+                "--solver",
+                "bfgs",
+                "-q",
+            ]
+        )
+        == 0
+    )
     d = json.loads(params.read_text())
     assert d["fit"]["mode"] == "population" and d["config"]["budget"] == "iso102"
     assert d["fit"]["materials"] == ["ggx-plastic", "ward-brushed-steel"]
@@ -267,5 +311,10 @@ def test_cli_fit_then_reconstruct_with_params(tmp_path, capsys):
     # Bad input to fit fails before any work, naming what is wrong.
     assert main(["fit", "self", str(meas), "-o", str(tmp_path / "nofolder" / "p.json")]) == 2
     assert "does not exist" in capsys.readouterr().err
-    assert main(["fit", "population", "--materials", "no-such-material", "-o", str(tmp_path / "q.json")]) == 2
+    assert (
+        main(
+            ["fit", "population", "--materials", "no-such-material", "-o", str(tmp_path / "q.json")]
+        )
+        == 2
+    )
     assert "no-such-material" in capsys.readouterr().err and not (tmp_path / "q.json").exists()

@@ -21,12 +21,23 @@ from .._lazy import lazy_exports
 # public name -> private module that defines it; loaded on first use
 _EXPORTS = {
     "_batch": ("DEFAULT_CHUNK", "default_config", "isotropy_map", "reconstruct_btf"),
-    "_chunkfn": ("ChunkFunction", "ModelChoiceChunkFunction", "make_chunk_fn", "make_model_choice_fn"),
+    "_chunkfn": (
+        "ChunkFunction",
+        "ModelChoiceChunkFunction",
+        "make_chunk_fn",
+        "make_model_choice_fn",
+    ),
     "_dataset": ("generate_btf", "measurement_store_of"),
     "_devices": ("ShardedRunner", "init_distributed"),
     "_evaluate": ("mean_fill", "save_error_map", "texel_metrics", "texel_metrics_many"),
     "_exr": ("pair_filename", "parse_pair_filename", "read_exr_pairs", "write_exr_pairs"),
-    "_generate": ("ProceduralBTF", "dense_texel_table", "measurement_geometry", "procedural_btf", "texel_chunk"),
+    "_generate": (
+        "ProceduralBTF",
+        "dense_texel_table",
+        "measurement_geometry",
+        "procedural_btf",
+        "texel_chunk",
+    ),
     "_store": ("ChunkedStore",),
     "_texel": ("TexelModel",),
 }

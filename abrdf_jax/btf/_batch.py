@@ -143,15 +143,18 @@ def reconstruct_btf(
     if model not in BTF_MODELS:
         raise InputError(f"model must be 'fixed' or 'auto', got {model!r}")
     if model == "auto" and {config.budget, geometry.get("budget", "aniso204")} != {"aniso204"}:
-        raise InputError("model='auto' chooses between iso102 and aniso204 per texel: it needs an aniso204 "
-                         f"configuration and measurement (got {config.budget!r}); use model='fixed'")
+        raise InputError(
+            "model='auto' chooses between iso102 and aniso204 per texel: it needs an aniso204 "
+            f"configuration and measurement (got {config.budget!r}); use model='fixed'"
+        )
     # The job is what the results depend on; "auto" resolves the same way every time.
     job = dict(input=store_identity(meas), config=repr(config), params=_params_doc(params))
     job.update(backend=backend, compute_dtype=compute_dtype, model=model)
     attrs = dict(job=job, source=meas.attrs)
     shape = dict(texel_shape=meas.texel_shape, item_shape=(N_PAIRS, 3), dtype=dtype, chunk=chunk)
-    out = ChunkedStore.create(out_store, kind="abrdf", geometry=ABRDF_GEOMETRY, attrs=attrs,
-                              overwrite=overwrite, **shape)
+    out = ChunkedStore.create(
+        out_store, kind="abrdf", geometry=ABRDF_GEOMETRY, attrs=attrs, overwrite=overwrite, **shape
+    )
     pid, nproc = jax.process_index(), jax.process_count()
     if nproc == 1:
         out.remove_temporary()
@@ -205,8 +208,13 @@ def _inputs(meas_store, config, compute_dtype):
     return meas, jnp.dtype(compute_dtype), config, float(meas.geometry.get("alpha_deg", 15.0))
 
 
-def isotropy_map(meas_store, *, chunk: int = DEFAULT_CHUNK, config: Config | None = None,
-                 compute_dtype: str = "float32") -> dict:
+def isotropy_map(
+    meas_store,
+    *,
+    chunk: int = DEFAULT_CHUNK,
+    config: Config | None = None,
+    compute_dtype: str = "float32",
+) -> dict:
     """The per-texel isotropy decisions that ``reconstruct_btf(..., model="auto")`` makes.
 
     Args:

@@ -52,7 +52,9 @@ def grouping(geometry: dict, pairs, alpha_deg: float) -> tuple[Measurements, np.
         raise InputError(f"measurement geometry lacks {e.args[0]!r}") from None
     n = len(angles[0])
     if n == 0 or any(len(c) != n for c in angles):
-        raise InputError("measurement geometry: theta_i, phi_i, theta_v, phi_v must have one equal, non-zero length")
+        raise InputError(
+            "measurement geometry: theta_i, phi_i, theta_v, phi_v must have one equal, non-zero length"
+        )
     cols = []
     for j0 in range(0, n, 3):  # three unit samples at a time, one per channel: entries 0 or 1
         width = min(3, n - j0)
@@ -104,8 +106,9 @@ class ChunkFunction(eqx.Module):
         return out.reshape(y.shape[0], N_PAIRS, 3)
 
 
-def make_chunk_fn(config: Config, params: Params, geometry: dict, backend: str = "auto",
-                  dtype=jnp.float32) -> ChunkFunction:
+def make_chunk_fn(
+    config: Config, params: Params, geometry: dict, backend: str = "auto", dtype=jnp.float32
+) -> ChunkFunction:
     """Build the chunk map of one (configuration, parameters, sample geometry).
 
     Args:
@@ -127,7 +130,9 @@ def make_chunk_fn(config: Config, params: Params, geometry: dict, backend: str =
         raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
     template, group = grouping(geometry, config.pairs, _alpha_deg(geometry, params))
     if config.budget == "aniso204" and not template.has_axial:
-        raise InputError("Config(budget='aniso204') needs axial slices, but the measurement geometry has none")
+        raise InputError(
+            "Config(budget='aniso204') needs axial slices, but the measurement geometry has none"
+        )
     template, params = template.astype(dtype), params.astype(dtype)
     operator, source, why = None, None, None
     if backend in ("auto", "operator"):
@@ -183,17 +188,27 @@ class ModelChoiceChunkFunction(eqx.Module):
     def isotropic(self, y: Float[Array, "C n 3"]):
         """``(isotropic, statistic, effect)`` per texel of flat samples ``y`` (the test's outputs)."""
         t, count = np.asarray(self.t), np.asarray(self.count)
-        return texel_isotropy(self.aniso.group, t, count, y, level=self.level, min_effect=self.min_effect)
+        return texel_isotropy(
+            self.aniso.group, t, count, y, level=self.level, min_effect=self.min_effect
+        )
 
     def __call__(self, y: Float[Array, "C n 3"]) -> Float[Array, "C 6561 3"]:
         iso = self.isotropic(y)[0]
         return jnp.where(iso[:, None, None], self.iso(y), self.aniso(y))
 
 
-def make_model_choice_fn(config: Config, params: Params, geometry: dict, backend: str = "auto",
-                         dtype=jnp.float32, *, iso_config: Config | None = None,
-                         iso_params: Params | None = None, level: float = LEVEL,
-                         min_effect: float = MIN_EFFECT) -> ModelChoiceChunkFunction:
+def make_model_choice_fn(
+    config: Config,
+    params: Params,
+    geometry: dict,
+    backend: str = "auto",
+    dtype=jnp.float32,
+    *,
+    iso_config: Config | None = None,
+    iso_params: Params | None = None,
+    level: float = LEVEL,
+    min_effect: float = MIN_EFFECT,
+) -> ModelChoiceChunkFunction:
     """Build the per-texel model-choice map (see :class:`ModelChoiceChunkFunction`).
 
     Args:
@@ -209,8 +224,10 @@ def make_model_choice_fn(config: Config, params: Params, geometry: dict, backend
             axial slice (nothing to test).
     """
     if config.budget != "aniso204":
-        raise InputError(f"model='auto' chooses between iso102 and aniso204 per texel; the configuration's "
-                         f"budget is {config.budget!r} (use model='fixed')")
+        raise InputError(
+            f"model='auto' chooses between iso102 and aniso204 per texel; the configuration's "
+            f"budget is {config.budget!r} (use model='fixed')"
+        )
     aniso = make_chunk_fn(config, params, geometry, backend, dtype)
     iso_config = preset("operator", "iso102") if iso_config is None else iso_config
     if iso_params is None:

@@ -28,9 +28,18 @@ MEASUREMENTS = "measurements"
 REFERENCE = "reference"
 
 
-def generate_btf(out_dir, size: int, seed: int = 0, *, chunk: int = 1024, reference: bool = True,
-                 reference_dtype: str = "float16", progress: bool = False, overwrite: bool = False,
-                 maps: bool = True) -> dict[str, Path]:
+def generate_btf(
+    out_dir,
+    size: int,
+    seed: int = 0,
+    *,
+    chunk: int = 1024,
+    reference: bool = True,
+    reference_dtype: str = "float16",
+    progress: bool = False,
+    overwrite: bool = False,
+    maps: bool = True,
+) -> dict[str, Path]:
     """Generate a procedural BTF and write its measurements (and dense ground truth).
 
     Args:
@@ -56,11 +65,15 @@ def generate_btf(out_dir, size: int, seed: int = 0, *, chunk: int = 1024, refere
     m_path, r_path = root / MEASUREMENTS, root / REFERENCE
     common = dict(texel_shape=shape, chunk=chunk, overwrite=overwrite)
     kw = dict(geometry=measurement_geometry(), attrs=attrs, **common)
-    meas = ChunkedStore.create(m_path, kind="measurements", item_shape=(204, 3), dtype="float32", **kw)
+    meas = ChunkedStore.create(
+        m_path, kind="measurements", item_shape=(204, 3), dtype="float32", **kw
+    )
     stores = [meas]
     if reference:
         kw = dict(geometry=ABRDF_GEOMETRY, attrs=dict(attrs, role="ground truth"), **common)
-        ref = ChunkedStore.create(r_path, kind="abrdf", item_shape=(81 * 81, 3), dtype=reference_dtype, **kw)
+        ref = ChunkedStore.create(
+            r_path, kind="abrdf", item_shape=(81 * 81, 3), dtype=reference_dtype, **kw
+        )
         stores.append(ref)
     todo = [k for k in range(meas.n_chunks) if not all(s.is_done(k) for s in stores)]
     parts: dict[str, list] = {}
@@ -96,4 +109,6 @@ def measurement_store_of(path) -> Path:
     for store in (p, p / MEASUREMENTS):
         if (store / "manifest.json").is_file():
             return store
-    raise InputError(f"{p}: neither a measurement store nor a BTF folder with {MEASUREMENTS}/manifest.json")
+    raise InputError(
+        f"{p}: neither a measurement store nor a BTF folder with {MEASUREMENTS}/manifest.json"
+    )

@@ -35,8 +35,12 @@ from .._errors import InputError
 AXIS = "texels"
 
 
-def init_distributed(coordinator_address: str | None = None, num_processes: int | None = None,
-                     process_id: int | None = None, **kwargs) -> tuple[int, int]:
+def init_distributed(
+    coordinator_address: str | None = None,
+    num_processes: int | None = None,
+    process_id: int | None = None,
+    **kwargs,
+) -> tuple[int, int]:
     """Start ``jax.distributed`` for a multi-host run; returns ``(process_index, process_count)``.
 
     Call it once per process, before any other JAX call. With no arguments JAX detects the
@@ -54,7 +58,9 @@ def init_distributed(coordinator_address: str | None = None, num_processes: int 
     """
     given = [a is not None for a in (coordinator_address, num_processes, process_id)]
     if any(given) and not all(given):
-        raise InputError("init_distributed: give coordinator_address, num_processes and process_id together, or none")
+        raise InputError(
+            "init_distributed: give coordinator_address, num_processes and process_id together, or none"
+        )
     try:
         jax.distributed.initialize(coordinator_address, num_processes, process_id, **kwargs)
     except (RuntimeError, ValueError) as e:  # called twice, after JAX started, or no cluster found
@@ -93,8 +99,9 @@ def _local(arrays, y, static, block, out_dtype):
 def _run(static, arrays, y, mesh, block, out_dtype):
     local = partial(_local, static=static, block=block, out_dtype=out_dtype)
     spec = PartitionSpec(AXIS)
-    return jax.shard_map(local, mesh=mesh, in_specs=(PartitionSpec(), spec), out_specs=spec,
-                         check_vma=False)(arrays, y)
+    return jax.shard_map(
+        local, mesh=mesh, in_specs=(PartitionSpec(), spec), out_specs=spec, check_vma=False
+    )(arrays, y)
 
 
 # One jitted function per (devices, block, dtype): the chunk map's structure is a static
@@ -107,9 +114,16 @@ def _sharded_jit(devices: tuple, block: int, out_dtype: str):
     key = (devices, block, out_dtype)
     if key not in _JITS:
         mesh = Mesh(np.asarray(devices), (AXIS,))
-        data, replicated = NamedSharding(mesh, PartitionSpec(AXIS)), NamedSharding(mesh, PartitionSpec())
-        fn = jax.jit(partial(_run, mesh=mesh, block=block, out_dtype=np.dtype(out_dtype)), static_argnums=0,
-                     in_shardings=(replicated, data), out_shardings=data)
+        data, replicated = (
+            NamedSharding(mesh, PartitionSpec(AXIS)),
+            NamedSharding(mesh, PartitionSpec()),
+        )
+        fn = jax.jit(
+            partial(_run, mesh=mesh, block=block, out_dtype=np.dtype(out_dtype)),
+            static_argnums=0,
+            in_shardings=(replicated, data),
+            out_shardings=data,
+        )
         _JITS[key] = (fn, data, replicated)
     return _JITS[key]
 
@@ -135,7 +149,9 @@ class ShardedRunner:
         self.devices, self.block = list(devices), int(block)
         self._out_dtype = np.dtype(out_dtype).name
         arrays, self._static = eqx.partition(chunk_fn, eqx.is_array)
-        self._arrays = jax.device_put(arrays, _sharded_jit(tuple(self.devices), self.block, self._out_dtype)[2])
+        self._arrays = jax.device_put(
+            arrays, _sharded_jit(tuple(self.devices), self.block, self._out_dtype)[2]
+        )
 
     def batch_size(self, chunk: int) -> int:
         """The padded batch of a chunk: the next multiple of ``devices × b``, with ``b`` the
@@ -149,7 +165,9 @@ class ShardedRunner:
         per_device, rem = divmod(y.shape[0], len(self.devices))
         block = min(self.block, per_device)
         if rem or block == 0 or per_device % block:
-            raise ValueError(f"batch of {y.shape[0]} texels is not a multiple of {len(self.devices)} devices "
-                             f"x blocks of {block}; pad it to batch_size()")
+            raise ValueError(
+                f"batch of {y.shape[0]} texels is not a multiple of {len(self.devices)} devices "
+                f"x blocks of {block}; pad it to batch_size()"
+            )
         run, data, _ = _sharded_jit(tuple(self.devices), block, self._out_dtype)
         return run(self._static, self._arrays, jax.device_put(y, data))

@@ -9,7 +9,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from ..metrics._metrics import _de76_pairs, _log_error_from_y, _mean_over_pairs, expose, srgb_to_lab, tonemap
+from ..metrics._metrics import (
+    _de76_pairs,
+    _log_error_from_y,
+    _mean_over_pairs,
+    expose,
+    srgb_to_lab,
+    tonemap,
+)
 from ._store import open_store, pad_rows
 
 METRICS = ("de76", "logerr")
@@ -26,8 +33,10 @@ def _one_texel(recs, ref, names):
     e = expose(ref)
     y_ref = ref * e
     lab_ref = srgb_to_lab(tonemap(y_ref)) if "de76" in names else None
-    metric = dict(de76=lambda y, same: _mean_over_pairs(_de76_pairs(srgb_to_lab(tonemap(y)), lab_ref), same),
-                  logerr=lambda y, same: _log_error_from_y(y, y_ref, same))
+    metric = dict(
+        de76=lambda y, same: _mean_over_pairs(_de76_pairs(srgb_to_lab(tonemap(y)), lab_ref), same),
+        logerr=lambda y, same: _log_error_from_y(y, y_ref, same),
+    )
     return [{k: metric[k](rec * e, rec == ref) for k in names} for rec in recs]
 
 
@@ -44,7 +53,9 @@ def _reader(x):
     return s.n_texels, s.texel_shape, s.read
 
 
-def texel_metrics_many(recs: dict, ref, metrics=METRICS, batch: int = 256) -> dict[str, dict[str, np.ndarray]]:
+def texel_metrics_many(
+    recs: dict, ref, metrics=METRICS, batch: int = 256
+) -> dict[str, dict[str, np.ndarray]]:
     """PROTOCOL metrics of every texel of several reconstructions (e.g. ours and a baseline).
 
     Each texel is one material: exposed by its own reference (PROTOCOL.md), compared over its 6561
@@ -83,7 +94,10 @@ def texel_metrics_many(recs: dict, ref, metrics=METRICS, batch: int = 256) -> di
 
     for a in range(0, n, batch):
         b = min(a + batch, n)
-        y, *xs = (jnp.asarray(pad_rows(np.asarray(read(a, b), np.float32), batch)) for read in (read_ref, *readers.values()))
+        y, *xs = (
+            jnp.asarray(pad_rows(np.asarray(read(a, b), np.float32), batch))
+            for read in (read_ref, *readers.values())
+        )
         vals = _chunk_metrics(xs, y, names)
         for key, v in zip(readers, vals):
             for k in names:
@@ -107,8 +121,15 @@ def mean_fill(meas, start: int = 0, stop: int | None = None) -> np.ndarray:
     return np.broadcast_to(y.mean(axis=1, keepdims=True), (y.shape[0], 81 * 81, 3)).copy()
 
 
-def save_error_map(values: np.ndarray, path, *, title: str = "", label: str = "ΔE76",
-                   vmax: float | None = None, extra: dict | None = None) -> None:
+def save_error_map(
+    values: np.ndarray,
+    path,
+    *,
+    title: str = "",
+    label: str = "ΔE76",
+    vmax: float | None = None,
+    extra: dict | None = None,
+) -> None:
     """Save a per-texel error map as a PNG (with a colour bar and the mean in the title).
 
     Args:

@@ -34,7 +34,9 @@ from ..io._exr import read_rgb_exr, write_rgb_exr
 from ._store import ABRDF_GEOMETRY, ANGLES, ChunkedStore, make_folder, open_store, progress_bar
 
 PAIRS_INDEX = "pairs.json"
-_NAME = re.compile(r"^tl(\d+(?:\.\d+)?)_pl(\d+(?:\.\d+)?)_tv(\d+(?:\.\d+)?)_pv(\d+(?:\.\d+)?)\.exr$", re.I)
+_NAME = re.compile(
+    r"^tl(\d+(?:\.\d+)?)_pl(\d+(?:\.\d+)?)_tv(\d+(?:\.\d+)?)_pv(\d+(?:\.\d+)?)\.exr$", re.I
+)
 
 
 def _fmt(angle: float) -> str:
@@ -55,8 +57,15 @@ def parse_pair_filename(name: str) -> tuple[float, float, float, float] | None:
     return None if m is None else tuple(float(g) for g in m.groups())
 
 
-def write_exr_pairs(store, folder, *, half: bool = True, compression: str = "zip",
-                    memory_limit: int = 1 << 30, progress: bool = False) -> int:
+def write_exr_pairs(
+    store,
+    folder,
+    *,
+    half: bool = True,
+    compression: str = "zip",
+    memory_limit: int = 1 << 30,
+    progress: bool = False,
+) -> int:
     """Write a chunked store as one EXR image per direction pair (see the module docstring).
 
     Args:
@@ -82,7 +91,9 @@ def write_exr_pairs(store, folder, *, half: bool = True, compression: str = "zip
     group = int(max(1, min(len(pairs), memory_limit // per_pair)))
     names = [pair_filename(*p) for p in pairs]
     if len(set(names)) != len(names):
-        raise InputError(f"{store.path}: two pairs share an image name; angles too close to tell apart")
+        raise InputError(
+            f"{store.path}: two pairs share an image name; angles too close to tell apart"
+        )
     with contextlib.suppress(FileNotFoundError):
         (folder / PAIRS_INDEX).unlink()  # incomplete until the new index lands
     kw = dict(half=half, compression=compression, durable=False)
@@ -117,7 +128,9 @@ def _list_pairs(folder: Path) -> tuple[list[Path], np.ndarray, dict]:
     # in numeric order of (θi, φi, θv, φv)
     found = sorted((a, p) for p in folder.iterdir() if (a := parse_pair_filename(p.name)))
     if not found:
-        raise InputError(f"{folder}: no images named like tl030_pl000_tv030_pv000.exr and no {PAIRS_INDEX}")
+        raise InputError(
+            f"{folder}: no images named like tl030_pl000_tv030_pv000.exr and no {PAIRS_INDEX}"
+        )
     return [p for _, p in found], np.array([a for a, _ in found], float), {}
 
 
@@ -134,9 +147,17 @@ def _match_ubo(angles: np.ndarray) -> np.ndarray | None:
         return None
 
 
-def read_exr_pairs(folder, out_store, *, chunk: int = 1024, dtype: str = "float32",
-                   alpha_deg: float | None = None, memory_limit: int = 1 << 30, overwrite: bool = False,
-                   progress: bool = False) -> ChunkedStore:
+def read_exr_pairs(
+    folder,
+    out_store,
+    *,
+    chunk: int = 1024,
+    dtype: str = "float32",
+    alpha_deg: float | None = None,
+    memory_limit: int = 1 << 30,
+    overwrite: bool = False,
+    progress: bool = False,
+) -> ChunkedStore:
     """Read a folder of per-pair EXR images into a chunked store.
 
     The exact 6561 UBO2003 pairs make an ``"abrdf"`` store (in ``table[i, v]`` order); any other
@@ -179,8 +200,9 @@ def read_exr_pairs(folder, out_store, *, chunk: int = 1024, dtype: str = "float3
     first = read_rgb_exr(files[0])
     h, w = first.shape[:2]
     kw = dict(chunk=chunk, geometry=geo, attrs=dict(source=str(folder)), overwrite=overwrite)
-    store = ChunkedStore.create(out_store, kind=kind, texel_shape=(h, w), item_shape=(len(files), 3),
-                                dtype=dtype, **kw)
+    store = ChunkedStore.create(
+        out_store, kind=kind, texel_shape=(h, w), item_shape=(len(files), 3), dtype=dtype, **kw
+    )
     chunks_per_group = int(max(1, memory_limit // (store.chunk * len(files) * 3 * 4)))
     with progress_bar("exr import", store.n_texels, progress) as bar:
         for k0 in range(0, store.n_chunks, chunks_per_group):
@@ -190,10 +212,12 @@ def read_exr_pairs(folder, out_store, *, chunk: int = 1024, dtype: str = "float3
             for j, f in enumerate(files):
                 img = first if j == 0 else read_rgb_exr(f)
                 if img.shape != (h, w, 3):
-                    raise located(f"image is {img.shape[1]}x{img.shape[0]}, the first one {w}x{h}", f)
+                    raise located(
+                        f"image is {img.shape[1]}x{img.shape[0]}, the first one {w}x{h}", f
+                    )
                 buf[:, j] = img.reshape(-1, 3)[a:b]
             for k in range(k0, k1):
                 c0, c1 = store.chunk_range(k)
-                store.write_chunk(k, buf[c0 - a:c1 - a])
+                store.write_chunk(k, buf[c0 - a : c1 - a])
                 bar.update(c1 - c0)
     return store

@@ -34,7 +34,9 @@ GENERATOR_VERSION = 1
 # Material classes: 0 matte (Lambertian), 1 brushed metal (Ward), 2 lacquer (GGX).
 _MATTE = np.array([[0.55, 0.45, 0.35], [0.36, 0.38, 0.42], [0.62, 0.32, 0.22], [0.48, 0.50, 0.40]])
 _METAL = np.array([[0.60, 0.60, 0.62], [0.72, 0.45, 0.26], [0.75, 0.62, 0.32]])
-_LACQUER = np.array([[0.10, 0.22, 0.50], [0.45, 0.08, 0.10], [0.14, 0.34, 0.16], [0.05, 0.05, 0.06]])
+_LACQUER = np.array(
+    [[0.10, 0.22, 0.50], [0.45, 0.08, 0.10], [0.14, 0.34, 0.16], [0.05, 0.05, 0.06]]
+)
 
 
 class ProceduralBTF(eqx.Module):
@@ -120,7 +122,9 @@ def procedural_btf(size: int, seed: int = 0) -> ProceduralBTF:
     matte, lacquer = _MATTE[rng.integers(len(_MATTE))], _LACQUER[rng.integers(len(_LACQUER))]
     palette = jnp.asarray(np.stack([matte, 0.3 * metal, lacquer]), _F32)
     heights = raster(surface, max(MIN_RASTER, 2 * size))
-    return ProceduralBTF(size, surface, heights, fields, fill_field, palette, jnp.asarray(metal, _F32))
+    return ProceduralBTF(
+        size, surface, heights, fields, fill_field, palette, jnp.asarray(metal, _F32)
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -152,7 +156,9 @@ def _measure(model) -> Measurements:
 
 
 @partial(jax.jit, static_argnames=("reference", "measure", "maps"))
-def _texel_chunk(btf: ProceduralBTF, idx, reference: bool = True, measure: bool = True, maps: bool = False):
+def _texel_chunk(
+    btf: ProceduralBTF, idx, reference: bool = True, measure: bool = True, maps: bool = False
+):
     texels = btf.texels(idx)
     out = {}
     if maps:
@@ -168,8 +174,16 @@ def _texel_chunk(btf: ProceduralBTF, idx, reference: bool = True, measure: bool 
     return out
 
 
-def texel_chunk(btf: ProceduralBTF, start: int, stop: int, *, reference: bool = True,
-                measure: bool = True, maps: bool = False, pad_to: int | None = None) -> dict[str, np.ndarray]:
+def texel_chunk(
+    btf: ProceduralBTF,
+    start: int,
+    stop: int,
+    *,
+    reference: bool = True,
+    measure: bool = True,
+    maps: bool = False,
+    pad_to: int | None = None,
+) -> dict[str, np.ndarray]:
     """Dense ground truth and/or flat slice measurements of texels ``start:stop``.
 
     Args:
@@ -189,7 +203,9 @@ def texel_chunk(btf: ProceduralBTF, start: int, stop: int, *, reference: bool = 
     if not 0 <= start < stop <= btf.n_texels:
         raise InputError(f"texel range {start}:{stop} is outside 0:{btf.n_texels}")
     n = stop - start
-    idx = jnp.asarray(np.minimum(np.arange(start, start + max(n, pad_to or n)), stop - 1), jnp.int32)
+    idx = jnp.asarray(
+        np.minimum(np.arange(start, start + max(n, pad_to or n)), stop - 1), jnp.int32
+    )
     out = _texel_chunk(btf, idx, reference=reference, measure=measure, maps=maps)
     return {k: np.asarray(v[:n]) for k, v in out.items()}
 

@@ -62,8 +62,10 @@ def open_store(store, kind: str | None = None, complete: bool = False) -> "Chunk
         raise InputError(f"{store.path}: is a {store.kind} store, expected {kind}")
     bad = [k for k in range(store.n_chunks) if complete and not store.is_done(k, verify=False)]
     if bad:
-        raise InputError(f"{store.path}: {len(bad)} of {store.n_chunks} chunks missing or invalid "
-                         f"(first: {bad[0]}); finish it first")
+        raise InputError(
+            f"{store.path}: {len(bad)} of {store.n_chunks} chunks missing or invalid "
+            f"(first: {bad[0]}); finish it first"
+        )
     return store
 
 
@@ -89,7 +91,9 @@ def progress_bar(desc: str, total: int, enabled: bool, **kw):
     from tqdm import tqdm
 
     kw.setdefault("unit", "texel")
-    return tqdm(total=total, desc=desc, disable=not enabled, file=sys.stderr, dynamic_ncols=True, **kw)
+    return tqdm(
+        total=total, desc=desc, disable=not enabled, file=sys.stderr, dynamic_ncols=True, **kw
+    )
 
 
 class ChunkedStore:
@@ -133,14 +137,27 @@ class ChunkedStore:
         return base.with_suffix(".npy"), base.with_suffix(".json")
 
     def __repr__(self) -> str:
-        return (f"ChunkedStore({str(self.path)!r}, kind={self.kind!r}, shape={self.shape}, "
-                f"dtype={self.dtype.name}, chunk={self.chunk})")
+        return (
+            f"ChunkedStore({str(self.path)!r}, kind={self.kind!r}, shape={self.shape}, "
+            f"dtype={self.dtype.name}, chunk={self.chunk})"
+        )
 
     # ---------------------------------------------------------------- create / open
 
     @classmethod
-    def create(cls, path, *, kind: str, texel_shape, item_shape, dtype="float32", chunk: int = 1024,
-               geometry: dict | None = None, attrs: dict | None = None, overwrite: bool = False) -> "ChunkedStore":
+    def create(
+        cls,
+        path,
+        *,
+        kind: str,
+        texel_shape,
+        item_shape,
+        dtype="float32",
+        chunk: int = 1024,
+        geometry: dict | None = None,
+        attrs: dict | None = None,
+        overwrite: bool = False,
+    ) -> "ChunkedStore":
         """Make a store, or reopen the same one (for a resumed run).
 
         If ``path`` already holds a store with the same manifest it is reopened as it is (its
@@ -180,8 +197,10 @@ class ChunkedStore:
         if (path / MANIFEST).exists():
             old = cls.open(path)
             if old.manifest != manifest and not overwrite:
-                raise InputError(f"{path}: holds a different {old.kind} store (other data or settings); "
-                                 "choose another folder or overwrite it")
+                raise InputError(
+                    f"{path}: holds a different {old.kind} store (other data or settings); "
+                    "choose another folder or overwrite it"
+                )
             if old.manifest == manifest:
                 (path / CHUNKS).mkdir(exist_ok=True)
                 return old
@@ -210,7 +229,9 @@ class ChunkedStore:
         if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
             raise InputError(f"{mf}: not an {FORMAT} manifest")
         if manifest.get("version") != VERSION:
-            raise InputError(f"{mf}: store version {manifest.get('version')!r}; this reader knows {VERSION}")
+            raise InputError(
+                f"{mf}: store version {manifest.get('version')!r}; this reader knows {VERSION}"
+            )
         try:
             return cls(path, manifest)
         except (KeyError, TypeError, ValueError) as e:
@@ -242,7 +263,9 @@ class ChunkedStore:
 
     def _expected_marker(self, k: int) -> dict:
         a, b = self.chunk_range(k)
-        return dict(index=k, start=a, stop=b, shape=[b - a, *self.item_shape], dtype=self.dtype.name)
+        return dict(
+            index=k, start=a, stop=b, shape=[b - a, *self.item_shape], dtype=self.dtype.name
+        )
 
     def _marker(self, k: int) -> dict | None:
         _, marker = self._files(k)
@@ -284,7 +307,9 @@ class ChunkedStore:
 
     def verify(self) -> dict[int, str]:
         """``{chunk: problem}`` for every chunk that is not done (empty when all are valid)."""
-        return {k: s for k in range(self.n_chunks) if (s := self.chunk_status(k, verify=True)) != "done"}
+        return {
+            k: s for k in range(self.n_chunks) if (s := self.chunk_status(k, verify=True)) != "done"
+        }
 
     def write_chunk(self, k: int, values) -> None:
         """Write chunk ``k`` atomically, then its marker.
@@ -343,7 +368,9 @@ class ChunkedStore:
             raise InputError(f"{data}: cannot read chunk {k}: {e}") from e
         start, stop = self.chunk_range(k)
         if arr.shape != (stop - start, *self.item_shape) or arr.dtype != self.dtype:
-            raise InputError(f"{data}: chunk {k} holds {arr.dtype}{arr.shape}, manifest says otherwise")
+            raise InputError(
+                f"{data}: chunk {k} holds {arr.dtype}{arr.shape}, manifest says otherwise"
+            )
         return arr
 
     def read(self, start: int = 0, stop: int | None = None, verify: bool = True) -> np.ndarray:
@@ -352,7 +379,10 @@ class ChunkedStore:
         if not 0 <= start <= stop <= self.n_texels:
             raise InputError(f"{self.path}: texel range {start}:{stop} outside 0:{self.n_texels}")
         c = self.chunk
-        parts = [self.read_chunk(k, verify)[max(start - k * c, 0):stop - k * c] for k in range(start // c, -(-stop // c))]
+        parts = [
+            self.read_chunk(k, verify)[max(start - k * c, 0) : stop - k * c]
+            for k in range(start // c, -(-stop // c))
+        ]
         if len(parts) == 1:
             return parts[0]
         return np.concatenate(parts) if parts else np.zeros((0, *self.item_shape), self.dtype)

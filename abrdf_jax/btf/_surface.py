@@ -149,7 +149,9 @@ def raster(surface: Surface, resolution: int) -> Float[Array, "R R"]:
     """Heights at the raster points ``(j / R, i / R)``; row ``i`` is ``y``, column ``j`` is ``x``."""
     g = jnp.arange(resolution, dtype=_F32) / resolution
     xy = jnp.stack(jnp.meshgrid(g, g), -1).reshape(-1, 2)
-    return jax.lax.map(surface, xy.reshape(resolution, resolution, 2)).reshape(resolution, resolution)
+    return jax.lax.map(surface, xy.reshape(resolution, resolution, 2)).reshape(
+        resolution, resolution
+    )
 
 
 def bilinear(grid: Float[Array, "R R"], xy: Float[Array, "... 2"]) -> Float[Array, "..."]:
@@ -167,8 +169,12 @@ def bilinear(grid: Float[Array, "R R"], xy: Float[Array, "... 2"]) -> Float[Arra
     return (1 - b) * top + b * bot
 
 
-def horizon_map(grid: Float[Array, "R R"], xy: Float[Array, "n 2"],
-                n_azimuths: int = N_AZIMUTHS, n_steps: int = N_STEPS) -> Float[Array, "n K"]:
+def horizon_map(
+    grid: Float[Array, "R R"],
+    xy: Float[Array, "n 2"],
+    n_azimuths: int = N_AZIMUTHS,
+    n_steps: int = N_STEPS,
+) -> Float[Array, "n K"]:
     """Horizon elevation (radians, ≥ 0) at ``xy`` toward azimuths ``2π k / K``.
 
     ``tan η(φ) = max_s (h(p + d_s u_φ) - h(p)) / d_s`` over ``d_s = reach · ((s + 1)/S)^1.5``

@@ -62,7 +62,9 @@ def horizon_at(horizon: Float[Array, " K"], phi: Float[Array, "..."]) -> Float[A
     return (1 - w) * horizon[k0] + w * horizon[(k0 + 1) % k]
 
 
-def visibility(horizon: Float[Array, " K"], w: Float[Array, "... 3"], softness_rad) -> Float[Array, "..."]:
+def visibility(
+    horizon: Float[Array, " K"], w: Float[Array, "... 3"], softness_rad
+) -> Float[Array, "..."]:
     """Soft visibility of direction ``w`` over the horizon (1 well above it, 0 well below)."""
     elev = jnp.arcsin(jnp.clip(w[..., 2], -1.0, 1.0))
     eta = horizon_at(horizon, jnp.arctan2(w[..., 1], w[..., 0]))
@@ -105,7 +107,9 @@ class TexelModel(eqx.Module):
         w = self.weights
         return (w[0] + METAL_DIFFUSE * w[1] + w[2]) * self.albedo
 
-    def __call__(self, wi: Float[Array, "... 3"], wv: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+    def __call__(
+        self, wi: Float[Array, "... 3"], wv: Float[Array, "... 3"]
+    ) -> Float[Array, "... 3"]:
         """ABRDF at illumination ``wi`` and view ``wv`` (global unit vectors, z = mean normal)."""
         dt = jnp.result_type(wi, wv)
         rot = self.frame(dt)

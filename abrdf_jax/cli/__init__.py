@@ -62,8 +62,10 @@ def main(argv: list[str] | None = None) -> int:
         message = _user_error(e)
         if message is None:
             traceback.print_exc()
-            say(f"internal error ({type(e).__name__}: {e}); this is a bug, not bad input: please "
-                f"report it with the traceback above, the command line and '{PROG} {version()}'")
+            say(
+                f"internal error ({type(e).__name__}: {e}); this is a bug, not bad input: please "
+                f"report it with the traceback above, the command line and '{PROG} {version()}'"
+            )
             return 1
         if getattr(args, "verbose", False):
             traceback.print_exc()

@@ -58,8 +58,13 @@ def version() -> str:
 def verbose_parent() -> argparse.ArgumentParser:
     """A parent parser with ``-v``; its default is suppressed so a later level cannot reset it."""
     p = argparse.ArgumentParser(add_help=False)
-    p.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
-                   help="show a traceback on error")
+    p.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        default=argparse.SUPPRESS,
+        help="show a traceback on error",
+    )
     return p
 
 
@@ -91,6 +96,7 @@ def budget_flags(p, anisotropic: bool = True) -> None:
 
 def positive(name: str):
     """An argparse ``type=`` for an integer ``>= 1``, named ``name`` in its message."""
+
     def parse(text):
         try:
             v = int(text)
@@ -116,8 +122,9 @@ def progress(total: int, desc: str, disable: bool):
     """A ``tqdm`` progress bar over files, on stderr."""
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, unit="file", file=sys.stderr, disable=disable,
-                dynamic_ncols=True)
+    return tqdm(
+        total=total, desc=desc, unit="file", file=sys.stderr, disable=disable, dynamic_ncols=True
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -246,8 +253,10 @@ def params_for(budget: str, alpha_deg: float, preset: str = "recommended", param
         config, params, _ = load_params(params_file)
         if config.budget != budget:
             flag = "isotropic" if config.budget == "iso102" else "anisotropic"
-            raise InputError(f"{params_file}: parameters were fitted for {config.budget}, but the "
-                             f"measurement is {budget}; fit for {budget} or pass --{flag}")
+            raise InputError(
+                f"{params_file}: parameters were fitted for {config.budget}, but the "
+                f"measurement is {budget}; fit for {budget} or pass --{flag}"
+            )
         import jax.numpy as jnp
 
         alpha = aj.Params.default(config, alpha_deg=alpha_deg).alpha
@@ -268,9 +277,11 @@ def warn_negative(path: Path, samples) -> None:
     rgb = np.asarray(samples.rgb)
     neg = (rgb < 0).any(axis=1)
     if neg.any():
-        warn(f"{path}: {int(neg.sum())} of {len(rgb)} samples have negative values (min "
-             f"{rgb.min():.3g}, first in data row {int(np.argmax(neg)) + 1}); kept as measured, "
-             "the reconstruction is clamped at 0")
+        warn(
+            f"{path}: {int(neg.sum())} of {len(rgb)} samples have negative values (min "
+            f"{rgb.min():.3g}, first in data row {int(np.argmax(neg)) + 1}); kept as measured, "
+            "the reconstruction is clamped at 0"
+        )
 
 
 def warn_guard(path: Path, meas, config, params, params_file) -> None:
@@ -287,9 +298,11 @@ def warn_guard(path: Path, meas, config, params, params_file) -> None:
     info = aj.solve_info(meas, config, params)
     if int(info.retries) or not bool(info.ok):
         state = "raised" if bool(info.ok) else "raised, still ill-conditioned"
-        warn(f"{path}: the RBF system is singular to working precision at the requested "
-             f"regularisation; regularisation {state} to {float(info.reg):.3g} (condition "
-             f"~{float(info.cond):.2g})")
+        warn(
+            f"{path}: the RBF system is singular to working precision at the requested "
+            f"regularisation; regularisation {state} to {float(info.reg):.3g} (condition "
+            f"~{float(info.cond):.2g})"
+        )
 
 
 # --------------------------------------------------------------------------------------------

@@ -80,8 +80,10 @@ def cmd_generate(args) -> int:
     paths = btf.generate_btf(args.output, args.size, args.seed, **opts)
     n = args.size * args.size
     what = "measurements" + ("" if args.no_reference else " and dense reference")
-    print(f"{args.output}: {args.size}x{args.size} texels ({n}), seed {args.seed}: {what} in "
-          f"{time.perf_counter() - t0:.1f} s")
+    print(
+        f"{args.output}: {args.size}x{args.size} texels ({n}), seed {args.seed}: {what} in "
+        f"{time.perf_counter() - t0:.1f} s"
+    )
     if args.exr_dir:
         count = btf.write_exr_pairs(paths["measurements"], args.exr_dir, progress=not args.quiet)
         print(f"{args.exr_dir}: {count} measurement images (one per sample direction pair)")
@@ -101,8 +103,10 @@ def _config_params(args, store):
 
 def cmd_reconstruct(args) -> int:
     if args.preset is not None and args.params is not None:
-        raise InputError(f"--preset {args.preset} and --params {args.params} both fix the "
-                         "configuration; give one")
+        raise InputError(
+            f"--preset {args.preset} and --params {args.params} both fix the "
+            "configuration; give one"
+        )
     _init_distributed(args)
     from abrdf_jax import btf
 
@@ -127,17 +131,23 @@ def cmd_reconstruct(args) -> int:
     opts |= dict(backend=args.backend, overwrite=args.overwrite, stats=stats, model=args.model)
     store = btf.reconstruct_btf(meas, out, config, params, **opts)
     done, seconds = stats["chunks_done"], stats["seconds"]
-    head = (f"{out}: {store.n_texels} texels ({done} chunks computed, {stats['chunks_skipped']} "
-            f"already done) in {seconds:.1f} s")
+    head = (
+        f"{out}: {store.n_texels} texels ({done} chunks computed, {stats['chunks_skipped']} "
+        f"already done) in {seconds:.1f} s"
+    )
     if done:
         rate = store.n_texels * done / store.n_chunks / max(seconds, 1e-9)
-        head += (f" (about {rate:.0f} texels/s; {stats['backend']} backend, {stats['devices']} "
-                 f"device(s), {args.dtype})")
+        head += (
+            f" (about {rate:.0f} texels/s; {stats['backend']} backend, {stats['devices']} "
+            f"device(s), {args.dtype})"
+        )
     print(head)
     if args.model == "auto":
         iso = btf.isotropy_map(meas, chunk=args.chunk)["fraction_isotropic"]
-        print(f"model per texel (isotropy test of the axial slices): {100 * iso:.1f}% isotropic "
-              f"(diagonal-only model), {100 * (1 - iso):.1f}% anisotropic")
+        print(
+            f"model per texel (isotropy test of the axial slices): {100 * iso:.1f}% isotropic "
+            f"(diagonal-only model), {100 * (1 - iso):.1f}% anisotropic"
+        )
     if args.exr_dir and jax.process_index() == 0:
         t0 = time.perf_counter()
         count = btf.write_exr_pairs(store, args.exr_dir, progress=not args.quiet)
@@ -209,8 +219,9 @@ def register(sub) -> None:
     add("--overwrite", action="store_true", help="replace a different BTF in DIR")
     add("-q", "--quiet", action="store_true")
 
-    r = common.command(bsub, "reconstruct", cmd_reconstruct, HELP["reconstruct"],
-                       DESCRIPTION["reconstruct"])
+    r = common.command(
+        bsub, "reconstruct", cmd_reconstruct, HELP["reconstruct"], DESCRIPTION["reconstruct"]
+    )
     add = common.adder(r, HELP)
     add("input", metavar="MEAS_DIR", help="a measurement store or a generated BTF folder")
     add("-o", "--output", required=True, metavar="OUT", help="output store folder")
@@ -236,7 +247,9 @@ def register(sub) -> None:
     add("input", metavar="EXR_DIR")
     add("-o", "--output", required=True, metavar="STORE")
     add("--chunk", **chunk)
-    add("--alpha", type=float, metavar="DEG", help="slice offset (default: pairs.json or estimated)")
+    add(
+        "--alpha", type=float, metavar="DEG", help="slice offset (default: pairs.json or estimated)"
+    )
     add("--overwrite", action="store_true")
     add("-q", "--quiet", action="store_true")
 

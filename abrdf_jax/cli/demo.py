@@ -40,7 +40,9 @@ def _sampler():
 
     import abrdf_jax as aj
 
-    return eqx.filter_jit(lambda m, config, params: aj.sample(m, config, params, as_measurements=True))
+    return eqx.filter_jit(
+        lambda m, config, params: aj.sample(m, config, params, as_measurements=True)
+    )
 
 
 def choose_materials(n_materials: int | None = None) -> list[tuple[str, object, str]]:
@@ -96,7 +98,9 @@ def run_demo(
         raise InputError(f"n_materials must be at least 1, got {n_materials}")
     chosen = choose_materials(n_materials)
 
-    header = f"{'material':<22} {'budget':<9}" + "".join(f" {x:>7}" for x in common.METRICS.values())
+    header = f"{'material':<22} {'budget':<9}" + "".join(
+        f" {x:>7}" for x in common.METRICS.values()
+    )
     print(header + f" {'seconds':>8}", file=stream)
     print("-" * (len(header) + 9), file=stream)
     rows, results = [], []

@@ -7,9 +7,15 @@ import math
 
 from . import _common as common
 
+
 def register(sub) -> None:
-    e = common.command(sub, "evaluate", run, "protocol metrics of a reconstruction",
-                       "Compare a reconstructed table with a reference (PROTOCOL.md metrics).")
+    e = common.command(
+        sub,
+        "evaluate",
+        run,
+        "protocol metrics of a reconstruction",
+        "Compare a reconstructed table with a reference (PROTOCOL.md metrics).",
+    )
     e.add_argument("rec", metavar="REC", help="reconstructed table (.npz/.exr)")
     e.add_argument("ref", metavar="REF", help="reference table (.npz/.exr); sets the exposure")
     e.add_argument("--json", action="store_true", help="print JSON (non-finite values as null)")

@@ -20,8 +20,13 @@ from .._names import BUDGETS, FOLD_KINDS, LOSSES, PRESETS, SOLVERS, WIDTH_MODES,
 from . import _common as common
 
 #: What each solver is (``abrdf_jax.tuning.fit(solver=...)``), for ``--help``.
-SOLVER_HELP = {"lm": "optimistix Levenberg-Marquardt", "gn": "optimistix Gauss-Newton", "bfgs": "optimistix BFGS",
-               "lbfgs": "jaxopt L-BFGS", "lbfgsb": "jaxopt L-BFGS-B, bounded"}
+SOLVER_HELP = {
+    "lm": "optimistix Levenberg-Marquardt",
+    "gn": "optimistix Gauss-Newton",
+    "bfgs": "optimistix BFGS",
+    "lbfgs": "jaxopt L-BFGS",
+    "lbfgsb": "jaxopt L-BFGS-B, bounded",
+}
 check_registry("SOLVERS", SOLVER_HELP)
 DEFAULT_PRESET = "recommended"
 #: The ``--help`` texts: each command's and each option's.
@@ -61,10 +66,12 @@ def _fit_and_save(args, out: Path, config, problem, data, params, meta: dict, ex
     meta |= {"date": time.strftime("%Y-%m-%d %H:%M:%S"), "version": aj.__version__}
     tuning.save_params(out, config, res.params, fit=meta | res.summary())
     p = res.params
-    print(f"{out}: {res.solver} {res.status} after {res.steps} steps ({res.seconds:.1f} s, compile "
-          f"{res.compile_seconds:.1f} s); loss {res.loss_initial:.5g} -> {res.loss_final:.5g}; "
-          f"alpha {p.alpha_deg:.2f} deg, widths {', '.join(f'{float(w):.3g}' for w in p.widths)}, "
-          f"reg {float(p.reg):.3g}{extra}")
+    print(
+        f"{out}: {res.solver} {res.status} after {res.steps} steps ({res.seconds:.1f} s, compile "
+        f"{res.compile_seconds:.1f} s); loss {res.loss_initial:.5g} -> {res.loss_final:.5g}; "
+        f"alpha {p.alpha_deg:.2f} deg, widths {', '.join(f'{float(w):.3g}' for w in p.widths)}, "
+        f"reg {float(p.reg):.3g}{extra}"
+    )
     return 0
 
 
@@ -88,8 +95,9 @@ def cmd_fit_self(args) -> int:
     except InputError as e:
         raise InputError(f"{src}: {e}") from e
     meta = {"mode": "self", "input": str(src), "folds": args.folds, "preset": args.preset}
-    return _fit_and_save(args, out, config, prob, data, params, meta,
-                         f" (held-out log error of {src.name})")
+    return _fit_and_save(
+        args, out, config, prob, data, params, meta, f" (held-out log error of {src.name})"
+    )
 
 
 def _population_data(names: str, dtype, data_dir):
@@ -107,8 +115,9 @@ def _population_data(names: str, dtype, data_dir):
         return models, jnp.asarray(t["abrdf"][idx], dtype), mats
     mats = [n.strip() for n in names.split(",") if n.strip()]
     if not mats:
-        raise InputError("--materials: give 'merl-train' or a comma-separated list of material "
-                         "names")
+        raise InputError(
+            "--materials: give 'merl-train' or a comma-separated list of material names"
+        )
     tables = []
     for n in mats:
         try:
@@ -139,12 +148,21 @@ def cmd_fit_population(args) -> int:
         def pick(x):  # the per-material leaves of the source models
             return x[sel] if hasattr(x, "shape") and x.ndim and x.shape[0] == n else x
 
-        source, ref, mats = jax.tree_util.tree_map(pick, source), ref[sel], [mats[int(i)] for i in sel]
-    space = tuning.ParamSpace(widths=args.widths, reg=not args.fixed_reg, alpha=not args.fixed_alpha)
+        source, ref, mats = (
+            jax.tree_util.tree_map(pick, source),
+            ref[sel],
+            [mats[int(i)] for i in sel],
+        )
+    space = tuning.ParamSpace(
+        widths=args.widths, reg=not args.fixed_reg, alpha=not args.fixed_alpha
+    )
     prob = tuning.Population(config=config, space=space, loss_kind=args.loss)
     data = tuning.Population.make_data(source, ref, params)
-    print(f"fitting on {len(mats)} materials ({config.budget}, {args.preset}, {args.solver}, up to "
-          f"{args.steps} steps)", file=sys.stderr)
+    print(
+        f"fitting on {len(mats)} materials ({config.budget}, {args.preset}, {args.solver}, up to "
+        f"{args.steps} steps)",
+        file=sys.stderr,
+    )
     meta = {"mode": "population", "materials": mats, "preset": args.preset, "loss": args.loss}
     return _fit_and_save(args, out, config, prob, data, params, meta)
 

@@ -79,7 +79,10 @@ def check_model_arguments(args) -> None:
         raise InputError(f"{fixing[0]} and {fixing[1]} both fix the model; give one")
     if args.model == "auto" and fixing:
         raise InputError(f"--model auto chooses the model, but {fixing[0]} fixes it; give one")
-    for name, v, what in (("tol", args.tol, "a fraction"), ("noise", args.noise, "a relative level")):
+    for name, v, what in (
+        ("tol", args.tol, "a fraction"),
+        ("noise", args.noise, "a relative level"),
+    ):
         if v is not None and not (math.isfinite(v) and v >= 0):
             raise InputError(f"--{name} must be {what} >= 0, got {v}")
     if fixed is not None and (args.isotropic or args.anisotropic):
@@ -195,8 +198,10 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args) -> in
     aj.check_finite(table, str(item.path))
     io.write_table(out, table)
     how = f"parameters from {args.params}" if args.params else f"model {choice['name']}"
-    print(f"{out}: reconstructed from {len(item.samples)} samples ({config.budget}, alpha "
-          f"{item.alpha:g} deg, {how})")
+    print(
+        f"{out}: reconstructed from {len(item.samples)} samples ({config.budget}, alpha "
+        f"{item.alpha:g} deg, {how})"
+    )
     print("\n".join(common.describe(choice)))
     print(f"model record: {common.save_model_record(out, [choice], False)}")
     return 0
@@ -236,6 +241,8 @@ def _reconstruct_folder(items, choices: list[dict], targets: list[Path], out: Pa
     for msg in failed:
         common.say(f"error: {msg}")
     if failed:
-        common.say(f"error: {len(failed)} of {n} reconstructions were not finite; no table was "
-                   "written for them")
+        common.say(
+            f"error: {len(failed)} of {n} reconstructions were not finite; no table was "
+            "written for them"
+        )
     return 2 if failed else 0

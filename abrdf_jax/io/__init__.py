@@ -15,7 +15,14 @@ _EXPORTS = {
     "_atomic": ("atomic_write",),
     "_csv": ("CSV_COLUMNS", "read_samples_csv", "write_samples_csv"),
     "_tables": ("NPZ_KEY", "TABLE_SHAPE", "read_table", "write_table"),
-    "_merl": ("MERL_SCALE", "MERL_SHAPE", "MERLMaterial", "merl_bin_indices", "merl_lookup", "read_merl_binary",
-              "write_merl_binary"),
+    "_merl": (
+        "MERL_SCALE",
+        "MERL_SHAPE",
+        "MERLMaterial",
+        "merl_bin_indices",
+        "merl_lookup",
+        "read_merl_binary",
+        "write_merl_binary",
+    ),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS)

@@ -28,7 +28,9 @@ import numpy as np
 from ._atomic import _check_readable, atomic_write
 from .._errors import InputError, located
 
-if TYPE_CHECKING:  # the class imports JAX: the reader needs it only for a file that passed every check
+if (
+    TYPE_CHECKING
+):  # the class imports JAX: the reader needs it only for a file that passed every check
     from .._measurements import Samples
 
 #: Column names of a measurement CSV file, in the order the writer uses.

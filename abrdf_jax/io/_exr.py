@@ -21,7 +21,9 @@ def _openexr():
     try:
         import OpenEXR
     except ImportError as e:  # pragma: no cover - OpenEXR is a dependency
-        raise InputError("reading or writing .exr needs the OpenEXR package (pip install 'OpenEXR>=3.5')") from e
+        raise InputError(
+            "reading or writing .exr needs the OpenEXR package (pip install 'OpenEXR>=3.5')"
+        ) from e
     return OpenEXR
 
 
@@ -43,28 +45,43 @@ def read_rgb_exr(path: str | os.PathLike, shape: tuple[int, int] | None = None) 
     except Exception as e:  # noqa: BLE001 - the library raises RuntimeError, IndexError, ...
         raise located(f"cannot read as OpenEXR (truncated or corrupt?): {e}", path) from e
     if len(parts) == 0:  # OpenEXR 3.x returns no parts when the pixels cannot be decoded
-        raise located("cannot read as OpenEXR: no readable image part (truncated or corrupt?)", path)
+        raise located(
+            "cannot read as OpenEXR: no readable image part (truncated or corrupt?)", path
+        )
     if len(parts) > 1:
         raise located(f"multi-part EXR ({len(parts)} parts); expected one RGB image", path)
     channels = parts[0].channels
     missing = [c for c in "RGB" if c not in channels]
     if missing:
-        raise located(f"EXR lacks channel(s) {', '.join(missing)}; it has {', '.join(sorted(channels)) or 'none'}",
-                      path)
+        raise located(
+            f"EXR lacks channel(s) {', '.join(missing)}; it has {', '.join(sorted(channels)) or 'none'}",
+            path,
+        )
     planes = []
     for c in "RGB":
         px = np.asarray(channels[c].pixels)
         if px.dtype not in (np.float32, np.float16):
-            raise located(f"EXR channel {c} has pixel type {px.dtype}, expected float or half", path)
+            raise located(
+                f"EXR channel {c} has pixel type {px.dtype}, expected float or half", path
+            )
         if shape is not None and px.shape != tuple(shape):
             got = f"{px.shape[1]}x{px.shape[0]}" if px.ndim == 2 else str(px.shape)
-            raise located(f"EXR image is {got} (width x height), expected {shape[1]}x{shape[0]}", path)
+            raise located(
+                f"EXR image is {got} (width x height), expected {shape[1]}x{shape[0]}", path
+            )
         planes.append(px.astype(np.float32))
     return np.stack(planes, axis=-1)
 
 
-def write_rgb_exr(path: str | os.PathLike, rgb, *, half: bool = False, compression: str = "zip",
-                  comment: str | None = None, durable: bool = True) -> None:
+def write_rgb_exr(
+    path: str | os.PathLike,
+    rgb,
+    *,
+    half: bool = False,
+    compression: str = "zip",
+    comment: str | None = None,
+    durable: bool = True,
+) -> None:
     """Write ``(H, W, 3)`` values as an RGB EXR image, atomically.
 
     Args:
@@ -80,7 +97,9 @@ def write_rgb_exr(path: str | os.PathLike, rgb, *, half: bool = False, compressi
         header["comment"] = comment
     dt = np.float16 if half else np.float32
     rgb = np.asarray(rgb)
-    image = OpenEXR.File(header, {c: np.ascontiguousarray(rgb[..., k], dtype=dt) for k, c in enumerate("RGB")})
+    image = OpenEXR.File(
+        header, {c: np.ascontiguousarray(rgb[..., k], dtype=dt) for k, c in enumerate("RGB")}
+    )
     with atomic_write(path, "wb", durable=durable) as f:
         try:
             image.write(f)

@@ -22,7 +22,17 @@ from .._errors import InputError
 from .._params import Config, Params
 
 FORMAT = "abrdf_jax.params/1"
-_CONFIG_FIELDS = ("budget", "rule", "kernel", "degree", "parameterization", "interp", "value_space", "log_eps", "slice_count")
+_CONFIG_FIELDS = (
+    "budget",
+    "rule",
+    "kernel",
+    "degree",
+    "parameterization",
+    "interp",
+    "value_space",
+    "log_eps",
+    "slice_count",
+)
 
 
 def params_to_dict(config: Config, params: Params, fit: dict | None = None) -> dict:
@@ -32,7 +42,9 @@ def params_to_dict(config: Config, params: Params, fit: dict | None = None) -> d
     widths = [float(w) for w in np.asarray(params.widths)]
     values = [params.alpha_deg, float(params.reg), *widths]
     if not all(math.isfinite(v) for v in values):
-        raise InputError(f"refusing to save non-finite parameters: alpha={params.alpha_deg}, widths={widths}, reg={float(params.reg)}")
+        raise InputError(
+            f"refusing to save non-finite parameters: alpha={params.alpha_deg}, widths={widths}, reg={float(params.reg)}"
+        )
     return {
         "format": FORMAT,
         "config": cfg,
@@ -56,7 +68,9 @@ def params_from_dict(d: dict, where: str = "parameters") -> tuple[Config, Params
     """Inverse of :func:`params_to_dict`, with errors naming ``where`` and the field."""
     if not isinstance(d, dict) or d.get("format") != FORMAT:
         got = d.get("format") if isinstance(d, dict) else type(d).__name__
-        raise InputError(f"{where}: not an abrdf_jax parameter file (format {got!r}, expected {FORMAT!r})")
+        raise InputError(
+            f"{where}: not an abrdf_jax parameter file (format {got!r}, expected {FORMAT!r})"
+        )
     try:
         c, p = dict(d["config"]), d["params"]
     except (KeyError, TypeError) as exc:
@@ -75,15 +89,25 @@ def params_from_dict(d: dict, where: str = "parameters") -> tuple[Config, Params
     try:
         alpha, widths, reg = float(p["alpha_deg"]), [float(w) for w in p["widths"]], float(p["reg"])
     except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{where}: bad params section ({exc!r}); need alpha_deg, widths[4], reg") from None
+        raise InputError(
+            f"{where}: bad params section ({exc!r}); need alpha_deg, widths[4], reg"
+        ) from None
     if len(widths) != 4:
         raise InputError(f"{where}: params.widths must have 4 entries, got {len(widths)}")
-    if not (0 < alpha < 90) or not all(w > 0 and math.isfinite(w) for w in widths) or not (reg >= 0 and math.isfinite(reg)):
-        raise InputError(f"{where}: parameters out of range: alpha_deg={alpha} (0, 90), widths={widths} (> 0), reg={reg} (>= 0)")
+    if (
+        not (0 < alpha < 90)
+        or not all(w > 0 and math.isfinite(w) for w in widths)
+        or not (reg >= 0 and math.isfinite(reg))
+    ):
+        raise InputError(
+            f"{where}: parameters out of range: alpha_deg={alpha} (0, 90), widths={widths} (> 0), reg={reg} (>= 0)"
+        )
     import jax.numpy as jnp
 
     dt = jnp.zeros(()).dtype
-    params = Params(jnp.asarray(np.deg2rad(alpha), dt), jnp.asarray(widths, dt), jnp.asarray(reg, dt))
+    params = Params(
+        jnp.asarray(np.deg2rad(alpha), dt), jnp.asarray(widths, dt), jnp.asarray(reg, dt)
+    )
     return config, params, dict(d.get("fit") or {})
 
 

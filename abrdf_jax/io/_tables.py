@@ -156,5 +156,9 @@ def write_table(path: str | os.PathLike, table) -> None:
         with atomic_write(path, "wb") as f:
             np.savez_compressed(f, **{NPZ_KEY: arr})
     else:
-        write_rgb_exr(path, arr, comment="abrdf_jax ABRDF table: row = illumination index, column = view index "
-                      "(UBO2003 81-direction grid), linear RGB BRDF*cos(theta_i)")
+        write_rgb_exr(
+            path,
+            arr,
+            comment="abrdf_jax ABRDF table: row = illumination index, column = view index "
+            "(UBO2003 81-direction grid), linear RGB BRDF*cos(theta_i)",
+        )

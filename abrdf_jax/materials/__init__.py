@@ -13,10 +13,34 @@ from .._lazy import lazy_exports
 # public name -> private module that defines it; loaded on first use, so listing the built-in
 # materials (the catalogue) imports no JAX
 _EXPORTS = {
-    "_analytic": ("GGX", "AbstractMaterial", "AshikhminShirley", "Lambertian", "RoughStructured", "Ward"),
-    "_nbrdf": ("DATA_ENV", "DataNotFoundError", "NeuralBRDF", "default_data_dir", "load_nbrdf", "load_nbrdf_all",
-               "load_tables81", "merl_split", "nbrdf_input", "nbrdf_names", "stack_nbrdf"),
-    "_catalogue": ("CATALOGUE", "NBRDF_PREFIX", "is_anisotropic", "material_info", "material_names"),
+    "_analytic": (
+        "GGX",
+        "AbstractMaterial",
+        "AshikhminShirley",
+        "Lambertian",
+        "RoughStructured",
+        "Ward",
+    ),
+    "_nbrdf": (
+        "DATA_ENV",
+        "DataNotFoundError",
+        "NeuralBRDF",
+        "default_data_dir",
+        "load_nbrdf",
+        "load_nbrdf_all",
+        "load_tables81",
+        "merl_split",
+        "nbrdf_input",
+        "nbrdf_names",
+        "stack_nbrdf",
+    ),
+    "_catalogue": (
+        "CATALOGUE",
+        "NBRDF_PREFIX",
+        "is_anisotropic",
+        "material_info",
+        "material_names",
+    ),
     "_registry": ("default_materials", "dense_table", "get_material"),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS)

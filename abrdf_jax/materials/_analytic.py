@@ -271,8 +271,7 @@ class AshikhminShirley(AbstractMaterial):
         norm = jnp.sqrt((nu + 1) * (nv + 1)) / (8 * jnp.pi)
         spec = norm * lobe / (hk * jnp.maximum(jnp.maximum(ci, cv), _EPS_COS)) * fres
         diff = (
-            28 * rd / (23 * jnp.pi) * (1 - rs)
-            * (1 - (1 - ci / 2) ** 5) * (1 - (1 - cv / 2) ** 5)
+            28 * rd / (23 * jnp.pi) * (1 - rs) * (1 - (1 - ci / 2) ** 5) * (1 - (1 - cv / 2) ** 5)
         )
         return (diff + spec) * ci
 
@@ -450,10 +449,13 @@ class RoughStructured(AbstractMaterial):
         lift = jnp.maximum(_p(self.forward_lift, dt), 1e-3)
         # Lobe axis c(wi) = normalize(-wi_x, -wi_y, lift), written per channel when lift is RGB.
         wxy2 = wi[..., 0:1] ** 2 + wi[..., 1:2] ** 2
-        cos_f = (-(wi[..., 0:1] * wv[..., 0:1] + wi[..., 1:2] * wv[..., 1:2]) + lift * wv[..., 2:3])
+        cos_f = -(wi[..., 0:1] * wv[..., 0:1] + wi[..., 1:2] * wv[..., 1:2]) + lift * wv[..., 2:3]
         cos_f = cos_f / jnp.sqrt(wxy2 + lift**2)
         fwd = (
-            _p(self.forward, dt) * wi[..., 2:3] * kappa / (2 * jnp.pi)
+            _p(self.forward, dt)
+            * wi[..., 2:3]
+            * kappa
+            / (2 * jnp.pi)
             * jnp.exp(kappa * (cos_f - 1))
         )
         return total + fwd

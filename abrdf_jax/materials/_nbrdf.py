@@ -99,9 +99,7 @@ def _weights(path: str) -> dict[str, dict[str, np.ndarray]]:
     for name, parts in out.items():
         for key, shape in zip(_WEIGHT_KEYS, _WEIGHT_SHAPES):
             if key not in parts or parts[key].shape != shape:
-                raise InputError(
-                    f"{path}: network {name!r} lacks {key} of shape {shape}"
-                )
+                raise InputError(f"{path}: network {name!r} lacks {key} of shape {shape}")
     return out
 
 

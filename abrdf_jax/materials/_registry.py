@@ -24,24 +24,54 @@ from ._nbrdf import load_nbrdf
 # name -> constructor (the catalogue, _catalogue.CATALOGUE, says what each is)
 _MAKERS = {
     "lambert-clay": lambda: Lambertian(albedo=[0.55, 0.38, 0.28]),
-    "ward-brushed-steel": lambda: Ward(diffuse=[0.04, 0.04, 0.045], specular=[0.30, 0.30, 0.32],
-                     alpha_x=0.05, alpha_y=0.25),
-    "ward-rotated-45": lambda: Ward(diffuse=[0.10, 0.05, 0.03], specular=[0.35, 0.22, 0.14],
-                     alpha_x=0.10, alpha_y=0.35, rotation=math.pi / 4),
-    "ashikhmin-satin": lambda: AshikhminShirley(diffuse=[0.45, 0.10, 0.16], specular=[0.06, 0.05, 0.05],
-                                 n_u=8.0, n_v=120.0),
-    "ggx-plastic": lambda: GGX(diffuse=[0.08, 0.25, 0.55], specular_f0=0.04, alpha_x=0.1, alpha_y=0.1),
-    "ggx-aniso-metal": lambda: GGX(diffuse=0.0, specular_f0=[0.95, 0.72, 0.33], alpha_x=0.07, alpha_y=0.30,
-                    rotation=math.pi / 6),
-    "rough-fabric": lambda: RoughStructured(diffuse=[0.60, 0.22, 0.15], specular_f0=0.03, roughness=0.5,
-                                groove_slope=0.45, fill=[0.55, 0.35, 0.25],
-                                shadow_sharpness=2.5, mask_sharpness=16.0,
-                                forward=[0.30, 0.12, 0.09], forward_kappa=5.0, forward_lift=0.3),
-    "rough-grooves": lambda: RoughStructured(diffuse=[0.22, 0.22, 0.20], specular_f0=[0.35, 0.33, 0.30],
-                                roughness=0.18, groove_slope=0.7, fill=0.1,
-                                shadow_sharpness=4.0, mask_sharpness=20.0,
-                                forward=0.05, forward_kappa=8.0, forward_lift=0.5,
-                                rotation=math.pi / 12),
+    "ward-brushed-steel": lambda: Ward(
+        diffuse=[0.04, 0.04, 0.045], specular=[0.30, 0.30, 0.32], alpha_x=0.05, alpha_y=0.25
+    ),
+    "ward-rotated-45": lambda: Ward(
+        diffuse=[0.10, 0.05, 0.03],
+        specular=[0.35, 0.22, 0.14],
+        alpha_x=0.10,
+        alpha_y=0.35,
+        rotation=math.pi / 4,
+    ),
+    "ashikhmin-satin": lambda: AshikhminShirley(
+        diffuse=[0.45, 0.10, 0.16], specular=[0.06, 0.05, 0.05], n_u=8.0, n_v=120.0
+    ),
+    "ggx-plastic": lambda: GGX(
+        diffuse=[0.08, 0.25, 0.55], specular_f0=0.04, alpha_x=0.1, alpha_y=0.1
+    ),
+    "ggx-aniso-metal": lambda: GGX(
+        diffuse=0.0,
+        specular_f0=[0.95, 0.72, 0.33],
+        alpha_x=0.07,
+        alpha_y=0.30,
+        rotation=math.pi / 6,
+    ),
+    "rough-fabric": lambda: RoughStructured(
+        diffuse=[0.60, 0.22, 0.15],
+        specular_f0=0.03,
+        roughness=0.5,
+        groove_slope=0.45,
+        fill=[0.55, 0.35, 0.25],
+        shadow_sharpness=2.5,
+        mask_sharpness=16.0,
+        forward=[0.30, 0.12, 0.09],
+        forward_kappa=5.0,
+        forward_lift=0.3,
+    ),
+    "rough-grooves": lambda: RoughStructured(
+        diffuse=[0.22, 0.22, 0.20],
+        specular_f0=[0.35, 0.33, 0.30],
+        roughness=0.18,
+        groove_slope=0.7,
+        fill=0.1,
+        shadow_sharpness=4.0,
+        mask_sharpness=20.0,
+        forward=0.05,
+        forward_kappa=8.0,
+        forward_lift=0.5,
+        rotation=math.pi / 12,
+    ),
 }
 if tuple(_MAKERS) != tuple(CATALOGUE):
     raise AssertionError("materials: _MAKERS and _catalogue.CATALOGUE list different names")

@@ -254,7 +254,9 @@ def _de2000_pairs(lab1: Array, lab2: Array) -> Array:
         jnp.where(
             jnp.abs(dh) <= jnp.pi,
             0.5 * hsum,
-            jnp.where(hsum < 2.0 * jnp.pi, 0.5 * (hsum + 2.0 * jnp.pi), 0.5 * (hsum - 2.0 * jnp.pi)),
+            jnp.where(
+                hsum < 2.0 * jnp.pi, 0.5 * (hsum + 2.0 * jnp.pi), 0.5 * (hsum - 2.0 * jnp.pi)
+            ),
         ),
     )
     # eqs. 15-21: weights and rotation

@@ -171,7 +171,9 @@ def evaluate_batch(
     return jax.vmap(_evaluate)(rec, ref)
 
 
-def summarize(results: Mapping[str, ArrayLike] | Sequence[Mapping[str, ArrayLike]]) -> dict[str, Array]:
+def summarize(
+    results: Mapping[str, ArrayLike] | Sequence[Mapping[str, ArrayLike]],
+) -> dict[str, Array]:
     """Mean over materials of each metric (the protocol's reported figures).
 
     PSNR is the mean of the per-material PSNRs, as the protocol says. A material reconstructed exactly
@@ -197,6 +199,8 @@ def summarize(results: Mapping[str, ArrayLike] | Sequence[Mapping[str, ArrayLike
         keys = set(results[0])
         for i, r in enumerate(results):
             if set(r) != keys:
-                raise InputError(f"summarize: result {i} has keys {sorted(r)}, expected {sorted(keys)}")
+                raise InputError(
+                    f"summarize: result {i} has keys {sorted(r)}, expected {sorted(keys)}"
+                )
         batch = {k: jnp.stack([jnp.asarray(r[k]) for r in results]) for k in results[0]}
     return {k: jnp.mean(v) for k, v in batch.items()}

@@ -294,7 +294,9 @@ def _caption(metrics: dict | None) -> str:
     return " / ".join(f.format(float(m[k])) for k, f in fields if m.get(k) is not None)
 
 
-def comparison_figure(rows, path, *, light=(50.0, 135.0), sphere_size: int = 160, dpi: int = 100) -> Path:
+def comparison_figure(
+    rows, path, *, light=(50.0, 135.0), sphere_size: int = 160, dpi: int = 100
+) -> Path:
     """Save a figure comparing references with reconstructions, one material per row.
 
     Each row shows the reference ABRDF image, the reconstructed one, and the two lit spheres,
@@ -334,7 +336,9 @@ def comparison_figure(rows, path, *, light=(50.0, 135.0), sphere_size: int = 160
     heads = ("ABRDF reference", "ABRDF reconstruction", "sphere reference", "sphere reconstruction")
     for r, row in enumerate(rows):
         if len(row) != 4:
-            raise InputError(f"comparison_figure: row {r} has {len(row)} items, expected (name, ref, rec, metrics)")
+            raise InputError(
+                f"comparison_figure: row {r} has {len(row)} items, expected (name, ref, rec, metrics)"
+            )
         name, ref, rec, metrics = row
         ref = _check_table(ref, f"{name}: reference")
         rec = _check_table(rec, f"{name}: reconstruction")

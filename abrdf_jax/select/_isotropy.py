@@ -141,7 +141,9 @@ def _noise(logl, t: np.ndarray, count: np.ndarray, rows):
         wls.append(1.0 - wr), wrs.append(wr)
     ss, ks, lefts, rights = (np.concatenate(a) for a in (ss, ks, lefts, rights))
     wl, wr = (jnp.asarray(np.concatenate(a), logl.dtype) for a in (wls, wrs))
-    r = (logl[:, ss, ks] - (wl * logl[:, ss, lefts] + wr * logl[:, ss, rights])) / jnp.sqrt(1.0 + wl**2 + wr**2)
+    r = (logl[:, ss, ks] - (wl * logl[:, ss, lefts] + wr * logl[:, ss, rights])) / jnp.sqrt(
+        1.0 + wl**2 + wr**2
+    )
     return _MAD_TO_SIGMA * jnp.median(jnp.abs(r), axis=1)
 
 
@@ -176,7 +178,11 @@ def estimate_noise(meas: Measurements, log_eps: float = None, slices: str = "axi
     logl = _log_luminance(y, np.asarray(meas.mask)[None], log_eps)
     if slices == "axial" and not np.any(cnt[0::2] >= 3):
         slices = "diagonal"
-    rows = {"axial": range(0, len(cnt), 2), "diagonal": range(1, len(cnt), 2), "all": range(len(cnt))}[slices]
+    rows = {
+        "axial": range(0, len(cnt), 2),
+        "diagonal": range(1, len(cnt), 2),
+        "all": range(len(cnt)),
+    }[slices]
     return float(_noise(logl, t, cnt, rows)[0])
 
 
@@ -229,16 +235,29 @@ def isotropy_test(
     sigma = max(sigma, floor) if math.isfinite(sigma) else floor
     sums, used = _axial_sums(logl, cnt)
     sums = np.asarray(sums[0], np.float64)
-    per_pair = [dict(pair=tuple(pair), n=int(cnt[2 * p]), statistic=float(sums[2 * p] / sigma**2 / (cnt[2 * p] - 1)),
-                     effect=float(np.sqrt(max(sums[2 * p] - (cnt[2 * p] - 1) * sigma**2, 0.0) / cnt[2 * p])))
-                for p, pair in enumerate(meas.pairs) if used[2 * p]]
+    per_pair = [
+        dict(
+            pair=tuple(pair),
+            n=int(cnt[2 * p]),
+            statistic=float(sums[2 * p] / sigma**2 / (cnt[2 * p] - 1)),
+            effect=float(np.sqrt(max(sums[2 * p] - (cnt[2 * p] - 1) * sigma**2, 0.0) / cnt[2 * p])),
+        )
+        for p, pair in enumerate(meas.pairs)
+        if used[2 * p]
+    ]
     ss, dof, nn = float(sums[used].sum()), int((cnt[used] - 1).sum()), int(cnt[used].sum())
     q = ss / sigma**2
     common = dict(noise=sigma, noise_source=source, level=level, min_effect=min_effect)
     if not per_pair:
         return IsotropyReport(
-            isotropic=True, measured=False, statistic=float("nan"), p_value=float("nan"), dof=0,
-            effect=float("nan"), per_pair=(), **common,
+            isotropic=True,
+            measured=False,
+            statistic=float("nan"),
+            p_value=float("nan"),
+            dof=0,
+            effect=float("nan"),
+            per_pair=(),
+            **common,
             reason="no axial slice was measured: only the diagonal-only model (eq. 5) is possible",
         )
     # The raw RMS includes the noise: remove its expected share (n_p - 1) σ² per pair.
@@ -249,17 +268,30 @@ def isotropy_test(
     material = effect >= min_effect
     iso = not (significant and material)
     if iso and not significant:
-        why = (f"the axial slices vary no more than the noise (chi2/dof {stat:.3g}, p = {pval:.3g} >= {level:g}, "
-               f"noise {sigma:.3g} {source})")
+        why = (
+            f"the axial slices vary no more than the noise (chi2/dof {stat:.3g}, p = {pval:.3g} >= {level:g}, "
+            f"noise {sigma:.3g} {source})"
+        )
     elif iso:
-        why = (f"the axial slices vary significantly (p = {pval:.3g}) but only by {effect:.3g} RMS in log units "
-               f"(< {min_effect:g}): too little to model")
+        why = (
+            f"the axial slices vary significantly (p = {pval:.3g}) but only by {effect:.3g} RMS in log units "
+            f"(< {min_effect:g}): too little to model"
+        )
     else:
-        why = (f"the axial slices vary by {effect:.3g} RMS in log units, {stat:.3g}x the noise variance "
-               f"(p = {pval:.3g} < {level:g}, noise {sigma:.3g} {source})")
+        why = (
+            f"the axial slices vary by {effect:.3g} RMS in log units, {stat:.3g}x the noise variance "
+            f"(p = {pval:.3g} < {level:g}, noise {sigma:.3g} {source})"
+        )
     return IsotropyReport(
-        isotropic=iso, measured=True, statistic=stat, p_value=pval, dof=dof, effect=effect,
-        per_pair=tuple(per_pair), reason=("isotropic: " if iso else "anisotropic: ") + why, **common,
+        isotropic=iso,
+        measured=True,
+        statistic=stat,
+        p_value=pval,
+        dof=dof,
+        effect=effect,
+        per_pair=tuple(per_pair),
+        reason=("isotropic: " if iso else "anisotropic: ") + why,
+        **common,
     )
 
 

@@ -75,7 +75,9 @@ def _pad(meas: Measurements, nmax: int) -> Measurements:
     extra = nmax - meas.t.shape[1]
     if extra <= 0:
         return meas
-    return meas.replace(t=jnp.pad(meas.t, ((0, 0), (0, extra))), y=jnp.pad(meas.y, ((0, 0), (0, extra), (0, 0))))
+    return meas.replace(
+        t=jnp.pad(meas.t, ((0, 0), (0, extra))), y=jnp.pad(meas.y, ((0, 0), (0, extra), (0, 0)))
+    )
 
 
 def _slice_counts(config: Config, n: int) -> tuple[int, ...]:
@@ -142,7 +144,9 @@ def sample_count_curve(
     measured = isinstance(source, (Samples, Measurements))
     if measured:
         if metric not in (None, "held_out"):
-            raise InputError(f"a measurement has no ground truth: metric must be 'held_out', got {metric!r}")
+            raise InputError(
+                f"a measurement has no ground truth: metric must be 'held_out', got {metric!r}"
+            )
         metric = "held_out"
         p0 = None if alpha_deg is None else Params.default(Config(), alpha_deg=alpha_deg)
         meas, cfg_auto, p = prepare(source, None, p0)
@@ -152,13 +156,19 @@ def sample_count_curve(
         top = int(np.max(np.asarray(meas.count)[1::2]))
         counts = tuple(c for c in counts if c < top)
         if not counts:
-            raise InputError(f"every count is at least the measured {top} samples per slice: nothing to hold out")
+            raise InputError(
+                f"every count is at least the measured {top} samples per slice: nothing to hold out"
+            )
     else:
         metric = metric or "de76"
         if metric not in GROUND_TRUTH_METRICS:
-            raise InputError(f"metric must be one of {GROUND_TRUTH_METRICS} (lower is better) for a ground-truth source, got {metric!r}")
+            raise InputError(
+                f"metric must be one of {GROUND_TRUTH_METRICS} (lower is better) for a ground-truth source, got {metric!r}"
+            )
         config = config or Config.recommended("aniso204")
-        params = params or Params.default(config, alpha_deg=15.0 if alpha_deg is None else alpha_deg)
+        params = params or Params.default(
+            config, alpha_deg=15.0 if alpha_deg is None else alpha_deg
+        )
         is_table = hasattr(source, "shape") and not callable(source)
         ref = jnp.asarray(source) if is_table else None
         if ref is None:
@@ -173,7 +183,10 @@ def sample_count_curve(
             kept, held = _thin(meas, n)
             rec_in = _pad(kept, meas.t.shape[1])
             dt, a = meas.t.dtype, params.alpha.astype(meas.t.dtype)
-            dirs = [slice_vectors(jnp.asarray(ts, dt), s % 2, meas.pairs[s // 2], a) for s, ts, _ in held]
+            dirs = [
+                slice_vectors(jnp.asarray(ts, dt), s % 2, meas.pairs[s // 2], a)
+                for s, ts, _ in held
+            ]
             pred = _reconstruct_jit(rec_in, config, params, tuple(map(jnp.concatenate, zip(*dirs))))
             y = jnp.asarray(np.concatenate([ys for _, _, ys in held]), pred.dtype)
             errors.append(float(log_rms(pred, y, measurement_eps(meas, config.log_eps), True)))
@@ -189,4 +202,6 @@ def sample_count_curve(
             errors.append(float(evaluate(rec, ref.astype(rec.dtype))[metric]))
             totals.append(int(sum(cnts)))
     needed = _needed(counts, errors, target)
-    return SampleCountCurve(counts, tuple(totals), tuple(errors), metric, target, needed, config.budget)
+    return SampleCountCurve(
+        counts, tuple(totals), tuple(errors), metric, target, needed, config.budget
+    )

@@ -164,15 +164,21 @@ def _cv_core(data: dict, configs: tuple, params: Params):
     def fold_values(m, e, c):
         return vs.encode_subspace(subspace_values(vs.encode_samples(m, e), c, params), e)
 
-    fit_vals = jnp.stack([jax.vmap(lambda m, e, c=c: fold_values(m, e, c))(train, eps) for c in configs])
+    fit_vals = jnp.stack(
+        [jax.vmap(lambda m, e, c=c: fold_values(m, e, c))(train, eps) for c in configs]
+    )
     G, k, n, C = fit_vals.shape
     # Every fold and configuration as right-hand sides of one system (it ignores the values).
     rhs = jnp.moveaxis(fit_vals, 2, 0).reshape(n, G * k * C)
     wi_c, wv_c = centre_vectors(train.pairs, dtype)
     xc = pair_coordinates(wi_c, wv_c, cfg0.parameterization)
-    rbf = fit_rbf(xc, rhs, params.widths.astype(dtype), cfg0.kernel, params.reg.astype(dtype), cfg0.degree)
+    rbf = fit_rbf(
+        xc, rhs, params.widths.astype(dtype), cfg0.kernel, params.reg.astype(dtype), cfg0.degree
+    )
     q = data["test_wi"].shape[1]
-    xq = pair_coordinates(data["test_wi"].reshape(-1, 3), data["test_wv"].reshape(-1, 3), cfg0.parameterization)
+    xq = pair_coordinates(
+        data["test_wi"].reshape(-1, 3), data["test_wv"].reshape(-1, 3), cfg0.parameterization
+    )
     out = rbf(xq).reshape(k, q, G, k, C)
     fold = jnp.arange(k)
     # fold j's own prediction at fold j's held-out samples: (k, q, G, C)
@@ -248,7 +254,9 @@ def _grouped(samples, alpha_deg, dtype=None) -> tuple[Measurements, float]:
 # The tolerance rule and the selection
 
 
-def tolerance_choice(errors: dict[str, float], ranks: dict[str, int], tol: float = TOL) -> tuple[str, str]:
+def tolerance_choice(
+    errors: dict[str, float], ranks: dict[str, int], tol: float = TOL
+) -> tuple[str, str]:
     """The simplest candidate whose error is within ``tol`` (relative) of the best.
 
     Args:
@@ -278,8 +286,10 @@ def tolerance_choice(errors: dict[str, float], ranks: dict[str, int], tol: float
             s = min(simpler, key=lambda n: finite[n])
             reason += f"; the best simpler model, {s}, is {100 * (finite[s] / finite[pick] - 1):.1f}% worse (> {100 * tol:g}%)"
     else:
-        reason = (f"{pick} is the simplest model within {100 * tol:g}% of the best held-out error "
-                  f"({finite[pick]:.4g} vs {finite[best]:.4g} of {best})")
+        reason = (
+            f"{pick} is the simplest model within {100 * tol:g}% of the best held-out error "
+            f"({finite[pick]:.4g} vs {finite[best]:.4g} of {best})"
+        )
     return pick, reason
 
 
@@ -322,8 +332,12 @@ class Selection:
             "tol": self.tol,
             "folds": self.k,
             "candidates": [
-                {"name": n, "held_out_log_rms": _finite(self.errors[n]), "rank": self.ranks[n],
-                 "description": CANDIDATES[n].description if n in CANDIDATES else ""}
+                {
+                    "name": n,
+                    "held_out_log_rms": _finite(self.errors[n]),
+                    "rank": self.ranks[n],
+                    "description": CANDIDATES[n].description if n in CANDIDATES else "",
+                }
                 for n in sorted(self.errors, key=lambda n: self.ranks[n])
             ],
             "isotropy": None if self.isotropy is None else self.isotropy.to_dict(),
@@ -406,4 +420,6 @@ def select_model(
         reason = f"budget forced to {budget}. {reason}"
     config = configs[pick]
     params = Params.default(config, alpha_deg=alpha, dtype=meas.y.dtype)
-    return Selection(pick, config, params, errors, ranks, report, reason, tol, k, time.perf_counter() - t0)
+    return Selection(
+        pick, config, params, errors, ranks, report, reason, tol, k, time.perf_counter() - t0
+    )

@@ -18,7 +18,12 @@ Two problems share one fitting API::
 See :mod:`abrdf_jax.tuning._problems` (problems, parameter space) and :mod:`abrdf_jax.tuning._fitting` (solvers).
 """
 
-from ._fitting import FitResult as FitResult, SOLVERS as SOLVERS, fit as fit, held_out_loss as held_out_loss
+from ._fitting import (
+    FitResult as FitResult,
+    SOLVERS as SOLVERS,
+    fit as fit,
+    held_out_loss as held_out_loss,
+)
 from ..io._paramfile import load_params as load_params, save_params as save_params
 from ._problems import (
     AbstractProblem as AbstractProblem,

@@ -169,7 +169,9 @@ def fit(
         elif progress:
             import sys
 
-            print(f"  fit[{solver}] eval {len(history):4d}  loss {v:.6g}", file=sys.stderr, flush=True)
+            print(
+                f"  fit[{solver}] eval {len(history):4d}  loss {v:.6g}", file=sys.stderr, flush=True
+            )
 
     static = (problem, solver, max_steps, float(rtol), float(atol))
     t0 = time.perf_counter()
@@ -184,20 +186,35 @@ def fit(
     finally:
         _SINK.remove(sink)
     loss0 = float(loss0)
-    finite = math.isfinite(final) and all(bool(jnp.all(jnp.isfinite(v))) for v in jax.tree_util.tree_leaves(theta))
+    finite = math.isfinite(final) and all(
+        bool(jnp.all(jnp.isfinite(v))) for v in jax.tree_util.tree_leaves(theta)
+    )
     code = int(code)
     if not finite:
         status, theta, final = "diverged", theta0, loss0
     else:
         status = ("converged", "max_steps", "failed")[code]
     fitted = problem.space.to_params(theta, params)
-    message = {0: "tolerance reached", 1: f"stopped after max_steps={max_steps}", 2: "the solver reported a failure"}[code]
+    message = {
+        0: "tolerance reached",
+        1: f"stopped after max_steps={max_steps}",
+        2: "the solver reported a failure",
+    }[code]
     if status == "diverged":
         message = "non-finite loss or parameters; returned the starting parameters"
     return FitResult(
-        params=fitted, theta=theta, status=status, loss_initial=loss0, loss_final=final,
-        steps=int(steps), evaluations=len(history), seconds=seconds, compile_seconds=t_compile,
-        solver=solver, message=message, history=history,
+        params=fitted,
+        theta=theta,
+        status=status,
+        loss_initial=loss0,
+        loss_final=final,
+        steps=int(steps),
+        evaluations=len(history),
+        seconds=seconds,
+        compile_seconds=t_compile,
+        solver=solver,
+        message=message,
+        history=history,
     )
 
 

@@ -65,15 +65,21 @@ class ParamSpace(eqx.Module):
     reg: bool = eqx.field(static=True, default=True)
     alpha: bool = eqx.field(static=True, default=False)
     alpha_bounds_deg: tuple[float, float] = eqx.field(static=True, default=(2.0, 88.0))
-    log_width_bounds: tuple[float, float] = eqx.field(static=True, default=(float(np.log(0.02)), float(np.log(20.0))))
-    log_reg_bounds: tuple[float, float] = eqx.field(static=True, default=(float(np.log(1e-9)), float(np.log(10.0))))
+    log_width_bounds: tuple[float, float] = eqx.field(
+        static=True, default=(float(np.log(0.02)), float(np.log(20.0)))
+    )
+    log_reg_bounds: tuple[float, float] = eqx.field(
+        static=True, default=(float(np.log(1e-9)), float(np.log(10.0)))
+    )
 
     def __check_init__(self):
         if self.widths not in WIDTH_MODES:
             raise InputError(f"ParamSpace.widths must be one of {WIDTH_MODES}, got {self.widths!r}")
         lo, hi = self.alpha_bounds_deg
         if not 0 < lo < hi < 90:
-            raise InputError(f"ParamSpace.alpha_bounds_deg must satisfy 0 < lo < hi < 90, got {self.alpha_bounds_deg}")
+            raise InputError(
+                f"ParamSpace.alpha_bounds_deg must satisfy 0 < lo < hi < 90, got {self.alpha_bounds_deg}"
+            )
         if self.widths == "fixed" and not self.reg and not self.alpha:
             raise InputError("ParamSpace has no free parameter: free the widths, reg or alpha")
 
@@ -109,7 +115,9 @@ class ParamSpace(eqx.Module):
 
     def bounds(self, theta: dict[str, Array]) -> tuple[dict[str, Array], dict[str, Array]]:
         """Box bounds on ``theta`` (for ``jaxopt.LBFGSB``); α's logit gets ±12 (0.0006% of the range)."""
-        box = dict(log_widths=self.log_width_bounds, log_reg=self.log_reg_bounds, alpha=(-12.0, 12.0))
+        box = dict(
+            log_widths=self.log_width_bounds, log_reg=self.log_reg_bounds, alpha=(-12.0, 12.0)
+        )
         lo = {k: jnp.full_like(v, box[k][0]) for k, v in theta.items()}
         return lo, {k: jnp.full_like(v, box[k][1]) for k, v in theta.items()}
 
@@ -156,7 +164,9 @@ class SelfCalibration(AbstractProblem):
         if self.folds not in FOLD_KINDS:
             raise InputError(f"folds must be one of {FOLD_KINDS}, got {self.folds!r}")
         if self.space.alpha:
-            raise InputError("self-calibration cannot fit alpha: the measured samples fix it (ParamSpace(alpha=False))")
+            raise InputError(
+                "self-calibration cannot fit alpha: the measured samples fix it (ParamSpace(alpha=False))"
+            )
         if self.folds == "pairs" and len(self.pairs) < 2:
             raise InputError("folds='pairs' needs at least 2 measured elevation pairs")
 
@@ -174,19 +184,25 @@ class SelfCalibration(AbstractProblem):
         """The problem, its data and the starting parameters for one material's measurements."""
         meas, config, params = prepare(samples, config, params)
         space = space or ParamSpace()
-        prob = cls(config=config, space=space, folds=folds, k=k, pairs=tuple(map(tuple, meas.pairs)))
+        prob = cls(
+            config=config, space=space, folds=folds, k=k, pairs=tuple(map(tuple, meas.pairs))
+        )
         return prob, prob.make_data(meas, params), params
 
     def make_data(self, meas: Measurements, params: Params) -> dict:
         """The data pytree of a measurement (arrays only: new data never recompiles)."""
         if tuple(map(tuple, meas.pairs)) != self.pairs:
-            raise InputError(f"measurement pairs {meas.pairs} differ from the problem's {self.pairs}")
+            raise InputError(
+                f"measurement pairs {meas.pairs} differ from the problem's {self.pairs}"
+            )
         data = {"alpha": jnp.asarray(params.alpha, meas.y.dtype), "base": params}
         if self.folds == "pairs":
             counts = np.asarray(meas.count)
             for p in range(len(self.pairs)):
                 if counts[2 * p + 1] == 0:
-                    raise InputError(f"elevation pair {self.pairs[p]} has no diagonal slice: cannot self-calibrate")
+                    raise InputError(
+                        f"elevation pair {self.pairs[p]} has no diagonal slice: cannot self-calibrate"
+                    )
             data["meas"] = meas
         else:
             train, tt, ty, tm = sample_folds(meas, self.k)
@@ -206,11 +222,13 @@ class SelfCalibration(AbstractProblem):
             for p in range(P):
                 sub = meas.select_slices(tuple(q for q in range(P) if q != p))
                 cfg = dataclasses.replace(self.config, pairs=sub.pairs)
-                for kind in ((0, 1) if meas.has_axial else (1,)):
+                for kind in (0, 1) if meas.has_axial else (1,):
                     s = 2 * p + kind
                     wi, wv = slice_vectors(meas.t[s], kind, self.pairs[p], alpha)
                     pred = _reconstruct_core(sub, cfg, params, targets=(wi, wv))
-                    out.append(log_residual(pred, meas.y[s], eps, meas.mask[s][:, None]).reshape(-1))
+                    out.append(
+                        log_residual(pred, meas.y[s], eps, meas.mask[s][:, None]).reshape(-1)
+                    )
         else:
             for j in range(self.k):
                 train = jax.tree_util.tree_map(lambda x: x[j], data["train"])
@@ -265,7 +283,9 @@ class Population(AbstractProblem):
     def make_data(source, ref, params: Params) -> dict:
         ref = jnp.asarray(ref)
         if ref.ndim != 4 or ref.shape[1:] != (81, 81, 3):
-            raise InputError(f"population references must have shape (B, 81, 81, 3), got {ref.shape}")
+            raise InputError(
+                f"population references must have shape (B, 81, 81, 3), got {ref.shape}"
+            )
         return {"source": source, "ref": ref, "base": params}
 
     def residuals(self, theta, data):

@@ -23,7 +23,9 @@ def _optimistix(kind: str):
             solver = (optx.LevenbergMarquardt if kind == "lm" else optx.GaussNewton)(**tol)
             sol = optx.least_squares(lambda th, d: objective(th, d, True), solver, theta0, **opts)
         else:
-            sol = optx.minimise(lambda th, d: objective(th, d, False), optx.BFGS(**tol), theta0, **opts)
+            sol = optx.minimise(
+                lambda th, d: objective(th, d, False), optx.BFGS(**tol), theta0, **opts
+            )
         steps = sol.stats["num_steps"]
         ok = sol.result == optx.RESULTS.successful
         code = jnp.where(ok, 0, jnp.where(steps >= max_steps, 1, 2))
@@ -40,7 +42,9 @@ def _jaxopt(kind: str):
             return objective(th, d, False)
 
         make, bounds = (jaxopt.LBFGS, ()) if kind == "lbfgs" else (jaxopt.LBFGSB, ((lo, hi),))
-        theta, state = make(fun=fun, maxiter=max_steps, tol=atol, jit=True).run(theta0, *bounds, data)
+        theta, state = make(fun=fun, maxiter=max_steps, tol=atol, jit=True).run(
+            theta0, *bounds, data
+        )
         steps = state.iter_num
         return theta, steps, jnp.where(state.error <= atol, 0, jnp.where(steps >= max_steps, 1, 2))
 
