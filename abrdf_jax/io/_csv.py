@@ -333,6 +333,11 @@ def _check_units(path: Path, ti, pi, tv, pv) -> None:
 # --------------------------------------------------------------------------------------------
 
 
+def _row_text(row) -> str:
+    """One data line; ``repr`` is the shortest text that reads back to the same float64."""
+    return ",".join(map(repr, row)) + "\n"
+
+
 def write_samples_csv(path: str | os.PathLike, samples: Samples) -> None:
     """Write samples as a measurement CSV file, atomically, at full float64 precision.
 
@@ -368,5 +373,5 @@ def write_samples_csv(path: str | os.PathLike, samples: Samples) -> None:
             )
     with atomic_write(path, "w", newline="") as f:
         f.write(",".join(CSV_COLUMNS) + "\n")
-        for row in data.tolist():  # repr: the shortest text that reads back to the same float64
-            f.write(",".join(map(repr, row)) + "\n")
+        for row in data.tolist():
+            f.write(_row_text(row))
