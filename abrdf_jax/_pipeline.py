@@ -93,9 +93,14 @@ def _reconstruct_core(
     eps = vs.eps(meas, config.log_eps)
     vals = subspace_values(vs.encode_samples(meas, eps), config, params)
     fit_vals = vs.encode_subspace(vals, eps)
-    out = vs.decode(
-        rbf_map(fit_vals, meas.pairs, config, params, targets, keep=True, guard=guard), eps
-    )
+    # The restored subspaces are put back at their grid pairs (the paper's step 3) in the RBF's
+    # value space, except after a log of the subspace values: there the values themselves go back
+    # (exp(ln(x + ε)) − ε would only round them).
+    keep_after = vs.log_subspace and targets is None
+    out = rbf_map(fit_vals, meas.pairs, config, params, targets, keep=not keep_after, guard=guard)
+    out = vs.decode(out, eps)
+    if keep_after:
+        out = keep_centres(out, jnp.maximum(vals, 0.0), meas.pairs)
     if targets is None:
         out = out.reshape(81, 81, out.shape[-1])
     return out
