@@ -6,8 +6,6 @@ a parameterization, add one :class:`Parameterization` to :data:`PARAMETERIZATION
 then valid in ``Config(parameterization=...)``, parameter files and the command line.
 """
 
-from __future__ import annotations
-
 import dataclasses
 from typing import Callable
 

@@ -18,8 +18,6 @@ elevation pair (:func:`centre_layout`); its targets are the 6561 UBO pairs
 (:func:`ubo_target_vectors`), where the reconstructed subspaces are put back (:func:`keep_centres`).
 """
 
-from __future__ import annotations
-
 import numpy as np
 import jax.numpy as jnp
 from jaxtyping import Array, Float

@@ -12,8 +12,6 @@ Methods:
   differences): C¹, exact for linear data, may overshoot near sharp peaks.
 """
 
-from __future__ import annotations
-
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 

@@ -6,8 +6,6 @@ with a count (zero for an unmeasured slice). ``Measurements.mask`` is the one pl
 entries are samples and which are padding.
 """
 
-from __future__ import annotations
-
 import dataclasses
 
 import equinox as eqx

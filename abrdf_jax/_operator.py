@@ -31,8 +31,6 @@ slice parameters and counts (checked on the host when the input is a concrete
 :class:`Measurements`; values passed as arrays are taken in the template's order, unchecked).
 """
 
-from __future__ import annotations
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp

@@ -1,7 +1,5 @@
 """Configuration (discrete, static) and parameters (continuous, traced) of a reconstruction."""
 
-from __future__ import annotations
-
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np

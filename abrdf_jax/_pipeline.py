@@ -7,8 +7,6 @@ parameters and the values, and vmaps over materials (``reconstruct_batch``), whe
 factorisation is shared because it depends on the parameters only.
 """
 
-from __future__ import annotations
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp

@@ -37,8 +37,6 @@ coefficients are then obtained by ``lax.custom_linear_solve`` with the chosen fa
 differentiates implicitly (``dc = -A⁻¹ dA c``), so a failed attempt never leaks NaN into gradients.
 """
 
-from __future__ import annotations
-
 import functools
 import itertools
 

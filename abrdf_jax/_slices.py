@@ -14,9 +14,6 @@ Grouping samples into slices is :func:`abrdf_jax._measurements.group_slices`; sa
 along them is :mod:`abrdf_jax._sampling`.
 """
 
-from __future__ import annotations
-
-
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float

@@ -34,8 +34,6 @@ the sample values, so the compiled operator can absorb it). To add a rule, regis
 with :func:`_rule` and list its name in ``abrdf_jax._names.RULES``; an unknown name raises.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import functools
 from typing import Callable

@@ -10,8 +10,6 @@ never zero). Every step ends with the clamp at 0 (an ABRDF is non-negative). The
 compiled operator and the held-out errors of model selection all call these functions.
 """
 
-from __future__ import annotations
-
 import dataclasses
 
 import jax.numpy as jnp

@@ -20,8 +20,6 @@ places each sample, copies samples where the slices cross, averages repeated ang
 batch path groups the samples exactly as ``abrdf-jax reconstruct`` groups a CSV file.
 """
 
-from __future__ import annotations
-
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np

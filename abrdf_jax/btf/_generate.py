@@ -7,8 +7,6 @@ any machine. Texels are numbered row-major: texel ``t`` is row ``t // size`` (pa
 column ``t % size`` (patch ``x``).
 """
 
-from __future__ import annotations
-
 from functools import partial
 
 import equinox as eqx

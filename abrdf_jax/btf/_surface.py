@@ -19,8 +19,6 @@ from *horizon maps* (Max, "Horizon mapping: shadows for bump-mapped surfaces", T
 ``S`` steps over a raster of the field with bilinear, periodic look-ups.
 """
 
-from __future__ import annotations
-
 from functools import partial
 
 import equinox as eqx

@@ -30,8 +30,6 @@ art survey", IEEE TPAMI 31(11), 2009). Synthetic: a plausible test case, not a f
 measured material.
 """
 
-from __future__ import annotations
-
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np

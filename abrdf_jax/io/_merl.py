@@ -12,8 +12,6 @@ Binning (Rusinkiewicz half/difference angles, see :func:`abrdf_jax._grid.half_di
 reduced to ``[0, π)`` by reciprocity), each clamped to its range.
 """
 
-from __future__ import annotations
-
 import os
 from pathlib import Path
 

@@ -22,8 +22,6 @@ which is deliberately not, as measured BTF ABRDFs are not (shadowing, masking an
 transport act differently on the light and the view side).
 """
 
-from __future__ import annotations
-
 import abc
 
 import equinox as eqx

@@ -24,8 +24,6 @@ quantity up to rounding but has finite gradients at ``h = n`` and ``θd = 0``. T
 step 4 are applied exactly as in the recipe (on ``atan2``), so the grid values match the tables.
 """
 
-from __future__ import annotations
-
 import functools
 import os
 from pathlib import Path

@@ -4,8 +4,6 @@ gradient-safe square roots and hue angles. :mod:`abrdf_jax.metrics._metrics` bui
 from these.
 """
 
-from __future__ import annotations
-
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float

@@ -35,8 +35,6 @@ by default: the two differ by about 1e-4 relative). The luminance weights of the
 protocol's literal ``0.2126, 0.7152, 0.0722``.
 """
 
-from __future__ import annotations
-
 from collections.abc import Mapping, Sequence
 
 import equinox as eqx

@@ -18,8 +18,6 @@ The map from ``theta`` to :class:`~abrdf_jax.Params` is :class:`ParamSpace`: wid
 ``exp`` (positive), α through a logistic map into a bounded interval of degrees.
 """
 
-from __future__ import annotations
-
 import dataclasses
 
 import equinox as eqx
