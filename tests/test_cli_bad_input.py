@@ -618,3 +618,45 @@ def test_corrupt_merl_file_in_subprocess(tmp_path, merl_file):
     )
     assert proc.stderr.count("\n") == 1
     assert snapshot(tmp_path) == {"cut.binary": data[: len(data) - 1000], "meas.csv": PRECIOUS}
+
+
+# ---------------------------------------------------------------------------------------------
+# What of a capture is used (issue 12, "say what was used")
+# ---------------------------------------------------------------------------------------------
+
+
+def test_capture_too_small_is_refused_with_the_minimum(tmp_path, capsys):
+    """Three samples on one pair cannot support a reconstruction: exit 2, the minimum, no file."""
+    p = tmp_path / "three.csv"
+    p.write_text(csv_text(protocol_rows()[:3]))
+    before = snapshot(tmp_path)
+    fails(
+        capsys,
+        ["reconstruct", p, "-o", tmp_path / "t.npz"],
+        "three.csv",
+        "at least 2 elevation pairs",
+    )
+    assert snapshot(tmp_path) == before
+
+
+def test_missing_pairs_and_off_slice_samples_are_reported(tmp_path, capsys):
+    """A capture without two of its pairs and with stray samples: reconstructed, with warnings,
+    and the model record says what was used and what was left out."""
+    import json
+
+    rows = protocol_rows()
+    half = rows[rows[:, 0] == 30]  # the pairs 30/30 and 30/75 only
+    stray = np.array([[30.0, 100.0, 30.0, 7.0], [30.0, 200.0, 75.0, 3.0]])  # on no slice
+    p = tmp_path / "half.csv"
+    p.write_text(csv_text(np.concatenate([half, stray])))
+    out = tmp_path / "h.npz"
+    assert main(["reconstruct", str(p), "-o", str(out), "--model", "iso"]) == 0
+    err = capsys.readouterr().err
+    assert "no sample at elevation pair(s) [[75.0, 30.0], [75.0, 75.0]]" in err
+    assert "2 of 52 samples lie on no slice" in err
+    used = json.loads((tmp_path / "h.model.json").read_text())["measurement"]
+    assert used["pairs"] == [[30.0, 30.0], [30.0, 75.0]]
+    assert used["dropped_pairs"] == [[75.0, 30.0], [75.0, 75.0]]
+    assert (used["n_samples"], used["n_used"], used["n_off_slice"]) == (52, 50, 2)
+    assert [c["diagonal"] for c in used["samples_per_slice"]] == [25, 25]
+    assert out.exists()

@@ -193,6 +193,54 @@ class Measured(NamedTuple):
     meas: object  # abrdf_jax.Measurements: the slices, passed on to every later step
     budget: str
     alpha: float  # slice offset, degrees
+    used: dict  # what of the file was used (the model record's "measurement" entry)
+
+
+#: The least a capture must hold to be reconstructed: this many elevation pairs, each with this
+#: many samples on its diagonal slice (a slice is interpolated over 360 degrees of azimuth).
+MIN_PAIRS, MIN_DIAGONAL = 2, 3
+
+
+def _used(meas, report: dict, n_total: int) -> dict:
+    """What of a capture is used: pairs, samples per slice, what was left out and why."""
+    counts = [int(c) for c in report["counts"]]
+    return {
+        "alpha_deg": report["alpha_deg"],
+        "pairs": [list(p) for p in meas.pairs],
+        "samples_per_slice": [
+            {"axial": a, "diagonal": d} for a, d in zip(counts[0::2], counts[1::2])
+        ],
+        "n_samples": n_total,
+        "n_used": report["n_used"],
+        "n_off_slice": report["n_off_slice"],
+        "dropped_pairs": [list(p) for p in report["dropped_pairs"]],
+    }
+
+
+def _check_support(used: dict, where: Path) -> None:
+    """Refuse a capture too small to reconstruct; warn about what was left out."""
+    weak = [
+        p for p, c in zip(used["pairs"], used["samples_per_slice"]) if c["diagonal"] < MIN_DIAGONAL
+    ]
+    if len(used["pairs"]) < MIN_PAIRS or weak:
+        why = f"{len(used['pairs'])} elevation pair(s) with samples"
+        if weak:
+            why = f"diagonal slices with fewer than {MIN_DIAGONAL} samples at pairs {weak}"
+        raise InputError(
+            f"{where}: cannot reconstruct from {used['n_used']} usable sample(s): {why}; a capture "
+            f"needs at least {MIN_PAIRS} elevation pairs with {MIN_DIAGONAL} or more samples on each "
+            f"diagonal slice"
+        )
+    if used["dropped_pairs"]:
+        warn(
+            f"{where}: no sample at elevation pair(s) {used['dropped_pairs']}: left out, the RBF "
+            f"fills them from the {len(used['pairs'])} measured pair(s)"
+        )
+    if used["n_off_slice"]:
+        warn(
+            f"{where}: {used['n_off_slice']} of {used['n_samples']} samples lie on no slice (more "
+            f"than 0.5 deg off, alpha {used['alpha_deg']:g} deg): left out"
+        )
 
 
 def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measured:
@@ -201,12 +249,15 @@ def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measu
 
     a = float(alpha) if alpha is not None else round(float(aj.estimate_alpha(samples)), 3)
     try:
-        meas, _ = aj.group_slices(samples, a)
+        meas, report = aj.group_slices(samples, a)
     except InputError as e:
         raise InputError(f"{where}: {e} (slice offset alpha {a:g} deg)") from e
     if forced == "aniso204" and not meas.has_axial:
         raise InputError(f"{where}: --anisotropic needs axial slices, but the file has none")
-    return Measured(where, samples, meas, forced or ("aniso204" if meas.has_axial else "iso102"), a)
+    used = _used(meas, report, len(samples))
+    _check_support(used, where)
+    budget = forced or ("aniso204" if meas.has_axial else "iso102")
+    return Measured(where, samples, meas, budget, a, used)
 
 
 def read_inputs(files: list[Path], forced: str | None, alpha: float | None) -> list[Measured]:
@@ -357,6 +408,17 @@ def describe(choice: dict) -> list[str]:
     rec = choice["record"]
     name = rec["model"] or "from parameter file"
     lines = [f"  model: {name} ({rec['how']}): {rec['reason']}"]
+    if "measurement" in rec:
+        m = rec["measurement"]
+        per = ", ".join(
+            f"{tuple(p)} {c['axial']}+{c['diagonal']}"
+            for p, c in zip(m["pairs"], m["samples_per_slice"])
+        )
+        left = m["n_samples"] - m["n_used"]
+        lines.append(
+            f"  used: {m['n_used']} of {m['n_samples']} samples, axial+diagonal per pair {per}"
+            + (f"; {left} left out" if left else "")
+        )
     for c in rec.get("candidates") or []:
         err = "n/a" if c["held_out_log_rms"] is None else f"{c['held_out_log_rms']:.4f}"
         mark = "*" if c["name"] == rec["model"] else " "

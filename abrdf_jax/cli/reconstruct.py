@@ -138,7 +138,9 @@ def choose_all(items: list[common.Measured], args, forced: str | None) -> list[d
     out = []
     with common.progress(len(items), "select model", args.quiet or len(items) < 2) as bar:
         for item in items:
-            out.append(choose(item, args, forced))
+            choice = choose(item, args, forced)
+            choice["record"]["measurement"] = item.used  # what of the file was used, and why not
+            out.append(choice)
             bar.update(1)
     return out
 
