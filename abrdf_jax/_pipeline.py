@@ -18,7 +18,7 @@ from ._errors import InputError
 from ._grid import centre_layout, centre_vectors, keep_centres, ubo_target_vectors
 from ._measurements import Measurements, Samples, group_slices, stack_measurements
 from ._params import Config, Params
-from ._rbf import SolveInfo, fit_rbf, fit_rbf_info
+from ._rbf import SolveInfo, fit_rbf_info
 from ._subspace import subspace
 from ._values import value_space
 
@@ -46,6 +46,13 @@ def subspace_values(meas: Measurements, config: Config, params: Params) -> Float
     return jnp.concatenate(vals)
 
 
+def _fit_centres(vals, pairs, config: Config, params: Params, guard: bool = True):
+    """The RBF fit at the centres of ``pairs`` (one place builds the system): ``(interpolant, info)``."""
+    p = params.astype(vals.dtype)
+    xc = pair_coordinates(*centre_vectors(pairs, vals.dtype), config.parameterization)
+    return fit_rbf_info(xc, vals, p.widths, config.kernel, p.reg, config.degree, guard=guard)
+
+
 def rbf_map(
     fit_vals: Float[Array, "n C"],
     pairs,
@@ -66,17 +73,7 @@ def rbf_map(
         ``(q, C)`` values in the fit space (before any exp).
     """
     dtype = fit_vals.dtype
-    wi_c, wv_c = centre_vectors(pairs, dtype)
-    xc = pair_coordinates(wi_c, wv_c, config.parameterization)
-    rbf = fit_rbf(
-        xc,
-        fit_vals,
-        params.widths.astype(dtype),
-        config.kernel,
-        params.reg.astype(dtype),
-        config.degree,
-        guard=guard,
-    )
+    rbf = _fit_centres(fit_vals, pairs, config, params, guard)[0]
     wi_t, wv_t = ubo_target_vectors(dtype) if targets is None else targets
     out = rbf(pair_coordinates(wi_t, wv_t, config.parameterization))
     if targets is None and keep:
@@ -232,16 +229,8 @@ def solve_info(
 
 @eqx.filter_jit
 def _solve_info_jit(pairs, dtype, config, params):
-    xc = pair_coordinates(*centre_vectors(pairs, dtype), config.parameterization)
-    zeros = jnp.zeros((xc.shape[0], 1), dtype)
-    return fit_rbf_info(
-        xc,
-        zeros,
-        params.widths.astype(dtype),
-        config.kernel,
-        params.reg.astype(dtype),
-        config.degree,
-    )[1]
+    n = sum(len(a) for a, _ in centre_layout(pairs))
+    return _fit_centres(jnp.zeros((n, 1), dtype), pairs, config, params)[1]
 
 
 def check_finite(table, where: str = "reconstruction") -> None:

@@ -192,7 +192,6 @@ def test_new_data_and_parameters_never_retrace(plastic_meas, clay_meas):
     n = TRACE_COUNT["residuals"]
     r2 = tuning.fit(prob, data_b, other, solver="bfgs", max_steps=2)
     assert TRACE_COUNT["residuals"] == n
-    assert r2.compile_seconds < max(1.0, 0.2 * r1.compile_seconds)  # served from the cache
     assert r1.loss_final != r2.loss_final
 
 
