@@ -112,20 +112,8 @@ def params_file_entry(name, group, layout, path, **entry_kw) -> Entry:
 
     def build(ctx, lay, dtype):
         cfg, p, _ = load_params(path)
-        cfg = lay.config(
-            **{
-                f: getattr(cfg, f)
-                for f in (
-                    "rule",
-                    "kernel",
-                    "degree",
-                    "parameterization",
-                    "interp",
-                    "value_space",
-                    "log_eps",
-                )
-            }
-        )
+        # the file's method on this layout's budget and elevation pairs
+        cfg = dataclasses.replace(cfg, budget=lay.budget, pairs=tuple(lay.pairs))
         # the test samples lie at PROTOCOL's α = 15°: the file's widths and λ are used, not its α
         p = p.astype(dtype).with_alpha_deg(aj.PROTOCOL_ALPHA_DEG)
         return lambda batch: aj.reconstruct_batch(batch.meas, cfg, p)
