@@ -48,6 +48,7 @@ _EXPORTS = {
         "slice_directions",
     ),
     "_sampling": ("sample", "sample_model", "sample_table"),
+    "_capture": ("simulate_capture",),
     "_subspace": ("RULES", "subspace"),
     "_rbf": (
         "RBFInterpolant",
