@@ -35,10 +35,9 @@ _EXPORTS = {
     "_measurements": (
         "Samples",
         "Measurements",
-        "estimate_alpha",
-        "group_slices",
         "stack_measurements",
     ),
+    "_grouping": ("estimate_alpha", "group_slices", "infer_pairs"),
     "_slices": (
         "PROTOCOL_ALPHA_DEG",
         "PROTOCOL_COUNTS",

@@ -14,7 +14,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ._errors import InputError
-from ._slices import KINDS, PROTOCOL_ALPHA_DEG, PROTOCOL_PAIRS, slice_angles
+from ._slices import KINDS, PROTOCOL_ALPHA_DEG, slice_angles
 
 
 class Samples(eqx.Module):
@@ -126,132 +126,6 @@ class Measurements(eqx.Module):
             cols[3].append(np.rad2deg(np.asarray(pv)))
             cols[4].append(y[s, :k])
         return Samples(*(np.concatenate(c) for c in cols))
-
-
-def estimate_alpha(samples: Samples) -> float:
-    """Estimate the slice offset α (degrees) from measured samples.
-
-    Every on-slice sample has either ``φi − φv ≡ α`` (axial) or ``φi + φv ≡ α`` (diagonal),
-    modulo 360°. The estimate is the most frequent of those values (0.5° bins), refined as the
-    median of the values in the winning bin.
-    """
-    pi_ = np.asarray(samples.phi_i, float)
-    pv = np.asarray(samples.phi_v, float)
-    cand = np.concatenate([(pi_ - pv) % 360.0, (pi_ + pv) % 360.0])
-    bins = np.round(cand * 2).astype(int) % 720
-    best = np.bincount(bins, minlength=720).argmax()
-    near = cand[np.abs(((cand - best / 2 + 180) % 360) - 180) <= 0.5]
-    return float(np.median(near))
-
-
-def group_slices(
-    samples: Samples,
-    alpha_deg: float | None = PROTOCOL_ALPHA_DEG,
-    pairs=PROTOCOL_PAIRS,
-    tol_deg: float = 0.5,
-    nmax: int | None = None,
-    dtype=np.float32,
-    min_axial: int = 3,
-) -> tuple[Measurements, dict]:
-    """Group arbitrary measured samples into the slices of ``pairs``.
-
-    A sample belongs to the slice of pair ``(θi, θv)`` when both elevations match within
-    ``tol_deg`` and its azimuths satisfy ``φi − φv ≡ α`` (axial) or ``φi + φv ≡ α`` (diagonal)
-    within ``tol_deg`` (mod 360°). Other samples are off-slice: they are tolerated, counted and
-    left out. Repeated angles within a slice are averaged (a duplicated sample would otherwise
-    make the interpolation ill-defined). A sample where the slices cross belongs to both; an
-    axial slice with fewer than ``min_axial`` samples of its own counts as not measured.
-
-    Args:
-        samples: the measured samples (degrees).
-        alpha_deg: the slice offset; ``None`` estimates it with :func:`estimate_alpha`.
-        nmax: padded slice length; default: the next multiple of 8 above the longest slice.
-
-    Returns:
-        ``(measurements, report)`` where ``report`` has ``alpha_deg``, ``n_used``,
-        ``n_off_slice``, ``counts`` and ``dropped_pairs``: elevation pairs without any sample,
-        left out of the measurement (its ``pairs`` are the others).
-
-    Raises:
-        InputError: when no sample lies on any diagonal slice.
-    """
-    s = samples.to_numpy()
-    if alpha_deg is None:
-        alpha_deg = estimate_alpha(s)
-    ti, pi_, tv, pv, rgb = (
-        np.asarray(x, float) for x in (s.theta_i, s.phi_i, s.theta_v, s.phi_v, s.rgb)
-    )
-
-    def close(a, b):
-        d = (a - b + 180.0) % 360.0 - 180.0
-        return np.abs(d) <= tol_deg
-
-    groups = []
-    all_pairs = list(pairs)
-    used = np.zeros(len(ti), bool)
-    for a_t, v_t in pairs:
-        on_pair = (np.abs(ti - a_t) <= tol_deg) & (np.abs(tv - v_t) <= tol_deg)
-        ax = on_pair & close(pi_ - pv, alpha_deg)
-        dg = on_pair & close(pi_ + pv, alpha_deg)
-        # Samples at the two crossings (φi, φv) = (α, 0), (α + π, π) lie on both slices and
-        # serve both. An axial slice made of crossing samples alone was not measured.
-        if np.count_nonzero(ax & ~dg) < min_axial:
-            ax = np.zeros_like(ax)
-        groups.append((pi_[ax] % 360.0, rgb[ax]))
-        groups.append((pv[dg] % 360.0, rgb[dg]))
-        used |= ax | dg
-    merged = [_merge_duplicates(a, v) for a, v in groups]
-    counts = [len(a) for a, _ in merged]
-    if sum(counts[1::2]) == 0:
-        raise InputError(
-            f"no sample lies on a diagonal slice (phi_i + phi_v = alpha = {alpha_deg:g} deg mod 360 "
-            f"at elevation pairs {pairs}); cannot reconstruct"
-        )
-    # An elevation pair without a single sample would feed zeros into the RBF at a quarter of its
-    # centres (silently dark); it is left out instead, and the RBF fills it from the other pairs
-    # (docs/stability.md, "Numerical edges").
-    empty = [k for k in range(len(pairs)) if counts[2 * k] + counts[2 * k + 1] == 0]
-    if empty:
-        pairs = [p for k, p in enumerate(pairs) if k not in empty]
-        merged = [m for k, m in enumerate(merged) if k // 2 not in empty]
-        counts = [len(a) for a, _ in merged]
-    nmax = nmax or int(8 * np.ceil(max(counts) / 8))
-    t = np.zeros((len(merged), nmax))
-    y = np.zeros((len(merged), nmax, 3))
-    for k, (a, v) in enumerate(merged):
-        t[k, : len(a)] = np.deg2rad(a)
-        y[k, : len(a)] = v
-    meas = Measurements(
-        jnp.asarray(t, dtype),
-        jnp.asarray(y, dtype),
-        jnp.asarray(counts, jnp.int32),
-        tuple(tuple(float(x) for x in p) for p in pairs),
-        any(c > 0 for c in counts[0::2]),
-    )
-    report = dict(
-        alpha_deg=float(alpha_deg),
-        n_used=int(used.sum()),
-        n_off_slice=int((~used).sum()),
-        counts=counts,
-        dropped_pairs=[tuple(float(x) for x in p) for k, p in enumerate(all_pairs) if k in empty],
-    )
-    return meas, report
-
-
-def _merge_duplicates(angle, values, tol=1e-6):
-    order = np.argsort(angle, kind="stable")
-    angle, values = angle[order], values[order]
-    if len(angle) == 0:
-        return angle, values
-    keys = np.round(angle / tol).astype(np.int64)
-    uniq, inv = np.unique(keys, return_inverse=True)
-    out_a = np.zeros(len(uniq))
-    out_v = np.zeros((len(uniq), values.shape[1]))
-    cnt = np.zeros(len(uniq))
-    np.add.at(out_a, inv, angle)
-    np.add.at(out_v, inv, values)
-    np.add.at(cnt, inv, 1)
-    return out_a / cnt, out_v / cnt[:, None]
 
 
 def stack_measurements(items: list[Measurements]) -> Measurements:

@@ -16,9 +16,11 @@ from jaxtyping import Array, Float
 from ._coords import pair_coordinates
 from ._errors import InputError
 from ._grid import centre_layout, centre_vectors, keep_centres, ubo_target_vectors
-from ._measurements import Measurements, Samples, group_slices, stack_measurements
+from ._grouping import group_slices
+from ._measurements import Measurements, Samples, stack_measurements
 from ._params import Config, Params
 from ._rbf import SolveInfo, fit_rbf_info
+from ._slices import PROTOCOL_PAIRS
 from ._subspace import subspace
 from ._values import value_space
 
@@ -122,7 +124,10 @@ def prepare(
     """Group samples into slices and resolve the defaults of ``config`` and ``params``."""
     if isinstance(samples, Samples):
         alpha = None if params is None else params.alpha_deg
-        pairs = (config or Config()).pairs
+        # Config's default pairs are the protocol's: then the capture's own pairs are inferred
+        # (a device's elevations, extra pairs); pairs named in a Config are grouped on as given.
+        pairs = None if config is None else config.pairs
+        pairs = None if pairs is not None and tuple(map(tuple, pairs)) == PROTOCOL_PAIRS else pairs
         kw = {} if dtype is None else {"dtype": dtype}
         meas, report = group_slices(samples, alpha, pairs=pairs, **kw)
         if params is None:

@@ -10,7 +10,7 @@ The axial slice is parameterized by ``φi``, the diagonal slice by ``φv``. PROT
 protocol positions: ``φ = k · 2π / N`` with ``N = 25, 25, 26, 26`` for the pairs
 ``30/30, 30/75, 75/30, 75/75``.
 
-Grouping samples into slices is :func:`abrdf_jax._measurements.group_slices`; sampling a material
+Grouping samples into slices is :func:`abrdf_jax._grouping.group_slices`; sampling a material
 along them is :mod:`abrdf_jax._sampling`.
 """
 

@@ -130,7 +130,7 @@ CSV_CASES = {
     "off-slice": (
         csv_text(np.tile([[45.0, 10.0, 60.0, 20.0]], (30, 1))),
         "bad.csv",
-        "no sample lies on a diagonal slice",
+        "cannot reconstruct from",
     ),
 }
 

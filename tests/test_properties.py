@@ -23,7 +23,7 @@ from abrdf_jax._errors import InputError
 from abrdf_jax._grid import ubo_target_vectors
 from abrdf_jax._pipeline import _reconstruct_batch_jit
 from abrdf_jax._measurements import Samples
-from abrdf_jax._measurements import group_slices, stack_measurements
+from abrdf_jax import group_slices, stack_measurements
 from abrdf_jax.io import read_samples_csv, write_samples_csv
 
 SEED = int(os.environ.get("ABRDF_TEST_SEED", "0"))

@@ -15,7 +15,7 @@ from abrdf_jax.cli import main
 from abrdf_jax._errors import InputError
 from abrdf_jax._pipeline import check_finite, solve_info
 from abrdf_jax._rbf import GUARD_FACTOR, fit_rbf_info
-from abrdf_jax._measurements import group_slices
+from abrdf_jax import group_slices
 from abrdf_jax._subspace import RULES, subspace
 
 N, DUP = 24, 8  # every RBF system below has N + DUP = 32 centres (one compile per kernel)

@@ -26,7 +26,8 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import InputError
-from .._measurements import Measurements, Samples, group_slices
+from .._grouping import group_slices
+from .._measurements import Measurements, Samples
 from .._names import BTF_BACKENDS as BACKENDS
 from .._operator import compile_operator
 from .._params import Config, Params, preset

@@ -188,7 +188,8 @@ def read_exr_pairs(
     if order is not None:
         files, kind, geo = [files[i] for i in order], "abrdf", ABRDF_GEOMETRY
     else:
-        from .._measurements import Samples, estimate_alpha
+        from .._grouping import estimate_alpha
+        from .._measurements import Samples
         from .._pipeline import infer_budget
 
         samples = Samples(*angles.T, np.zeros((len(angles), 3)))

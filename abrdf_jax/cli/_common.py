@@ -198,66 +198,115 @@ class Measured(NamedTuple):
 
 #: The least a capture must hold to be reconstructed: this many elevation pairs, each with this
 #: many samples on its diagonal slice (a slice is interpolated over 360 degrees of azimuth).
+#: A pair with fewer diagonal samples is left out (with a warning), not refused.
 MIN_PAIRS, MIN_DIAGONAL = 2, 3
+#: Warn when less than this fraction of a capture's samples could be used.
+MIN_USED_FRACTION = 0.5
 
 
-def _used(meas, report: dict, n_total: int) -> dict:
-    """What of a capture is used: pairs, samples per slice, what was left out and why."""
+def _used(meas, report: dict, n_total: int, weak: list) -> dict:
+    """What of a capture is used: pairs, samples per slice, α, what was left out and why."""
     counts = [int(c) for c in report["counts"]]
+    raw = [int(c) for c in report["n_raw"]]
     return {
         "alpha_deg": report["alpha_deg"],
+        "alpha_se_deg": report["alpha_se_deg"],
+        "tolerance_deg": report["tol_deg"],
+        "offset_sigma_deg": report["offset_sigma_deg"],
         "pairs": [list(p) for p in meas.pairs],
         "samples_per_slice": [
-            {"axial": a, "diagonal": d} for a, d in zip(counts[0::2], counts[1::2])
+            {"axial": a, "diagonal": d, "axial_knots": ka, "diagonal_knots": kd}
+            for a, d, ka, kd in zip(raw[0::2], raw[1::2], counts[0::2], counts[1::2])
         ],
         "n_samples": n_total,
         "n_used": report["n_used"],
         "n_off_slice": report["n_off_slice"],
+        "n_stray": report["n_stray"],
         "dropped_pairs": [list(p) for p in report["dropped_pairs"]],
+        "weak_pairs": [list(p) for p in weak],
+        "gaps": [dict(g, pair=list(g["pair"])) for g in report["gaps"]],
     }
 
 
-def _check_support(used: dict, where: Path) -> None:
-    """Refuse a capture too small to reconstruct; warn about what was left out."""
-    weak = [
-        p for p, c in zip(used["pairs"], used["samples_per_slice"]) if c["diagonal"] < MIN_DIAGONAL
-    ]
-    if len(used["pairs"]) < MIN_PAIRS or weak:
-        why = f"{len(used['pairs'])} elevation pair(s) with samples"
+def _support(meas, report: dict, where: Path):
+    """Leave out pairs too thin to interpolate; refuse a capture too small to reconstruct."""
+    counts = report["counts"]
+    keep = [k for k in range(len(meas.pairs)) if counts[2 * k + 1] >= MIN_DIAGONAL]
+    weak = [meas.pairs[k] for k in range(len(meas.pairs)) if k not in keep]
+    if len(keep) < MIN_PAIRS:
+        why = f"{len(keep)} elevation pair(s) with {MIN_DIAGONAL} or more diagonal samples"
         if weak:
-            why = f"diagonal slices with fewer than {MIN_DIAGONAL} samples at pairs {weak}"
+            why += f" (too few at {[list(p) for p in weak]})"
         raise InputError(
-            f"{where}: cannot reconstruct from {used['n_used']} usable sample(s): {why}; a capture "
-            f"needs at least {MIN_PAIRS} elevation pairs with {MIN_DIAGONAL} or more samples on each "
-            f"diagonal slice"
+            f"{where}: cannot reconstruct from {report['n_used']} usable sample(s): {why}; a "
+            f"capture needs at least {MIN_PAIRS} elevation pairs with {MIN_DIAGONAL} or more "
+            "samples on each diagonal slice"
         )
+    if weak:
+        meas = meas.select_slices(keep)
+        report = dict(report)  # the left-out pairs' samples count as used no more
+        for k in sorted(set(range(len(counts) // 2)) - set(keep)):
+            report["n_used"] -= report["n_raw"][2 * k] + report["n_raw"][2 * k + 1]
+        report["counts"] = [counts[r] for k in keep for r in (2 * k, 2 * k + 1)]
+        report["n_raw"] = [report["n_raw"][r] for k in keep for r in (2 * k, 2 * k + 1)]
+    return meas, report, weak
+
+
+def _warn_used(used: dict, where: Path) -> None:
+    """Say on the console what of a capture was left out (the model record says it too)."""
     if used["dropped_pairs"]:
         warn(
             f"{where}: no sample at elevation pair(s) {used['dropped_pairs']}: left out, the RBF "
             f"fills them from the {len(used['pairs'])} measured pair(s)"
         )
+    if used["weak_pairs"]:
+        warn(
+            f"{where}: fewer than {MIN_DIAGONAL} diagonal samples at elevation pair(s) "
+            f"{used['weak_pairs']}: left out, the RBF fills them from the other pairs"
+        )
+    left = used["n_samples"] - used["n_used"]
     if used["n_off_slice"]:
+        stray = f", {used['n_stray']} of them at no elevation pair" if used["n_stray"] else ""
         warn(
             f"{where}: {used['n_off_slice']} of {used['n_samples']} samples lie on no slice (more "
-            f"than 0.5 deg off, alpha {used['alpha_deg']:g} deg): left out"
+            f"than {used['tolerance_deg']:.2g} deg off, alpha {used['alpha_deg']:g} deg{stray}): "
+            "left out"
         )
+    if left > (1 - MIN_USED_FRACTION) * used["n_samples"]:
+        warn(f"{where}: only {used['n_used']} of {used['n_samples']} samples could be used")
+    for g in used["gaps"]:
+        warn(
+            f"{where}: the {g['slice']} slice of pair {g['pair']} has no sample from "
+            f"{g['start_deg']:.1f} to {g['end_deg']:.1f} deg: interpolated across the gap"
+        )
+
+
+def _noise(meas) -> float | None:
+    """The capture's value noise (log units, per slice knot: after bin means) from the slices'
+    neighbour residuals (:func:`abrdf_jax.select.estimate_noise` over all slices); an upper
+    bound where a sparse slice's own curvature dominates its residuals."""
+    from ..select import estimate_noise
+
+    sigma = float(estimate_noise(meas, slices="all"))
+    return round(sigma, 6) if math.isfinite(sigma) else None
 
 
 def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measured:
     """Group one measurement into slices (once) and decide its budget and slice offset α."""
     import abrdf_jax as aj
 
-    a = float(alpha) if alpha is not None else round(float(aj.estimate_alpha(samples)), 3)
     try:
-        meas, report = aj.group_slices(samples, a)
+        meas, report = aj.group_slices(samples, None if alpha is None else float(alpha))
     except InputError as e:
-        raise InputError(f"{where}: {e} (slice offset alpha {a:g} deg)") from e
+        raise InputError(f"{where}: {e}") from e
+    meas, report, weak = _support(meas, report, where)
     if forced == "aniso204" and not meas.has_axial:
         raise InputError(f"{where}: --anisotropic needs axial slices, but the file has none")
-    used = _used(meas, report, len(samples))
-    _check_support(used, where)
+    used = _used(meas, report, len(samples), weak)
+    used["noise_log"] = _noise(meas)
+    _warn_used(used, where)
     budget = forced or ("aniso204" if meas.has_axial else "iso102")
-    return Measured(where, samples, meas, budget, a, used)
+    return Measured(where, samples, meas, budget, report["alpha_deg"], used)
 
 
 def read_inputs(files: list[Path], forced: str | None, alpha: float | None) -> list[Measured]:
@@ -418,6 +467,12 @@ def describe(choice: dict) -> list[str]:
         lines.append(
             f"  used: {m['n_used']} of {m['n_samples']} samples, axial+diagonal per pair {per}"
             + (f"; {left} left out" if left else "")
+        )
+        alpha = f"alpha {m['alpha_deg']:.3f} +- {m['alpha_se_deg']:.3f} deg"
+        noise = "n/a" if m.get("noise_log") is None else f"{100 * m['noise_log']:.2g} %"
+        lines.append(
+            f"  capture: {alpha}, slice tolerance {m['tolerance_deg']:.2g} deg, noise ~{noise}"
+            + (f", {len(m['gaps'])} gap(s)" if m["gaps"] else "")
         )
     for c in rec.get("candidates") or []:
         err = "n/a" if c["held_out_log_rms"] is None else f"{c['held_out_log_rms']:.4f}"

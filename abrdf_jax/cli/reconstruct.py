@@ -218,10 +218,11 @@ def _reconstruct_folder(items, choices: list[dict], targets: list[Path], out: Pa
     out.mkdir(exist_ok=True)
     groups: dict[tuple, list[int]] = {}
     for k, (item, choice) in enumerate(zip(items, choices)):
-        groups.setdefault((item.budget, item.alpha, choice["config"]), []).append(k)
+        key = (item.budget, item.alpha, item.meas.pairs, choice["config"])  # one stack each
+        groups.setdefault(key, []).append(k)
     failed: list[str] = []
     with common.progress(len(items), "reconstruct", args.quiet) as bar:
-        for (_, _, config), members in groups.items():
+        for (_, _, _, config), members in groups.items():
             params = choices[members[0]]["params"]
             meas = [common.measurements_for(items[k], config) for k in members]
             common.warn_guard(items[members[0]].path, meas[0], config, params, args.params)

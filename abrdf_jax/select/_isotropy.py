@@ -44,7 +44,8 @@ from jax.scipy.special import gammaincc
 
 from .._errors import InputError
 from ..metrics._color import LUMA_WEIGHTS
-from .._measurements import Measurements, Samples, group_slices
+from .._grouping import group_slices
+from .._measurements import Measurements, Samples
 
 #: Default significance level and minimum effect (RMS log variation of the axial slices).
 LEVEL = 1e-3

@@ -1,0 +1,314 @@
+"""Grouping a real capture into slices: pairs, slice offset, tolerance, true positions, density.
+
+:func:`group_slices` takes any flat list of samples (a protocol capture, a continuous video of
+thousands of samples, jittered angles, a device's own elevations, extra pairs, gaps) to the
+fixed-shape :class:`~abrdf_jax.Measurements` of the pipeline, and says what it did in a report.
+Each step is linear in the sample values (samples are placed, copied where slices cross and
+averaged), so the BTF path reads the same grouping off as one matrix
+(:mod:`abrdf_jax.btf._chunkfn`).
+
+1. **Elevation pairs** (:func:`infer_pairs`): the elevations of the samples fall into levels
+   (gaps over ``PAIR_GAP_DEG`` separate them); a level's elevation is its median, snapped to a
+   UBO ring within ``RING_SNAP_DEG`` (so its RBF centres stay grid pairs); every (θi, θv)
+   combination of levels that holds samples is a pair. Given ``pairs``, a sample belongs to a
+   pair within ``PAIR_GAP_DEG`` of both elevations.
+2. **Slice offset** α (:func:`estimate_alpha`): the mode of ``φi ∓ φv`` over all samples, refined
+   as the median of the offsets near it; its uncertainty is the standard error of that median.
+3. **Tolerance**: a sample is on a slice when its across-slice offset (``φi − φv − α`` for the
+   axial, ``φi + φv − α`` for the diagonal slice, mod 360°) is within ``tol_deg``; by default
+   ``max(0.5°, 4 σ)`` capped at ``MAX_TOL_DEG``, with ``σ`` the robust spread of the offsets (an
+   exact capture keeps today's 0.5°; 0.5° encoder jitter gives about 2.8°). Samples outside are
+   counted and reported, never silently left out.
+4. **True positions**: an on-slice sample enters at the orthogonal projection of its ``(φi, φv)``
+   onto the slice (its along-slice coordinate, not snapped to any grid); only its across-slice
+   offset (at most ``tol_deg``) and its elevation's deviation from the pair are neglected.
+5. **Density**: a slice with more than ``max_knots`` samples (default 360) is reduced to the
+   means (position and value) of ``max_knots`` equal bins of its parameter (1° of φ, 2° of
+   ``φi ∓ φv``): the RBF centres read a slice every 7.5°, so nothing they can use is lost, the
+   peak is kept to within a bin, and the averages lower the noise by the square root of the
+   samples per bin. Repeated angles are averaged in any case.
+6. **Gaps**: a stretch of a slice wider than ``GAP_FACTOR`` times its median spacing (and
+   ``MIN_GAP_DEG``) is a gap; the slice interpolation bridges it and the report lists it.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._errors import InputError
+from ._grid import UBO_THETAS_DEG
+from ._measurements import Measurements, Samples
+from ._slices import PROTOCOL_PAIRS
+
+#: Elevation levels further apart than this are different pairs (degrees).
+PAIR_GAP_DEG = 2.5
+#: A level within this of a UBO ring takes the ring's elevation (degrees).
+RING_SNAP_DEG = 1.0
+#: Fewest samples that make an elevation pair (fewer: reported as stray, left out).
+MIN_PAIR_SAMPLES = 3
+#: Widest automatic slice tolerance (degrees).
+MAX_TOL_DEG = 5.0
+#: A slice longer than this is reduced to bin means.
+MAX_KNOTS = 360
+#: A gap: wider than this many median spacings and than MIN_GAP_DEG.
+GAP_FACTOR, MIN_GAP_DEG = 2.5, 5.0
+
+
+def _wrap(x):
+    """Angles (degrees) to (−180, 180]."""
+    return (np.asarray(x, float) + 180.0) % 360.0 - 180.0
+
+
+def _levels(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Elevation levels of ``theta`` (degrees) and the level of every sample."""
+    order = np.argsort(theta)
+    cut = np.nonzero(np.diff(theta[order]) > PAIR_GAP_DEG)[0] + 1
+    label = np.empty(len(theta), int)
+    centres = []
+    for k, idx in enumerate(np.split(order, cut)):
+        label[idx] = k
+        c = float(np.median(theta[idx]))
+        ring = min(UBO_THETAS_DEG, key=lambda r: abs(r - c))
+        centres.append(float(ring) if abs(ring - c) <= RING_SNAP_DEG else round(c, 2))
+    return np.asarray(centres), label
+
+
+def infer_pairs(theta_i, theta_v) -> tuple[tuple[tuple[float, float], ...], np.ndarray]:
+    """The elevation pairs of a capture and the pair of every sample (``-1``: stray sample).
+
+    Args:
+        theta_i, theta_v: elevations of the samples (degrees).
+
+    Returns:
+        ``(pairs, index)``: pairs ``(θi, θv)`` sorted ascending (PROTOCOL.md's order for its
+        pairs), and per sample the index of its pair, ``-1`` for a sample of a combination with
+        fewer than ``MIN_PAIR_SAMPLES`` samples.
+    """
+    ti, tv = np.asarray(theta_i, float), np.asarray(theta_v, float)
+    ci, li = _levels(ti)
+    cv, lv = _levels(tv)
+    combos, counts = np.unique(np.stack([li, lv], 1), axis=0, return_counts=True)
+    keep = [tuple(c) for c, n in zip(combos, counts) if n >= MIN_PAIR_SAMPLES]
+    keep.sort(key=lambda c: (ci[c[0]], cv[c[1]]))
+    pairs = tuple((float(ci[a]), float(cv[b])) for a, b in keep)
+    where = {c: k for k, c in enumerate(keep)}
+    index = np.asarray([where.get((a, b), -1) for a, b in zip(li, lv)], int)
+    return pairs, index
+
+
+def _pair_index(ti, tv, pairs) -> np.ndarray:
+    """The given pair nearest to every sample within ``PAIR_GAP_DEG`` (``-1``: none)."""
+    p = np.asarray(pairs, float).reshape(-1, 2)
+    dist = np.maximum(np.abs(ti[:, None] - p[None, :, 0]), np.abs(tv[:, None] - p[None, :, 1]))
+    best = np.argmin(dist, axis=1)
+    return np.where(dist[np.arange(len(ti)), best] <= PAIR_GAP_DEG, best, -1)
+
+
+def _offsets(pi_, pv, alpha_deg):
+    """Across-slice offsets (degrees) of every sample: axial ``φi − φv − α``, diagonal ``φi + φv − α``."""
+    return _wrap(pi_ - pv - alpha_deg), _wrap(pi_ + pv - alpha_deg)
+
+
+def _near_offsets(pi_, pv, alpha_deg, window):
+    ax, dg = _offsets(pi_, pv, alpha_deg)
+    both = np.concatenate([ax, dg])
+    return both[np.abs(both) <= window]
+
+
+def estimate_alpha(samples: Samples) -> float:
+    """Estimate the slice offset α (degrees) from measured samples.
+
+    Every on-slice sample has either ``φi − φv ≡ α`` (axial) or ``φi + φv ≡ α`` (diagonal),
+    modulo 360°. The estimate is the most frequent of those values (1° bins, smoothed over three
+    bins so that jittered angles still vote together), refined as the median of the values within
+    ``MAX_TOL_DEG`` of it and then within the tolerance their spread gives.
+    """
+    return estimate_alpha_spread(samples)[0]
+
+
+def estimate_alpha_spread(samples: Samples) -> tuple[float, float, float]:
+    """``(α, standard error of α, robust σ of the across-slice offsets)``, degrees."""
+    s = samples.to_numpy()
+    pi_, pv = np.asarray(s.phi_i, float), np.asarray(s.phi_v, float)
+    cand = np.concatenate([(pi_ - pv) % 360.0, (pi_ + pv) % 360.0])
+    hist = np.bincount(np.round(cand).astype(int) % 360, minlength=360)
+    smooth = hist + 0.5 * (np.roll(hist, 1) + np.roll(hist, -1))
+    # exact protocol angles fall on one bin: prefer it; jittered ones spread over neighbours
+    alpha = float(np.argmax(smooth + 1e-3 * hist))
+    window = MAX_TOL_DEG
+    for _ in range(3):
+        near = _near_offsets(pi_, pv, alpha, window)
+        if near.size == 0:
+            break
+        alpha = float((alpha + np.median(near)) % 360.0)
+        sigma = _spread(_near_offsets(pi_, pv, alpha, window))
+        window = _tolerance(sigma)
+    near = _near_offsets(pi_, pv, alpha, window)
+    sigma = _spread(near)
+    se = 1.2533 * sigma / np.sqrt(max(near.size, 1))
+    return round(alpha, 6) % 360.0, float(se), float(sigma)
+
+
+def _spread(offsets) -> float:
+    """Robust σ (1.4826 · MAD) of across-slice offsets."""
+    if len(offsets) < 2:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(offsets - np.median(offsets))))
+
+
+def _tolerance(sigma: float) -> float:
+    return float(min(max(0.5, 4.0 * sigma), MAX_TOL_DEG))
+
+
+def _reduce(angle, values, max_knots):
+    """Sort a slice, average repeated angles and, past ``max_knots`` samples, bin means."""
+    order = np.argsort(angle, kind="stable")
+    angle, values = angle[order], values[order]
+    if len(angle) == 0:
+        return angle, values
+    if len(angle) > max_knots:
+        keys = np.minimum((angle / 360.0 * max_knots).astype(np.int64), max_knots - 1)
+    else:
+        keys = np.round(angle / 1e-6).astype(np.int64)
+    uniq, inv = np.unique(keys, return_inverse=True)
+    cnt = np.bincount(inv, minlength=len(uniq)).astype(float)
+    out_a = np.bincount(inv, angle, len(uniq)) / cnt
+    out_v = np.stack([np.bincount(inv, values[:, c], len(uniq)) for c in range(3)], 1)
+    return out_a, out_v / cnt[:, None]
+
+
+def _gaps(angle_deg) -> list[tuple[float, float]]:
+    """Stretches ``(from, to)`` (degrees) of a periodic slice with no sample (see the docstring)."""
+    n = len(angle_deg)
+    if n < 3:
+        return []
+    step = np.diff(np.concatenate([angle_deg, [angle_deg[0] + 360.0]]))
+    big = np.nonzero(step > max(GAP_FACTOR * np.median(step), MIN_GAP_DEG))[0]
+    return [(float(angle_deg[k]), float((angle_deg[k] + step[k]) % 360.0)) for k in big]
+
+
+def group_slices(
+    samples: Samples,
+    alpha_deg: float | None = None,
+    pairs=None,
+    tol_deg: float | None = None,
+    nmax: int | None = None,
+    dtype=np.float32,
+    min_axial: int = 3,
+    max_knots: int = MAX_KNOTS,
+) -> tuple[Measurements, dict]:
+    """Group arbitrary measured samples into slices (steps 1–6 of the module docstring).
+
+    Args:
+        samples: the measured samples (degrees).
+        alpha_deg: the slice offset; ``None`` estimates it with :func:`estimate_alpha`.
+        pairs: elevation pairs to group on; ``None`` infers them from the data
+            (:func:`infer_pairs`). Given pairs without any sample are left out.
+        tol_deg: across-slice tolerance (degrees); ``None``: from the spread of the offsets.
+        nmax: padded slice length; default: the next multiple of 8 above the longest slice.
+        min_axial: an axial slice with fewer samples of its own counts as not measured.
+        max_knots: longest slice kept as it is; longer ones become bin means.
+
+    Returns:
+        ``(measurements, report)``; ``report`` has ``alpha_deg``, ``alpha_se_deg``, ``tol_deg``,
+        ``offset_sigma_deg``, ``n_used``, ``n_off_slice`` (all samples left out), ``n_stray`` (those at no pair),
+        ``n_raw`` (on-slice samples per slice before reduction), ``counts`` (knots per slice),
+        ``gaps`` and ``dropped_pairs`` (expected pairs without samples: the given ones, or the
+        protocol's or the elevation levels' combinations).
+
+    Raises:
+        InputError: when no sample lies on any diagonal slice.
+    """
+    s = samples.to_numpy()
+    ti, pi_, tv, pv, rgb = (
+        np.asarray(x, float) for x in (s.theta_i, s.phi_i, s.theta_v, s.phi_v, s.rgb)
+    )
+    est_alpha, alpha_se, sigma = estimate_alpha_spread(s)
+    if alpha_deg is None:
+        alpha_deg = est_alpha
+    else:
+        sigma = _spread(_near_offsets(pi_, pv, alpha_deg, MAX_TOL_DEG))
+        alpha_se = 0.0
+    tol = _tolerance(sigma) if tol_deg is None else float(tol_deg)
+    if pairs is None:
+        pairs, index = infer_pairs(ti, tv)
+        expected = _expected_pairs(pairs)
+    else:
+        pairs = tuple(tuple(float(x) for x in p) for p in pairs)
+        index, expected = _pair_index(ti, tv, pairs), pairs
+    off_ax, off_dg = _offsets(pi_, pv, alpha_deg)
+    groups, raw = [], []
+    used = np.zeros(len(ti), bool)
+    for k in range(len(pairs)):
+        on_pair = index == k
+        ax = on_pair & (np.abs(off_ax) <= tol)
+        dg = on_pair & (np.abs(off_dg) <= tol)
+        # Samples at the two crossings lie on both slices and serve both. An axial slice made
+        # of crossing samples alone was not measured.
+        if np.count_nonzero(ax & ~dg) < min_axial:
+            ax = np.zeros_like(ax)
+        # true positions: the orthogonal projection onto the slice (see the module docstring)
+        groups.append(((pi_[ax] - off_ax[ax] / 2) % 360.0, rgb[ax]))
+        groups.append(((pv[dg] - off_dg[dg] / 2) % 360.0, rgb[dg]))
+        raw += [int(ax.sum()), int(dg.sum())]
+        used |= ax | dg
+    merged = [_reduce(a, v, max_knots) for a, v in groups]
+    counts = [len(a) for a, _ in merged]
+    if sum(counts[1::2]) == 0:
+        raise InputError(
+            f"no sample lies on a diagonal slice (phi_i + phi_v = alpha = {alpha_deg:g} deg mod 360, "
+            f"within {tol:g} deg, at elevation pairs {pairs}); cannot reconstruct"
+        )
+    # A pair without a single sample would feed zeros into the RBF at a quarter of its centres
+    # (silently dark); it is left out instead, and the RBF fills it from the other pairs
+    # (docs/stability.md, "Numerical edges").
+    keep = [k for k in range(len(pairs)) if counts[2 * k] + counts[2 * k + 1] > 0]
+    pairs = tuple(pairs[k] for k in keep)
+    merged = [merged[r] for k in keep for r in (2 * k, 2 * k + 1)]
+    raw = [raw[r] for k in keep for r in (2 * k, 2 * k + 1)]
+    counts = [len(a) for a, _ in merged]
+    nmax = nmax or int(8 * np.ceil(max(counts) / 8))
+    t = np.zeros((len(merged), nmax))
+    y = np.zeros((len(merged), nmax, 3))
+    gaps = []
+    for k, (a, v) in enumerate(merged):
+        t[k, : len(a)] = np.deg2rad(a)
+        y[k, : len(a)] = v
+        kind = ("axial", "diagonal")[k % 2]
+        gaps += [
+            dict(pair=pairs[k // 2], slice=kind, start_deg=g0, end_deg=g1) for g0, g1 in _gaps(a)
+        ]
+    meas = Measurements(
+        jnp.asarray(t, dtype),
+        jnp.asarray(y, dtype),
+        jnp.asarray(counts, jnp.int32),
+        pairs,
+        any(c > 0 for c in counts[0::2]),
+    )
+    report = dict(
+        alpha_deg=float(alpha_deg),
+        alpha_se_deg=float(alpha_se),
+        tol_deg=tol,
+        offset_sigma_deg=float(sigma),
+        n_used=int(used.sum()),
+        n_off_slice=int((~used).sum()),
+        n_stray=int((index < 0).sum()),
+        n_raw=raw,
+        counts=counts,
+        gaps=gaps,
+        dropped_pairs=[p for p in expected if p not in pairs],
+    )
+    return meas, report
+
+
+def _expected_pairs(found) -> tuple:
+    """Pairs a capture was meant to hold: with any protocol pair among those found, the found ones
+    and the protocol's; else the found ones and, when they fill most of it, the grid of their
+    elevation levels (a device's own 2 x 2 elevations with one pair missing)."""
+    if set(found) & set(PROTOCOL_PAIRS):
+        return tuple(sorted(set(found) | set(PROTOCOL_PAIRS)))
+    lv_i = sorted({a for a, _ in found})
+    lv_v = sorted({b for _, b in found})
+    grid = [(a, b) for a in lv_i for b in lv_v]
+    return tuple(grid) if len(grid) <= len(found) + 1 else tuple(found)
