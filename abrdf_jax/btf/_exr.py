@@ -270,12 +270,14 @@ def _geometry(angles: np.ndarray, index_geometry: dict, alpha_deg) -> tuple[str,
     return "measurements", geo
 
 
-def _gather(src, files, a: int, b: int, shape, first=None) -> tuple[np.ndarray, set]:
-    """Texels ``[a, b)`` of every image ``(b − a, P, 3)``, each image decoded once."""
+def _gather(src, files, a: int, b: int, shape, bar, first=None) -> tuple[np.ndarray, set]:
+    """Texels ``[a, b)`` of every image ``(b − a, P, 3)``, each image decoded once, and what
+    the images were (8-bit sRGB, linear EXR, ...)."""
     h, w = shape
     buf, kinds = np.empty((b - a, len(files), 3), np.float32), set()
     for j, f in enumerate(files):
         img, what = first if (j == 0 and first is not None) else src.image(f)
+        bar.update(1)
         if img.shape != (h, w, 3):
             got = f"{img.shape[1]}x{img.shape[0]}"
             raise InputError(
@@ -285,6 +287,30 @@ def _gather(src, files, a: int, b: int, shape, first=None) -> tuple[np.ndarray, 
         buf[:, j] = img.reshape(-1, 3)[a:b]
         kinds.add(what)
     return buf, kinds
+
+
+def _new_store(out, src, kinds, angles, ubo, shape, extra, opts) -> ChunkedStore:
+    """The store of a capture whose images were all read once (warns if they mix bit depths)."""
+    if len(kinds) > 1:
+        warnings.warn(
+            f"{src.path}: images of {' and '.join(sorted(kinds))}; each is decoded to linear "
+            "[0, 1] by its own bit depth",
+            stacklevel=3,
+        )
+    if ubo is None:
+        kind, geo = _geometry(angles, extra["index_geometry"], extra["alpha_deg"])
+    else:
+        kind, geo = "abrdf", ABRDF_GEOMETRY
+    attrs = dict(source=str(src.path), images=sorted(kinds), angles=extra["convention"])
+    return ChunkedStore.create(
+        out,
+        kind=kind,
+        texel_shape=shape,
+        item_shape=(len(angles), 3),
+        geometry=geo,
+        attrs=attrs,
+        **opts,
+    )
 
 
 def _remove_store(path: Path, made_folder: bool) -> None:
@@ -349,53 +375,42 @@ def read_image_pairs(
     offset = _check_convention(azimuth, light_offset_deg)
     if not isinstance(chunk, (int, np.integer)) or chunk < 1:
         raise InputError(f"chunk must be a positive integer, got {chunk!r}")
+    convention = dict(azimuth=azimuth, light_offset_deg=offset)
+    convention.update(stored="PROTOCOL.md: counter-clockwise azimuths, x = sinθ cosφ")
+    out = Path(out_store)
+    made, store = not out.exists(), None
     with open_source(source) as src:
-        files, angles, index_geometry, read_from = _list_pairs(src)
+        files, angles, index_geometry, convention["read_from"] = _list_pairs(src)
+        extra = dict(index_geometry=index_geometry, alpha_deg=alpha_deg, convention=convention)
         angles = capture_angles(angles, azimuth, offset)
-        if read_from != PAIRS_INDEX:  # in numeric order of (θi, φi, θv, φv)
+        if convention["read_from"] != PAIRS_INDEX:  # in numeric order of (θi, φi, θv, φv)
             order = np.lexsort(angles.T[::-1])
             files, angles = [files[i] for i in order], angles[order]
         _check_pairs(src, files, angles)
-        order = _match_ubo(angles)
-        if order is not None:
-            files, kind, geo = [files[i] for i in order], "abrdf", ABRDF_GEOMETRY
-        else:
-            kind, geo = _geometry(angles, index_geometry, alpha_deg)
+        ubo = _match_ubo(angles)
+        files = files if ubo is None else [files[i] for i in ubo]
         first = src.image(files[0])
         (h, w), n = first[0].shape[:2], first[0].shape[0] * first[0].shape[1]
-        n_chunks = -(-n // chunk)
         per_group = int(max(1, memory_limit // (chunk * len(files) * 3 * 4)))
+        n_chunks = -(-n // chunk)
         groups = [(k, min(k + per_group, n_chunks)) for k in range(0, n_chunks, per_group)]
-        rng = lambda k0, k1: (k0 * chunk, min(k1 * chunk, n))  # noqa: E731
-        buf, kinds = _gather(src, files, *rng(*groups[0]), (h, w), first)
-        if len(kinds) > 1:
-            warnings.warn(
-                f"{src.path}: images of {' and '.join(sorted(kinds))}; each is decoded to linear "
-                "[0, 1] by its own bit depth",
-                stacklevel=2,
-            )
-        convention = dict(read_from=read_from, azimuth=azimuth, light_offset_deg=offset)
-        convention.update(stored="PROTOCOL.md: counter-clockwise azimuths, x = sinθ cosφ")
-        attrs = dict(source=str(src.path), images=sorted(kinds), angles=convention)
-        out = Path(out_store)
-        made = not out.exists()
-        kw = dict(chunk=chunk, geometry=geo, attrs=attrs, overwrite=overwrite)
-        store = ChunkedStore.create(
-            out, kind=kind, texel_shape=(h, w), item_shape=(len(files), 3), dtype=dtype, **kw
-        )
-        try:
-            with progress_bar("image import", store.n_texels, progress) as bar:
-                for g, (k0, k1) in enumerate(groups):
-                    a = rng(k0, k1)[0]
-                    if g:
-                        buf, _ = _gather(src, files, a, rng(k0, k1)[1], (h, w))
+        # the bar counts images decoded: each once per group of texels
+        with progress_bar("image import", len(groups) * len(files), progress, unit="image") as bar:
+            try:
+                for k0, k1 in groups:
+                    a, b = k0 * chunk, min(k1 * chunk, n)
+                    buf, kinds = _gather(src, files, a, b, (h, w), bar, first)
+                    first = None
+                    if store is None:  # every image was decoded whole once: all are readable
+                        opts = dict(chunk=chunk, dtype=dtype, overwrite=overwrite)
+                        store = _new_store(out, src, kinds, angles, ubo, (h, w), extra, opts)
                     for k in range(k0, k1):
                         c0, c1 = store.chunk_range(k)
                         store.write_chunk(k, buf[c0 - a : c1 - a])
-                        bar.update(c1 - c0)
-        except BaseException:
-            _remove_store(out, made)
-            raise
+            except BaseException:
+                if store is not None:  # a file changed during the import, or a write failed
+                    _remove_store(out, made)
+                raise
     return store
 
 

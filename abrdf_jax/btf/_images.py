@@ -47,7 +47,7 @@ def srgb_table(bits: int) -> np.ndarray:
     from ..metrics._color import srgb_decode
 
     codes = np.arange(2**bits, dtype=np.float64) / (2**bits - 1)
-    return np.asarray(srgb_decode(codes), dtype=np.float32)
+    return srgb_decode(codes, xp=np).astype(np.float32)  # float64, then rounded once
 
 
 def _pillow():
