@@ -260,8 +260,12 @@ def test_clockwise_names_and_light_offset_give_the_same_store(capture, tmp_path)
         cw.attrs["angles"]["azimuth"] == "cw" and shifted.attrs["angles"]["light_offset_deg"] == 180
     )
     # read as counter-clockwise, the clockwise names are the mirrored capture: other angles
+    # read without the options they are another capture, which the estimated α shows
+    assert ccw.geometry["alpha_deg"] == 15.0
     wrong = btf.read_image_pairs(tmp_path / "cw", tmp_path / "s3")
     assert not np.allclose(_stored_angles(wrong), _stored_angles(ccw))
+    assert wrong.geometry["alpha_deg"] == 345.0  # 360° − α: the other handedness
+    assert btf.read_image_pairs(tmp_path / "off", tmp_path / "s4").geometry["alpha_deg"] == 195.0
     np.testing.assert_allclose(
         btf.capture_angles([[30, 14.4, 0, 90]], "cw", 10), [[30, 355.6, 0, 0]], atol=1e-9
     )

@@ -196,18 +196,22 @@ def cmd_import(args) -> int:
     opts |= dict(azimuth=args.azimuth, light_offset_deg=args.light_offset)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        store = btf.read_image_pairs(args.input, args.output, chunk=args.chunk, **opts)
-    for w in caught:
-        common.warn(str(w.message))
+        try:
+            store = btf.read_image_pairs(args.input, args.output, chunk=args.chunk, **opts)
+        finally:
+            for message in caught:
+                common.warn(str(message.message))
     (h, w), pairs = store.texel_shape[:2], store.item_shape[0]
+    how = f"azimuths {args.azimuth}"
+    how += f", light {args.light_offset:+g}°" if args.light_offset else ""
     images = " and ".join(store.attrs.get("images", []))
-    how = f"azimuths {args.azimuth}" + (
-        f", light {args.light_offset:+g}°" if args.light_offset else ""
-    )
     print(
         f"{args.output}: {store.kind} store, {h}x{w} texels, {pairs} pairs per texel "
         f"({images}; {how})"
     )
+    if store.kind == "measurements":  # 360° − α or α + 180° hint at another convention
+        g = store.geometry
+        print(f"{args.output}: slice offset alpha {g['alpha_deg']:g}°, budget {g['budget']}")
     return 0
 
 
