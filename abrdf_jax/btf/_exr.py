@@ -202,7 +202,7 @@ def _list_pairs(src) -> tuple[list[str], np.ndarray, dict, str]:
         return (*_read_index(src, index[0][1]), PAIRS_INDEX)
     found, other = [], []
     for n in names:
-        m = _NAME.match(PurePosixPath(n).name)
+        m = _NAME.match(PurePosixPath(n.replace("\\", "/")).name)  # zips made on Windows
         if m is not None:
             (found if "." + m.group(5).lower() in DECODERS else other).append((n, m))
     if other:
