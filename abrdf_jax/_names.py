@@ -49,6 +49,9 @@ MODEL_TOL = 0.05
 #: Table files by suffix (``abrdf_jax.io.read_table``/``write_table``).
 TABLE_SUFFIXES = (".npz", ".exr")
 MEASUREMENT_SUFFIXES = (".csv",)
+#: How a capture's image names count azimuths (``abrdf_jax.btf.read_image_pairs``): counter-
+#: clockwise as PROTOCOL.md (first, the default) or clockwise (mirrored on import).
+AZIMUTHS = ("ccw", "cw")
 
 
 def lookup(registry: dict, name: str, what: str):

@@ -5,8 +5,9 @@
   dense ground truth and slice measurements, deterministic from a seed, written chunk by chunk.
 - :class:`ChunkedStore`: a folder with a JSON manifest and one checksummed ``.npy`` per chunk of
   texels, written atomically (a crash never leaves a chunk that looks valid).
-- :func:`write_exr_pairs` / :func:`read_exr_pairs`: one OpenEXR image per direction pair, the
-  layout of the UBO2003 and UTIA BTF databases.
+- :func:`write_exr_pairs` / :func:`read_image_pairs`: one image per direction pair, the layout of
+  the UBO2003 and UTIA BTF databases: EXR written; PNG, JPEG (sRGB) or EXR read, from a folder
+  or a zip archive, in a configurable azimuth convention (:func:`capture_angles`).
 - :func:`reconstruct_btf`: measurement store → ABRDF store, streamed in bounded memory with a
   progress bar, resumable, the texel axis sharded over all devices (:func:`init_distributed`
   for several hosts); ``model="auto"`` chooses the isotropic or the anisotropic model per texel
@@ -30,7 +31,14 @@ _EXPORTS = {
     "_dataset": ("generate_btf", "measurement_store_of"),
     "_devices": ("ShardedRunner", "init_distributed"),
     "_evaluate": ("mean_fill", "save_error_map", "texel_metrics", "texel_metrics_many"),
-    "_exr": ("pair_filename", "parse_pair_filename", "read_exr_pairs", "write_exr_pairs"),
+    "_exr": (
+        "capture_angles",
+        "pair_filename",
+        "parse_pair_filename",
+        "read_exr_pairs",
+        "read_image_pairs",
+        "write_exr_pairs",
+    ),
     "_generate": (
         "ProceduralBTF",
         "dense_texel_table",

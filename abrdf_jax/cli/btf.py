@@ -5,20 +5,23 @@
 - ``abrdf-jax btf reconstruct MEAS -o OUT [--chunk N] [--exr-dir DIR]``: measurement store (or a
   generated BTF folder) → chunked ABRDF store, streamed, resumable (rerun the same command after
   an interruption), sharded over all local devices; ``--exr-dir`` also exports one EXR per pair.
-- ``abrdf-jax btf import EXR_DIR -o STORE``: a folder of per-pair EXR images → chunked store.
+- ``abrdf-jax btf import IMAGES -o STORE [--azimuth cw] [--light-offset DEG]``: a folder or a zip
+  archive of per-pair PNG/JPEG/EXR images (UBO2003/UTIA names) → chunked store.
 - ``abrdf-jax btf export STORE --exr-dir DIR``: chunked store → one EXR image per pair.
 - ``abrdf-jax btf evaluate REC REF [--png MAP.png]``: per-texel ΔE76 / LogErr against a reference.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
 
 from .._errors import InputError
-from .._names import BTF_BACKENDS, BTF_MODELS, PRESETS, STORE_DTYPES
+from .._names import AZIMUTHS, BTF_BACKENDS, BTF_MODELS, PRESETS, STORE_DTYPES
 from . import _common as common
 
 #: The configuration without ``--preset``/``--params``: linear in the log of the samples, so the
@@ -27,10 +30,10 @@ DEFAULT_PRESET = "operator"
 #: The ``--help`` texts: each command's and each option's (an option's own text, where it differs
 #: between commands, is given in place).
 HELP = {
-    "btf": "whole BTFs: generate, reconstruct, import/export EXR, evaluate",
+    "btf": "whole BTFs: generate, reconstruct, import images, export EXR, evaluate",
     "generate": "a procedural BTF with dense ground truth and slice measurements",
     "reconstruct": "measurement store -> chunked ABRDF store",
-    "import": "folder of per-pair EXR images -> chunked store",
+    "import": "per-pair PNG/JPEG/EXR images (folder or .zip) -> chunked store",
     "export": "chunked store -> one EXR image per direction pair",
     "evaluate": "per-texel accuracy against a dense reference store",
     "--quiet": "no progress bar",
@@ -50,6 +53,10 @@ HELP = {
     "--float32": "32-bit channels (default 16-bit half)",
     "--no-compression": "uncompressed (faster, larger)",
     "--png": "save the ΔE76 map",
+    "--azimuth": "how the image names count azimuths: ccw, counter-clockwise as PROTOCOL.md "
+    "(default; what 'btf export' writes), or cw, clockwise (mirrored: phi -> 360 - phi)",
+    "--light-offset": "degrees added to every light azimuth, after --azimuth (e.g. 180 when the "
+    "device counts the light's azimuth from the opposite side; default 0)",
 }
 DESCRIPTION = {
     "btf": "Spatially varying data: one ABRDF per texel, streamed through chunked stores (see "
@@ -59,6 +66,14 @@ DESCRIPTION = {
     "texel) and maps.npz.",
     "reconstruct": "Reconstruct every texel's 81x81 ABRDF. Resumable: rerun the same command "
     "after an interruption and finished chunks are kept.",
+    "import": "Read one image per (light, view) direction pair into a chunked store: PNG or JPEG "
+    "(8-bit, or 16-bit PNG; sRGB decoded to linear) or OpenEXR (linear, as is), named "
+    "tl{theta_i}_pl{phi_i}_tv{theta_v}_pv{phi_v}.png as in the UBO2003 and UTIA BTF databases "
+    "('_' or ' ' between the angles, any case, any sub-folder) or listed in a pairs.json; a "
+    "folder or a .zip archive (the UBO2003 downloads), read without extracting. The 6561 UBO "
+    "pairs make an ABRDF store, other pairs a measurement store for 'btf reconstruct'. Angles in "
+    "another azimuth convention: --azimuth, --light-offset (docs/btf.md, 'Reading image "
+    "captures'); the convention used is recorded in the store's manifest.",
 }
 
 
@@ -155,13 +170,48 @@ def cmd_reconstruct(args) -> int:
     return 0
 
 
+def _degrees(flag: str):
+    """An argparse ``type=`` for a finite angle in degrees, named ``flag`` in its message."""
+
+    def parse(text):
+        try:
+            v = float(text)
+        except ValueError:
+            v = math.nan
+        if not math.isfinite(v):
+            raise argparse.ArgumentTypeError(
+                f"{flag} must be a finite angle in degrees, got {text!r}"
+            )
+        return v
+
+    return parse
+
+
 def cmd_import(args) -> int:
+    import warnings
+
     from abrdf_jax import btf
 
     opts = dict(alpha_deg=args.alpha, overwrite=args.overwrite, progress=not args.quiet)
-    store = btf.read_exr_pairs(args.input, args.output, chunk=args.chunk, **opts)
+    opts |= dict(azimuth=args.azimuth, light_offset_deg=args.light_offset)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            store = btf.read_image_pairs(args.input, args.output, chunk=args.chunk, **opts)
+        finally:
+            for message in caught:
+                common.warn(str(message.message))
     (h, w), pairs = store.texel_shape[:2], store.item_shape[0]
-    print(f"{args.output}: {store.kind} store, {h}x{w} texels, {pairs} pairs per texel")
+    how = f"azimuths {args.azimuth}"
+    how += f", light {args.light_offset:+g}°" if args.light_offset else ""
+    images = " and ".join(store.attrs.get("images", []))
+    print(
+        f"{args.output}: {store.kind} store, {h}x{w} texels, {pairs} pairs per texel "
+        f"({images}; {how})"
+    )
+    if store.kind == "measurements":  # 360° − α or α + 180° hint at another convention
+        g = store.geometry
+        print(f"{args.output}: slice offset alpha {g['alpha_deg']:g}°, budget {g['budget']}")
     return 0
 
 
@@ -242,14 +292,16 @@ def register(sub) -> None:
     d("--process-id", type=int, metavar="K")
     add("-q", "--quiet", action="store_true")
 
-    i = common.command(bsub, "import", cmd_import, HELP["import"])
+    i = common.command(bsub, "import", cmd_import, HELP["import"], DESCRIPTION["import"])
     add = common.adder(i, HELP)
-    add("input", metavar="EXR_DIR")
+    add("input", metavar="IMAGES", help="a folder (any sub-folder) or a .zip archive of images")
     add("-o", "--output", required=True, metavar="STORE")
     add("--chunk", **chunk)
     add(
         "--alpha", type=float, metavar="DEG", help="slice offset (default: pairs.json or estimated)"
     )
+    add("--azimuth", choices=AZIMUTHS, default=AZIMUTHS[0])
+    add("--light-offset", type=_degrees("--light-offset"), default=0.0, metavar="DEG")
     add("--overwrite", action="store_true")
     add("-q", "--quiet", action="store_true")
 

@@ -27,21 +27,27 @@ def _openexr():
     return OpenEXR
 
 
-def read_rgb_exr(path: str | os.PathLike, shape: tuple[int, int] | None = None) -> np.ndarray:
+def read_rgb_exr(
+    path, shape: tuple[int, int] | None = None, *, name: str | None = None
+) -> np.ndarray:
     """The ``R``, ``G``, ``B`` channels of a single-part float EXR image as ``(H, W, 3)`` float32.
 
     Args:
-        path: the image (other channels, e.g. ``A``, are ignored).
+        path: the image (other channels, e.g. ``A``, are ignored): a file, or a binary stream
+            with ``read``/``seek``/``tell`` (e.g. a zip member's bytes in ``io.BytesIO``).
         shape: the expected ``(H, W)``, checked when given.
+        name: what the messages call the image (default: ``path``).
 
     Raises:
         InputError naming the file: unreadable, truncated or corrupt, several parts, a missing
         channel, integer pixels, or the wrong size.
     """
     OpenEXR = _openexr()
-    path = Path(path)
+    stream = hasattr(path, "read")
+    source = path if stream else str(path)
+    path = name or (path if stream else Path(path))
     try:
-        parts = OpenEXR.File(str(path), separate_channels=True).parts
+        parts = OpenEXR.File(source, separate_channels=True).parts
     except Exception as e:  # noqa: BLE001 - the library raises RuntimeError, IndexError, ...
         raise located(f"cannot read as OpenEXR (truncated or corrupt?): {e}", path) from e
     if len(parts) == 0:  # OpenEXR 3.x returns no parts when the pixels cannot be decoded

@@ -13,6 +13,7 @@ from ._color import expose as expose
 from ._metrics import log_error as log_error
 from ._metrics import psnr as psnr
 from ._metrics import rmse8 as rmse8
+from ._color import srgb_decode as srgb_decode
 from ._color import srgb_encode as srgb_encode
 from ._color import srgb_to_lab as srgb_to_lab
 from ._metrics import summarize as summarize

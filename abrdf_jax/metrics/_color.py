@@ -54,6 +54,9 @@ _LAB_SLOPE = 841.0 / 108.0  # = (29/6)^2 / 3
 _LAB_OFFSET = 16.0 / 116.0
 # sRGB (IEC 61966-2-1) encoding: linear segment at and below this value.
 _SRGB_THRESHOLD = 0.0031308
+# ... and decoding: linear segment at and below this encoded value (the standard's rounded
+# 12.92 · 0.0031308; no 8- or 16-bit code value lies between the two).
+_SRGB_DECODE_THRESHOLD = 0.04045
 
 # --------------------------------------------------------------------------------------------------
 # Safe primitives: finite values and finite gradients at exact zeros.
@@ -182,6 +185,28 @@ def srgb_encode(t: Float[ArrayLike, "..."]) -> Float[Array, "..."]:
     hi = t > _SRGB_THRESHOLD
     power = 1.055 * jnp.power(jnp.where(hi, t, 1.0), 1.0 / 2.4) - 0.055
     return jnp.where(hi, power, 12.92 * t)
+
+
+def srgb_decode(q: Float[ArrayLike, "..."], xp=jnp) -> Float[Array, "..."]:
+    """The IEC 61966-2-1 sRGB decoding (EOTF), the inverse of :func:`srgb_encode`.
+
+    ``q / 12.92`` for ``q <= 0.04045``, else ``((q + 0.055) / 1.055)^2.4``; the power is evaluated
+    on the upper branch only (as in :func:`srgb_encode`), so the gradient is finite everywhere.
+    Image readers decode 8- and 16-bit code values ``k / (2^bits − 1)`` with it
+    (:mod:`abrdf_jax.btf._images`, through a float64 table of every code value).
+
+    Args:
+        q: encoded values, any shape (normally ``[0, 1]``).
+        xp: the array namespace: ``jax.numpy`` (default) or ``numpy`` (a NumPy result in the
+            input's precision, whatever JAX's default float).
+
+    Returns:
+        Linear values, same shape.
+    """
+    q = xp.asarray(q)
+    hi = q > _SRGB_DECODE_THRESHOLD
+    power = xp.power((xp.where(hi, q, 1.0) + 0.055) / 1.055, 2.4)
+    return xp.where(hi, power, q / 12.92)
 
 
 def _lab_f(u: Array) -> Array:
