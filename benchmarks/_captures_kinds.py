@@ -144,7 +144,7 @@ def check_targets(results: dict) -> list[dict]:
             {
                 "target": "every capture kind: exit 0, valid tables, one folder call",
                 "set": set_name,
-                "kind": ",".join(kinds),
+                "kind": f"all {len(kinds)}",
                 "value": len(failed),
                 "limit": 0,
                 "pass": not failed,

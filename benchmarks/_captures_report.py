@@ -58,6 +58,8 @@ def markdown(payload: dict) -> str:
     for t in payload["targets"]:
         v = t["value"]
         v = "n/a" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v))
+        if t.get("failed"):
+            v += " failed: " + ", ".join(t["failed"])
         limit = f"{'<' if t.get('strict') else '<='} {t['limit']:g}"
         if "statistic" in t:
             limit = f"{t['statistic']} ratio {limit}"
@@ -71,11 +73,16 @@ def markdown(payload: dict) -> str:
 
 
 def pass_fail_lines(payload: dict) -> list[str]:
-    return [
-        f"{'PASS' if t['pass'] else 'FAIL'}  {t['set']:5s} {t['kind']:12s} {t['target']}"
-        + ("" if t["value"] is None else f"  ({t['value']:.3g})")
-        for t in payload["targets"]
-    ]
+    """One ``PASS``/``FAIL`` line per target, for the console."""
+    out = []
+    for t in payload["targets"]:
+        v = "" if t["value"] is None else f"  ({t['value']:.3g})"
+        if t.get("failed"):
+            v += " failed: " + ", ".join(t["failed"])
+        out.append(
+            f"{'PASS' if t['pass'] else 'FAIL'}  {t['set']:5s} {t['kind']:12s} {t['target']}{v}"
+        )
+    return out
 
 
 METHODS = (
@@ -116,6 +123,9 @@ def charts(payload: dict, folder: Path, suffix: str) -> list[str]:
                 if xs:
                     ax.plot(xs, ys, style, label=label, ms=4)
             ax.set_xscale("log")
+            ticks = [x for k, x in names if k in kinds]
+            ax.set_xticks(ticks, [f"{x:g}" for x in ticks])
+            ax.minorticks_off()
             ax.set_xlabel("samples per slice")
             ax.set_ylabel("mean " + ("ΔE76" if metric == "de76" else "LogErr"))
             ax.set_title(f"{set_name} ({block['budget']}): error against density")
