@@ -248,7 +248,7 @@ def main(argv=None, log=None) -> dict:
             mset = SETS[set_name]
             names = mset.names(args.quick)
             log(f"{set_name}: {len(names)} materials ({mset.budget}), {len(kinds)} kinds")
-            models = {n: materials.get_material(n) for n in names}
+            models = {_file(n): materials.get_material(n) for n in names}  # by file name
             refs = {n: materials.dense_table(m) for n, m in models.items()}
             results[set_name] = {
                 k: run_kind(set_name, k, models, refs, Path(tmp), log) for k in kinds
