@@ -110,3 +110,43 @@ def test_suite_smoke_writes_valid_json(data_dir, tmp_path, monkeypatch):
     ]
     fill = [p for p in merged["points"] if p["name"] == "mean fill iso102"]
     assert fill[0]["de76"] == next(p["de76"] for p in points if p["name"] == "mean fill iso102")
+
+
+def test_captures_smoke_writes_valid_json(tmp_path):
+    """``python -m benchmarks.captures`` on the two quick anisotropic materials (analytic: no
+    data needed) and two capture kinds: one folder call of the CLI per kind, figures for the
+    package, the scipy peer and mean fill (or "n/a" with a reason), the targets, the charts."""
+    from benchmarks import captures
+
+    argv = ["--quick", "--sets", "aniso", "--kinds", "protocol,gap-20", "--out", str(tmp_path)]
+    captures.main(argv, log=lambda *a: None)
+    payload = json.loads((tmp_path / "captures_quick.json").read_text())
+    assert payload["mode"] == "quick" and payload["machine"]["cpu_count"]
+    assert len(payload["load_average_before"]) == len(payload["load_average_after"]) == 3
+    assert "benchmarks.captures" in payload["commands"]["benchmark"]
+    block = payload["sets"]["aniso"]
+    assert block["budget"] == "aniso204" and len(block["materials"]) == 2
+    assert list(block["kinds"]) == ["protocol", "gap-20"]
+    for kind, r in block["kinds"].items():
+        cli = r["cli"]
+        assert cli["command"].startswith("python -m abrdf_jax.cli reconstruct aniso/" + kind)
+        assert isinstance(cli["exit_code"], int) and cli["seconds"] > 0 and cli["warnings"] >= 0
+        assert cli["ok"] == (cli["exit_code"] == 0 and not cli["invalid"])
+        assert set(r["n_samples"]) == {f"{m}" for m in block["materials"]}
+        for method in ("package", "scipy", "mean_fill"):
+            res = r[method]
+            if "n/a" in res:  # never a silent gap: the reason is recorded
+                assert res["n/a"], (kind, method)
+                continue
+            assert set(res["per_material"]) == set(block["materials"])
+            for key in ("de76", "de76_median", "logerr", "logerr_median"):
+                assert math.isfinite(res[key]) and res[key] >= 0, (kind, method, key)
+    assert block["kinds"]["protocol"]["cli"]["exit_code"] == 0  # the ideal capture runs today
+    assert block["kinds"]["protocol"]["n_samples"]["ggx-aniso-metal"] == 204
+    targets = payload["targets"]
+    assert [t["target"] for t in targets][0].startswith("every capture kind")
+    assert all(isinstance(t["pass"], bool) for t in targets)
+    md = (tmp_path / "captures_quick.md").read_text()
+    assert "| capture |" in md and "## Targets" in md and "gap-20" in md
+    for chart in ("captures_density_quick.png", "captures_noise_quick.png"):
+        assert (tmp_path / chart).stat().st_size > 10_000
