@@ -148,27 +148,31 @@ def vectors_from_half_diff(
 # RBF centres and targets of a reconstruction
 
 
-def ring_azimuths_deg(theta_deg: float) -> np.ndarray:
-    """Azimuths of the UBO ring at ``theta_deg``; 24 uniform azimuths off the grid's rings."""
-    for t, n in zip(UBO_THETAS_DEG, UBO_COUNTS):
+def ring_azimuths_deg(theta_deg: float, azimuths: int | None = None) -> np.ndarray:
+    """Azimuths of the RBF centres on the ring at ``theta_deg``: the UBO ring's (24 uniform
+    azimuths off the grid's rings), or ``azimuths`` uniform ones where the ring has fewer (a
+    dense capture resolves more than the grid: :data:`abrdf_jax._grouping.DENSE_AZIMUTHS`)."""
+    n = 24
+    for t, m in zip(UBO_THETAS_DEG, UBO_COUNTS):
         if np.isclose(t, theta_deg):
-            return np.arange(n) * 360.0 / n
-    return np.arange(24) * 15.0
+            n = m
+    n = max(n, azimuths or 0)
+    return np.arange(n) * 360.0 / n
 
 
-def centre_layout(pairs) -> list[tuple[np.ndarray, np.ndarray]]:
+def centre_layout(pairs, azimuths: int | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
     """RBF centres: per elevation pair, every (φi, φv) of the two rings (degrees), flattened."""
     out = []
     for ti, tv in pairs:
-        ai, av = ring_azimuths_deg(ti), ring_azimuths_deg(tv)
+        ai, av = ring_azimuths_deg(ti, azimuths), ring_azimuths_deg(tv, azimuths)
         out.append((np.repeat(ai, len(av)), np.tile(av, len(ai))))
     return out
 
 
-def centre_vectors(pairs, dtype):
+def centre_vectors(pairs, dtype, azimuths: int | None = None):
     """Unit vectors ``(wi, wv)``, each ``(n, 3)``, of the RBF centres of ``pairs`` (:func:`centre_layout` order)."""
     wi, wv = [], []
-    for (ti, tv), (pi_, pv) in zip(pairs, centre_layout(pairs)):
+    for (ti, tv), (pi_, pv) in zip(pairs, centre_layout(pairs, azimuths)):
         wi.append(to_vector(np.full(len(pi_), np.deg2rad(ti)), np.deg2rad(pi_)))
         wv.append(to_vector(np.full(len(pv), np.deg2rad(tv)), np.deg2rad(pv)))
     return jnp.concatenate(wi).astype(dtype), jnp.concatenate(wv).astype(dtype)
@@ -181,22 +185,25 @@ def ubo_target_vectors(dtype):
     return jnp.asarray(wi, dtype), jnp.asarray(wv, dtype)
 
 
-def _centre_target_index(pairs) -> np.ndarray | None:
-    """Flat UBO pair index (i*81 + v) of every centre, or None if a pair is off the grid."""
+def _centre_target_index(pairs, azimuths=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(centre, target)``: the centres that are UBO pairs and their flat index ``i*81 + v``."""
     theta, phi = ubo_grid()
-    idx = []
-    for (ti, tv), (pi_, pv) in zip(pairs, centre_layout(pairs)):
+    key = {(round(float(t), 6), round(float(f), 6)): k for k, (t, f) in enumerate(zip(theta, phi))}
+    src, dst, c = [], [], 0
+    for (ti, tv), (pi_, pv) in zip(pairs, centre_layout(pairs, azimuths)):
         for a, b in zip(pi_, pv):
-            ii = np.nonzero(np.isclose(theta, ti) & np.isclose(phi, a))[0]
-            vv = np.nonzero(np.isclose(theta, tv) & np.isclose(phi, b))[0]
-            if len(ii) != 1 or len(vv) != 1:
-                return None
-            idx.append(ii[0] * 81 + vv[0])
-    return np.asarray(idx)
+            ii = key.get((round(float(ti), 6), round(float(a), 6)))
+            vv = key.get((round(float(tv), 6), round(float(b), 6)))
+            if ii is not None and vv is not None:
+                src.append(c), dst.append(ii * 81 + vv)
+            c += 1
+    return np.asarray(src, int), np.asarray(dst, int)
 
 
-def keep_centres(out: Float[Array, "q C"], vals: Float[Array, "n C"], pairs) -> Float[Array, "q C"]:
-    """Put the reconstructed subspaces back at their UBO grid pairs (the paper's step 3 fills
-    only the missing values); a no-op when a pair is off the grid."""
-    idx = _centre_target_index(pairs)
-    return out if idx is None else out.at[idx].set(vals)
+def keep_centres(
+    out: Float[Array, "q C"], vals: Float[Array, "n C"], pairs, azimuths: int | None = None
+) -> Float[Array, "q C"]:
+    """Put the reconstructed subspaces back at the centres that are UBO grid pairs (the paper's
+    step 3 fills only the missing values); centres off the grid are left to the RBF."""
+    src, dst = _centre_target_index(pairs, azimuths)
+    return out if len(src) == 0 else out.at[dst].set(vals[src])

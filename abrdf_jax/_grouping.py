@@ -27,7 +27,13 @@ averaged), so the BTF path reads the same grouping off as one matrix
    ``φi ∓ φv``): the RBF centres read a slice every 7.5°, so nothing they can use is lost, the
    peak is kept to within a bin, and the averages lower the noise by the square root of the
    samples per bin. Repeated angles are averaged in any case.
-6. **Gaps**: a stretch of a slice wider than ``GAP_FACTOR`` times its median spacing (and
+6. **Centres**: the RBF centres of a pair are the (φi, φv) of its rings' UBO azimuths (12 on the
+   30° ring), which sample the slices every 15° of φi ∓ φv. When every diagonal slice has at least
+   ``DENSE_KNOTS`` knots (one per 7.5° of its parameter), the slices resolve more: the centres take
+   ``DENSE_AZIMUTHS`` azimuths per ring (``Measurements.centre_azimuths``); the grid pairs among
+   them are still put back as restored. A sparse capture keeps the UBO layout, where more centres
+   only interpolate the same samples and measured worse (docs/captures.md).
+7. **Gaps**: a stretch of a slice wider than ``GAP_FACTOR`` times its median spacing (and
    ``MIN_GAP_DEG``) is a gap; the slice interpolation bridges it and the report lists it.
 """
 
@@ -51,6 +57,8 @@ MIN_PAIR_SAMPLES = 3
 MAX_TOL_DEG = 5.0
 #: A slice longer than this is reduced to bin means.
 MAX_KNOTS = 360
+#: Knots on every diagonal slice that make a capture dense, and its centre azimuths per ring.
+DENSE_KNOTS, DENSE_AZIMUTHS = 48, 24
 #: A gap: wider than this many median spacings and than MIN_GAP_DEG.
 GAP_FACTOR, MIN_GAP_DEG = 2.5, 5.0
 
@@ -197,6 +205,7 @@ def group_slices(
     dtype=np.float32,
     min_axial: int = 3,
     max_knots: int = MAX_KNOTS,
+    centre_azimuths: int | None | str = "auto",
 ) -> tuple[Measurements, dict]:
     """Group arbitrary measured samples into slices (steps 1–6 of the module docstring).
 
@@ -209,6 +218,8 @@ def group_slices(
         nmax: padded slice length; default: the next multiple of 8 above the longest slice.
         min_axial: an axial slice with fewer samples of its own counts as not measured.
         max_knots: longest slice kept as it is; longer ones become bin means.
+        centre_azimuths: RBF centre azimuths per ring (``None``: the UBO rings'); ``"auto"``:
+            ``DENSE_AZIMUTHS`` for a dense capture (step 6), else ``None``.
 
     Returns:
         ``(measurements, report)``; ``report`` has ``alpha_deg``, ``alpha_se_deg``, ``tol_deg``,
@@ -279,12 +290,16 @@ def group_slices(
         gaps += [
             dict(pair=pairs[k // 2], slice=kind, start_deg=g0, end_deg=g1) for g0, g1 in _gaps(a)
         ]
+    if centre_azimuths == "auto":
+        dense = min(counts[1::2]) >= DENSE_KNOTS
+        centre_azimuths = DENSE_AZIMUTHS if dense else None
     meas = Measurements(
         jnp.asarray(t, dtype),
         jnp.asarray(y, dtype),
         jnp.asarray(counts, jnp.int32),
         pairs,
         any(c > 0 for c in counts[0::2]),
+        centre_azimuths,
     )
     report = dict(
         alpha_deg=float(alpha_deg),

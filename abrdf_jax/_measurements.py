@@ -68,6 +68,8 @@ class Measurements(eqx.Module):
         count: ``(S,)`` number of valid samples per slice (0: slice not measured).
         pairs: static tuple of the ``P = S / 2`` elevation pairs ``(θi, θv)`` in degrees.
         has_axial: static; whether any axial slice was measured (decides the budget).
+        centre_azimuths: static; RBF centre azimuths per ring where the UBO ring has fewer
+            (``None``: the UBO rings'; a dense capture gets more, see ``abrdf_jax._grouping``).
     """
 
     t: Float[Array, "S nmax"]
@@ -75,6 +77,7 @@ class Measurements(eqx.Module):
     count: Int[Array, " S"]
     pairs: tuple = eqx.field(static=True)
     has_axial: bool = eqx.field(static=True)
+    centre_azimuths: int | None = eqx.field(static=True, default=None)
 
     @property
     def n_samples(self) -> int:
@@ -88,7 +91,7 @@ class Measurements(eqx.Module):
 
     def replace(self, **fields) -> "Measurements":
         """A copy with some fields replaced (``t``, ``y``, ``count``, ``pairs``, ``has_axial``)."""
-        unknown = set(fields) - {"t", "y", "count", "pairs", "has_axial"}
+        unknown = set(fields) - {"t", "y", "count", "pairs", "has_axial", "centre_azimuths"}
         if unknown:
             raise InputError(f"Measurements has no field(s) {sorted(unknown)}")
         return dataclasses.replace(self, **fields)
@@ -132,10 +135,15 @@ def stack_measurements(items: list[Measurements]) -> Measurements:
     """Stack measurements of one layout along a new leading (material) axis, padding slices."""
     if not items:
         raise ValueError("no measurements to stack")
-    pairs = items[0].pairs
+    pairs, az = items[0].pairs, items[0].centre_azimuths
     for m in items:
         if m.pairs != pairs:
             raise InputError("cannot stack measurements of different elevation pairs")
+        if m.centre_azimuths != az:
+            raise InputError(
+                "cannot stack measurements of different RBF centre layouts (dense and sparse "
+                "captures); reconstruct them in separate batches"
+            )
     nmax = max(m.t.shape[1] for m in items)
 
     def pad(x, axis_len):
@@ -149,4 +157,5 @@ def stack_measurements(items: list[Measurements]) -> Measurements:
         jnp.stack([m.count for m in items]),
         pairs,
         any(m.has_axial for m in items),
+        az,
     )

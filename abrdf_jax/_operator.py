@@ -63,7 +63,7 @@ class ReconstructionOperator(eqx.Module):
         params: the parameters it was built with (the two-stage path needs α).
         config: the static configuration.
         stage: ``"single"`` (the whole map is ``matrix``) or ``"two_stage"``.
-        pairs, has_axial: the template's static layout.
+        pairs, has_axial, centre_azimuths: the template's static layout.
         grid: whether the output is the 81×81 UBO table (else ``(q, C)`` at the targets).
     """
 
@@ -77,6 +77,7 @@ class ReconstructionOperator(eqx.Module):
     pairs: tuple = eqx.field(static=True)
     has_axial: bool = eqx.field(static=True)
     grid: bool = eqx.field(static=True)
+    centre_azimuths: int | None = eqx.field(static=True, default=None)
 
     @property
     def n_inputs(self) -> int:
@@ -116,6 +117,11 @@ class ReconstructionOperator(eqx.Module):
         if meas.pairs != self.pairs:
             raise InputError(
                 f"measurement pairs {meas.pairs} differ from the operator's {self.pairs}"
+            )
+        if meas.centre_azimuths != self.centre_azimuths:
+            raise InputError(
+                f"measurement's RBF centre layout (centre_azimuths={meas.centre_azimuths}) differs "
+                f"from the operator's ({self.centre_azimuths}); compile a new operator"
             )
         if meas.t.shape[-2:] != self.t.shape:
             raise InputError(
@@ -198,7 +204,9 @@ def _apply(op: ReconstructionOperator, x, full: bool):
         full_y = (
             jnp.zeros((b, s * nmax, c), x.dtype).at[:, op.index, :].set(x).reshape(b, s, nmax, c)
         )
-        template = Measurements(op.t.astype(x.dtype), full_y[0], op.count, op.pairs, op.has_axial)
+        template = Measurements(
+            op.t.astype(x.dtype), full_y[0], op.count, op.pairs, op.has_axial, op.centre_azimuths
+        )
         p = op.params.astype(x.dtype)
 
         def features(y, e):
@@ -226,6 +234,7 @@ def _build(
     grid_wv,
     stage: str,
     dtype,
+    azimuths=None,
 ):
     TRACE_COUNT["build"] += 1
     params = params.astype(dtype)
@@ -240,17 +249,17 @@ def _build(
             .reshape(s, nmax, n_in)
         )
         vals = subspace_values(
-            Measurements(t.astype(dtype), unit, count, pairs, has_axial), config, params
+            Measurements(t.astype(dtype), unit, count, pairs, has_axial, azimuths), config, params
         )
     else:
-        n_c = sum(len(a) for a, _ in centre_layout(pairs))
+        n_c = sum(len(a) for a, _ in centre_layout(pairs, azimuths))
         vals = jnp.eye(n_c, dtype=dtype)
     if targets is not None:
-        return rbf_map(vals, pairs, config, params, targets)
+        return rbf_map(vals, pairs, config, params, targets, azimuths=azimuths)
     # The UBO targets come in as arguments, not constants: XLA would constant-fold their
     # coordinates and polynomial tail for tens of seconds.
-    out = rbf_map(vals, pairs, config, params, (grid_wi, grid_wv))
-    return keep_centres(out, vals, pairs)
+    out = rbf_map(vals, pairs, config, params, (grid_wi, grid_wv), azimuths=azimuths)
+    return keep_centres(out, vals, pairs, azimuths)
 
 
 def compile_operator(
@@ -344,6 +353,7 @@ def compile_operator(
         grid_wv,
         stage,
         jnp.dtype(build_dtype),
+        template.centre_azimuths,
     )
     return ReconstructionOperator(
         matrix.astype(dtype),
@@ -356,4 +366,5 @@ def compile_operator(
         template.pairs,
         template.has_axial,
         targets is None,
+        template.centre_azimuths,
     )

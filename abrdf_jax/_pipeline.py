@@ -29,7 +29,7 @@ def subspace_values(meas: Measurements, config: Config, params: Params) -> Float
     """Values of the reconstructed toroidal subspaces at the RBF centres (eq. 2–5)."""
     vals = []
     alpha = params.alpha.astype(meas.y.dtype)
-    for p, (pi_, pv) in enumerate(centre_layout(meas.pairs)):
+    for p, (pi_, pv) in enumerate(centre_layout(meas.pairs, meas.centre_azimuths)):
         vals.append(
             subspace(
                 meas.t[2 * p],
@@ -48,10 +48,10 @@ def subspace_values(meas: Measurements, config: Config, params: Params) -> Float
     return jnp.concatenate(vals)
 
 
-def _fit_centres(vals, pairs, config: Config, params: Params, guard: bool = True):
+def _fit_centres(vals, pairs, config: Config, params: Params, guard: bool = True, azimuths=None):
     """The RBF fit at the centres of ``pairs`` (one place builds the system): ``(interpolant, info)``."""
     p = params.astype(vals.dtype)
-    xc = pair_coordinates(*centre_vectors(pairs, vals.dtype), config.parameterization)
+    xc = pair_coordinates(*centre_vectors(pairs, vals.dtype, azimuths), config.parameterization)
     return fit_rbf_info(xc, vals, p.widths, config.kernel, p.reg, config.degree, guard=guard)
 
 
@@ -63,6 +63,7 @@ def rbf_map(
     targets=None,
     keep: bool = True,
     guard: bool = True,
+    azimuths: int | None = None,
 ):
     """RBF fit at the centres of ``pairs`` and evaluation at the targets: linear in ``fit_vals``.
 
@@ -70,17 +71,36 @@ def rbf_map(
         fit_vals: values at the RBF centres (``centre_layout(pairs)`` order), any number of columns.
         targets: ``(wi, wv)`` or ``None`` for the 6561 UBO pairs (then ``keep`` puts ``fit_vals``
             back at the centres' grid pairs).
+        azimuths: the centre layout's ``centre_azimuths`` (``Measurements.centre_azimuths``).
 
     Returns:
         ``(q, C)`` values in the fit space (before any exp).
     """
     dtype = fit_vals.dtype
-    rbf = _fit_centres(fit_vals, pairs, config, params, guard)[0]
+    rbf = _fit_centres(fit_vals, pairs, config, params, guard, azimuths)[0]
     wi_t, wv_t = ubo_target_vectors(dtype) if targets is None else targets
     out = rbf(pair_coordinates(wi_t, wv_t, config.parameterization))
     if targets is None and keep:
-        out = keep_centres(out, fit_vals, pairs)
+        out = keep_centres(out, fit_vals, pairs, azimuths)
     return out
+
+
+#: A dense capture's RBF input (log values) is capped at this quantile of the centre values plus
+#: this margin (log units, i.e. x 1.65): see :func:`_cap_spikes`.
+SPIKE_QUANTILE, SPIKE_MARGIN = 0.95, 0.5
+
+
+def _cap_spikes(fit_vals, meas: Measurements, vs):
+    """A dense capture (``meas.centre_azimuths`` set) resolves specular spikes that 26 samples per
+    slice alias. Put back at their grid pairs they are kept, but the global kernel would carry a
+    spike across elevations to pairs it never saw (measured: MERL test dense-100 ΔE76 0.96x the
+    protocol's uncapped, 0.74x capped; docs/captures.md). So the RBF fits log values capped at
+    ``SPIKE_QUANTILE`` of the centre values + ``SPIKE_MARGIN``; the restored values themselves go
+    back unchanged. Sparse captures and linear value spaces are not touched."""
+    if meas.centre_azimuths is None or not vs.is_log:
+        return fit_vals
+    cap = jnp.quantile(fit_vals, SPIKE_QUANTILE, axis=0, keepdims=True) + SPIKE_MARGIN
+    return jnp.minimum(fit_vals, cap)
 
 
 def _reconstruct_core(
@@ -89,15 +109,19 @@ def _reconstruct_core(
     vs = value_space(config.value_space)
     eps = vs.eps(meas, config.log_eps)
     vals = subspace_values(vs.encode_samples(meas, eps), config, params)
-    fit_vals = vs.encode_subspace(vals, eps)
+    fit_raw = vs.encode_subspace(vals, eps)
+    fit_vals = _cap_spikes(fit_raw, meas, vs)
     # The restored subspaces are put back at their grid pairs (the paper's step 3) in the RBF's
     # value space, except after a log of the subspace values: there the values themselves go back
     # (exp(ln(x + ε)) − ε would only round them).
     keep_after = vs.log_subspace and targets is None
-    out = rbf_map(fit_vals, meas.pairs, config, params, targets, keep=not keep_after, guard=guard)
+    az = meas.centre_azimuths
+    out = rbf_map(fit_vals, meas.pairs, config, params, targets, False, guard, az)
+    if targets is None and not keep_after:
+        out = keep_centres(out, fit_raw, meas.pairs, az)
     out = vs.decode(out, eps)
     if keep_after:
-        out = keep_centres(out, jnp.maximum(vals, 0.0), meas.pairs)
+        out = keep_centres(out, jnp.maximum(vals, 0.0), meas.pairs, az)
     if targets is None:
         out = out.reshape(81, 81, out.shape[-1])
     return out
@@ -229,13 +253,13 @@ def solve_info(
         1 when the requested regularisation was raised, see :mod:`abrdf_jax._rbf`).
     """
     meas, config, params = prepare(samples, config, params)
-    return _solve_info_jit(meas.pairs, meas.y.dtype, config, params)
+    return _solve_info_jit(meas.pairs, meas.y.dtype, config, params, meas.centre_azimuths)
 
 
 @eqx.filter_jit
-def _solve_info_jit(pairs, dtype, config, params):
-    n = sum(len(a) for a, _ in centre_layout(pairs))
-    return _fit_centres(jnp.zeros((n, 1), dtype), pairs, config, params)[1]
+def _solve_info_jit(pairs, dtype, config, params, azimuths=None):
+    n = sum(len(a) for a, _ in centre_layout(pairs, azimuths))
+    return _fit_centres(jnp.zeros((n, 1), dtype), pairs, config, params, True, azimuths)[1]
 
 
 def check_finite(table, where: str = "reconstruction") -> None:

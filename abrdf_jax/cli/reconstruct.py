@@ -218,7 +218,8 @@ def _reconstruct_folder(items, choices: list[dict], targets: list[Path], out: Pa
     out.mkdir(exist_ok=True)
     groups: dict[tuple, list[int]] = {}
     for k, (item, choice) in enumerate(zip(items, choices)):
-        key = (item.budget, item.alpha, item.meas.pairs, choice["config"])  # one stack each
+        layout = (item.meas.pairs, item.meas.centre_azimuths)  # what one stack must share
+        key = (item.budget, item.alpha, layout, choice["config"])
         groups.setdefault(key, []).append(k)
     failed: list[str] = []
     with common.progress(len(items), "reconstruct", args.quiet) as bar:

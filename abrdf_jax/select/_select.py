@@ -170,7 +170,7 @@ def _cv_core(data: dict, configs: tuple, params: Params):
     G, k, n, C = fit_vals.shape
     # Every fold and configuration as right-hand sides of one system (it ignores the values).
     rhs = jnp.moveaxis(fit_vals, 2, 0).reshape(n, G * k * C)
-    wi_c, wv_c = centre_vectors(train.pairs, dtype)
+    wi_c, wv_c = centre_vectors(train.pairs, dtype, train.centre_azimuths)
     xc = pair_coordinates(wi_c, wv_c, cfg0.parameterization)
     rbf = fit_rbf(
         xc, rhs, params.widths.astype(dtype), cfg0.kernel, params.reg.astype(dtype), cfg0.degree
