@@ -93,8 +93,9 @@ SPIKE_QUANTILE, SPIKE_MARGIN = 0.95, 0.5
 def _cap_spikes(fit_vals, meas: Measurements, vs):
     """A dense capture (``meas.centre_azimuths`` set) resolves specular spikes that 26 samples per
     slice alias. Put back at their grid pairs they are kept, but the global kernel would carry a
-    spike across elevations to pairs it never saw (measured: MERL test dense-100 ΔE76 0.96x the
-    protocol's uncapped, 0.74x capped; docs/captures.md). So the RBF fits log values capped at
+    spike across elevations to pairs it never saw (MERL test, 100 per slice: ΔE76 1.03x the
+    protocol's with the UBO centres and no cap, 0.74x with the dense layout and the cap;
+    ``python -m benchmarks.capture_ablations``, docs/captures.md). So the RBF fits log values capped at
     ``SPIKE_QUANTILE`` of the centre values + ``SPIKE_MARGIN``; the restored values themselves go
     back unchanged. Sparse captures and linear value spaces are not touched."""
     if meas.centre_azimuths is None or not vs.is_log:

@@ -415,3 +415,23 @@ def test_cli_import(capture, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the store written by the CLI opens without a warning
         assert btf.ChunkedStore.open(tmp_path / "s").attrs["angles"]["azimuth"] == "cw"
+
+
+def test_btf_reconstruct_reads_an_image_capture_directly(capture, tmp_path):
+    """``btf reconstruct ZIP -o OUT`` imports the images to ``OUT.measurements`` (once: a rerun
+    reuses it) and reconstructs them, as import followed by reconstruct does."""
+    vals, angles = capture["meas"], capture["angles"]
+    archive = _zip(_write_pngs(tmp_path / "png", vals, angles), tmp_path / "cap.zip")
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    cmd = [sys.executable, "-m", "abrdf_jax.cli", "btf", "reconstruct", str(archive)]
+    cmd += ["-o", str(tmp_path / "rec"), "-q", "--chunk", str(CHUNK)]
+    first = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=300)
+    assert first.returncode == 0, first.stderr
+    assert "importing the images of" in first.stdout
+    rec = btf.ChunkedStore.open(tmp_path / "rec")
+    assert rec.kind == "abrdf" and rec.item_shape[0] == 81 * 81 and not rec.verify()
+    imported = btf.ChunkedStore.open(tmp_path / "rec.measurements")
+    direct = btf.read_image_pairs(tmp_path / "png", tmp_path / "direct")
+    np.testing.assert_array_equal(imported.read(), direct.read())
+    again = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=300)
+    assert again.returncode == 0 and "reused" in again.stdout, again.stderr

@@ -116,6 +116,34 @@ def _config_params(args, store):
     return config, params.astype(jnp.float32)
 
 
+def _is_image_capture(src: Path, btf) -> bool:
+    """A zip or a folder of per-pair images (not a store or a generated BTF folder)."""
+    if src.is_file():
+        return src.suffix.lower() == ".zip"
+    return not (src / "manifest.json").exists() and any(
+        btf.parse_pair_filename(p.name) for p in src.iterdir()
+    )
+
+
+def _import_capture(src: Path, out: Path, args, btf):
+    """Import an image capture into the store ``OUT.measurements`` beside the output (once: a
+    rerun finds it), with PROTOCOL.md's azimuth convention (else ``abrdf-jax btf import``)."""
+    store = out.parent / (out.name + ".measurements")
+    if not out.parent.is_dir():
+        raise InputError(f"{out}: parent folder {out.parent} does not exist")
+    if store.exists():
+        found = btf.ChunkedStore.open(store)
+        if found.attrs.get("source") == str(src) and not found.verify():
+            print(f"{store}: imported before from {src}; reused")
+            return found
+    print(
+        f"{store}: importing the images of {src} (azimuth ccw, no light offset; other "
+        "conventions: abrdf-jax btf import --azimuth/--light-offset)"
+    )
+    opts = dict(overwrite=True, progress=not args.quiet, chunk=args.chunk)
+    return btf.read_image_pairs(src, store, **opts)
+
+
 def cmd_reconstruct(args) -> int:
     if args.preset is not None and args.params is not None:
         raise InputError(
@@ -128,13 +156,13 @@ def cmd_reconstruct(args) -> int:
     src = Path(args.input)
     if not src.exists():
         raise InputError(f"{src}: not found")
-    if src.is_dir() and any(btf.parse_pair_filename(p.name) for p in src.iterdir()):
-        how = f"abrdf-jax btf import {src} -o STORE"
-        raise InputError(f"{src}: a folder of per-pair EXR images; import it first: {how}")
-    meas = btf.ChunkedStore.open(btf.measurement_store_of(src))
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
+    if _is_image_capture(src, btf):
+        meas = _import_capture(src, out, args, btf)
+    else:
+        meas = btf.ChunkedStore.open(btf.measurement_store_of(src))
     import jax
 
     if args.exr_dir and jax.process_count() > 1:
@@ -273,7 +301,9 @@ def register(sub) -> None:
         bsub, "reconstruct", cmd_reconstruct, HELP["reconstruct"], DESCRIPTION["reconstruct"]
     )
     add = common.adder(r, HELP)
-    add("input", metavar="MEAS_DIR", help="a measurement store or a generated BTF folder")
+    what = "a measurement store, a generated BTF folder, or an image capture (a folder or zip of "
+    what += "per-pair images, imported first to OUT.measurements)"
+    add("input", metavar="MEAS_DIR", help=what)
     add("-o", "--output", required=True, metavar="OUT", help="output store folder")
     add("--chunk", **chunk)
     add("--exr-dir", metavar="DIR", help="also export one EXR image per direction pair")
