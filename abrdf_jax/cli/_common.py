@@ -469,9 +469,12 @@ def describe(choice: dict) -> list[str]:
             + (f"; {left} left out" if left else "")
         )
         alpha = f"alpha {m['alpha_deg']:.3f} +- {m['alpha_se_deg']:.3f} deg"
+        # on sparse slices the neighbour residuals hold the slices' own curvature: an upper bound
+        dense = min(c["diagonal_knots"] for c in m["samples_per_slice"]) >= 48
         noise = "n/a" if m.get("noise_log") is None else f"{100 * m['noise_log']:.2g} %"
+        noise = noise if dense or noise == "n/a" else f"<= {noise} (sparse slices: an upper bound)"
         lines.append(
-            f"  capture: {alpha}, slice tolerance {m['tolerance_deg']:.2g} deg, noise ~{noise}"
+            f"  capture: {alpha}, slice tolerance {m['tolerance_deg']:.2g} deg, noise {noise}"
             + (f", {len(m['gaps'])} gap(s)" if m["gaps"] else "")
         )
     for c in rec.get("candidates") or []:
