@@ -231,6 +231,7 @@ def group_slices(
     Raises:
         InputError: when no sample lies on any diagonal slice.
     """
+    _check_arguments(samples, alpha_deg, pairs, tol_deg, max_knots, centre_azimuths)
     s = samples.to_numpy()
     ti, pi_, tv, pv, rgb = (
         np.asarray(x, float) for x in (s.theta_i, s.phi_i, s.theta_v, s.phi_v, s.rgb)
@@ -315,6 +316,30 @@ def group_slices(
         dropped_pairs=[p for p in expected if p not in pairs],
     )
     return meas, report
+
+
+def _check_arguments(samples, alpha_deg, pairs, tol_deg, max_knots, centre_azimuths) -> None:
+    """An InputError naming the argument of :func:`group_slices` that cannot be used."""
+    if not isinstance(samples, Samples):
+        raise InputError(f"group_slices: samples must be Samples, got {type(samples).__name__}")
+    if len(samples) == 0:
+        raise InputError("group_slices: no samples")
+    if alpha_deg is not None and not np.isfinite(alpha_deg):
+        raise InputError(f"group_slices: alpha_deg must be a finite angle, got {alpha_deg!r}")
+    if pairs is not None and (len(pairs) == 0 or any(len(p) != 2 for p in pairs)):
+        raise InputError(f"group_slices: pairs must be (theta_i, theta_v) pairs, got {pairs!r}")
+    if tol_deg is not None and not (np.isfinite(tol_deg) and 0 < tol_deg <= 45):
+        raise InputError(f"group_slices: tol_deg must lie in (0, 45] degrees, got {tol_deg!r}")
+    if not (isinstance(max_knots, (int, np.integer)) and max_knots >= 8):
+        raise InputError(f"group_slices: max_knots must be an int >= 8, got {max_knots!r}")
+    ok = centre_azimuths in (None, "auto") or (
+        isinstance(centre_azimuths, (int, np.integer)) and 1 <= centre_azimuths <= 72
+    )
+    if not ok:
+        raise InputError(
+            f"group_slices: centre_azimuths must be None, 'auto' or an int in [1, 72], got "
+            f"{centre_azimuths!r}"
+        )
 
 
 def _expected_pairs(found) -> tuple:

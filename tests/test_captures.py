@@ -126,6 +126,25 @@ def test_noise_is_estimated(iso):
     assert estimate_noise(clean, slices="all") < 0.01
 
 
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(pairs=()), "pairs"),
+        (dict(pairs=((30.0,),)), "pairs"),
+        (dict(tol_deg=-1.0), "tol_deg"),
+        (dict(tol_deg=float("nan")), "tol_deg"),
+        (dict(alpha_deg=float("inf")), "alpha_deg"),
+        (dict(max_knots=2), "max_knots"),
+        (dict(centre_azimuths="dense"), "centre_azimuths"),
+        (dict(centre_azimuths=0), "centre_azimuths"),
+    ],
+)
+def test_group_slices_names_a_bad_argument(kw, match):
+    s = aj.simulate_capture(materials.get_material(ISO), budget="iso102")
+    with pytest.raises(aj.InputError, match=f"group_slices: {match}"):
+        aj.group_slices(s, **kw)
+
+
 def test_sample_folds_keep_short_slices_whole():
     """A slice too short to hold samples out stays whole in every fold (no error)."""
     m = materials.get_material(ANISO)
