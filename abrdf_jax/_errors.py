@@ -20,3 +20,16 @@ def located(message: str, path=None, line: int | None = None) -> InputError:
             where += f":{line}"
         where += ": "
     return InputError(where + message)
+
+
+def require(module: str, purpose: str, requirement: str, name: str | None = None):
+    """Import ``module``, or raise an :class:`InputError` naming what needs it (``name``, default
+    the requirement's package) and how to install it: a missing optional dependency is one line,
+    not a bug."""
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError as e:
+        name = name or f"the {requirement.split('>')[0]} package"
+        raise InputError(f"{purpose} needs {name} (pip install '{requirement}')") from e

@@ -236,10 +236,9 @@ def group_slices(
     ti, pi_, tv, pv, rgb = (
         np.asarray(x, float) for x in (s.theta_i, s.phi_i, s.theta_v, s.phi_v, s.rgb)
     )
-    est_alpha, alpha_se, sigma = estimate_alpha_spread(s)
     if alpha_deg is None:
-        alpha_deg = est_alpha
-    else:
+        alpha_deg, alpha_se, sigma = estimate_alpha_spread(s)
+    else:  # given: only the spread of the offsets around it is measured
         sigma = _spread(_near_offsets(pi_, pv, alpha_deg, MAX_TOL_DEG))
         alpha_se = 0.0
     tol = _tolerance(sigma) if tol_deg is None else float(tol_deg)

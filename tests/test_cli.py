@@ -5,9 +5,6 @@ Each subprocess pays JAX's start-up (a few seconds), so their number is kept sma
 
 import json
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,21 +12,7 @@ import pytest
 
 from abrdf_jax import io
 from abrdf_jax.cli import main
-
-REPO = Path(__file__).resolve().parents[1]
-
-
-def run_cli(*args, cwd):
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
-    return subprocess.run(
-        [sys.executable, "-m", "abrdf_jax.cli", *map(str, args)],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+from tests.cli_runner import run_cli
 
 
 def assert_clean_failure(proc, *names):

@@ -8,8 +8,6 @@ case); two subprocess tests run the installed entry point end to end.
 
 import errno
 import os
-import subprocess
-import sys
 import tracemalloc
 from pathlib import Path
 
@@ -19,8 +17,8 @@ import pytest
 from abrdf_jax import io
 from abrdf_jax.cli import main
 from abrdf_jax._errors import InputError
+from tests.cli_runner import run_cli
 
-REPO = Path(__file__).resolve().parents[1]
 HEADER = "theta_i,phi_i,theta_v,phi_v,r,g,b"
 PRECIOUS = b"an existing output that a failed run must not touch"
 IS_ROOT = os.name == "posix" and os.geteuid() == 0
@@ -558,19 +556,6 @@ def test_impossible_outputs(tmp_path, capsys, monkeypatch):
 # ---------------------------------------------------------------------------------------------
 # End to end: the installed command in a subprocess
 # ---------------------------------------------------------------------------------------------
-
-
-def run_cli(*args, cwd):
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
-    return subprocess.run(
-        [sys.executable, "-m", "abrdf_jax.cli", *map(str, args)],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
 
 
 def test_batch_with_bad_inputs_writes_nothing(tmp_path):

@@ -8,9 +8,6 @@ the flag for every bad value, and for a table source (a table is known only on t
 """
 
 import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,8 +15,8 @@ import pytest
 import abrdf_jax as aj
 from abrdf_jax import io
 from abrdf_jax.materials import get_material
+from tests.cli_runner import run_cli
 
-REPO = Path(__file__).resolve().parents[1]
 SEED = int(os.environ.get("ABRDF_TEST_SEED", "0"))
 ALPHA = 15.0
 
@@ -27,19 +24,6 @@ ALPHA = 15.0
 @pytest.fixture(scope="module")
 def model():
     return get_material("ggx-aniso-metal")
-
-
-def run_cli(*args, cwd):
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
-    return subprocess.run(
-        [sys.executable, "-m", "abrdf_jax.cli", *map(str, args)],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
 
 
 def angles(s):

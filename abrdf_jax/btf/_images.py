@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._errors import InputError, located
+from .._errors import InputError, located, require
 from ..io._exr import read_rgb_exr
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -51,13 +51,7 @@ def srgb_table(bits: int) -> np.ndarray:
 
 
 def _pillow():
-    try:
-        from PIL import Image
-    except ImportError as e:  # pragma: no cover - Pillow comes with matplotlib
-        raise InputError(
-            "reading PNG or JPEG images needs Pillow (pip install 'pillow>=10')"
-        ) from e
-    return Image
+    return require("PIL.Image", "reading PNG or JPEG images", "pillow>=10", "Pillow")
 
 
 def _decode_pillow(data: bytes, name: str) -> tuple[np.ndarray, str]:

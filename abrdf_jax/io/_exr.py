@@ -13,18 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .._errors import InputError, located
+from .._errors import InputError, located, require
 from ._atomic import atomic_write
 
 
 def _openexr():
-    try:
-        import OpenEXR
-    except ImportError as e:  # pragma: no cover - OpenEXR is a dependency
-        raise InputError(
-            "reading or writing .exr needs the OpenEXR package (pip install 'OpenEXR>=3.5')"
-        ) from e
-    return OpenEXR
+    return require("OpenEXR", "reading or writing .exr", "OpenEXR>=3.5")
 
 
 def read_rgb_exr(
