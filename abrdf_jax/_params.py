@@ -115,13 +115,23 @@ TUNED_DEFAULTS = {
     ("inverse_multiquadric", "linear", None): (0.3, 1e-2),  # 14.62
     ("multiquadric", "linear", None): (0.6, 1e-2),  # 15.04
     ("thin_plate_spline", "linear", None): (1.0, 1e-3),  # 15.64
-    ("thin_plate_spline", "log", None): (1.0, 1e-3),  # 3.68, recommended
+    ("thin_plate_spline", "logsamples", None): (1.0, 1e-3),  # 3.14, recommended
+    ("multiquadric", "logsamples", None): (0.3, 1e-3),  # 3.26
+    ("inverse_multiquadric", "logsamples", 0): (0.3, 1e-3),  # 3.53
+    ("gaussian", "logsamples", 0): (0.45, 1e-2),  # 4.29
+    ("thin_plate_spline", "log", None): (1.0, 1e-3),  # 3.68, recommended until 2026-12-02
     ("multiquadric", "log", None): (0.3, 1e-3),  # 3.82
     ("inverse_multiquadric", "log", 0): (0.3, 1e-3),  # 4.05
     ("gaussian", "log", 0): (0.45, 1e-2),  # 4.53
 }
 FALLBACK_REG = 1e-2
-RECOMMENDED = dict(kernel="thin_plate_spline", value_space="log", degree=None)
+#: The train grid's best (``python -m benchmarks.merl_accuracy``): the thin-plate spline on the log
+#: of the samples, taken before slice interpolation. Until 2026-12-02 the grid had no
+#: ``"logsamples"`` and this was ``value_space="log"`` (the log after interpolation: train 3.68,
+#: test 4.69 ΔE76, against 3.14 and 4.05 now). Interpolating log samples also keeps an aliased
+#: specular spike from spreading linearly over the 27.7° between a sparse slice's samples (the
+#: extra-pairs capture of issue 12, docs/captures.md).
+RECOMMENDED = dict(kernel="thin_plate_spline", value_space="logsamples", degree=None)
 
 #: Every named configuration, in one place: ``preset(name, budget)`` is the same ``Config`` in
 #: ``reconstruct --preset``, ``fit --preset``, ``btf reconstruct --preset`` and the Python API.
@@ -130,10 +140,11 @@ PRESETS: dict[str, dict] = {
     "recommended": RECOMMENDED,
     # Filip 2012 as published: Gaussian kernel on linear values, eq. (2-4) for anisotropic data.
     "paper": {},
-    # The recommended kernel made linear in the log of the samples (rule "average" of the two
-    # slices), so the whole reconstruction is one matrix (compile_operator): the BTF default,
-    # most accurate of the candidates on procedural BTF texels (docs/btf.md).
-    "operator": dict(RECOMMENDED, value_space="logsamples", rule="average"),
+    # The recommended settings with the linear rule "average" of the two slices, so that the
+    # whole reconstruction is one matrix for anisotropic data too (compile_operator; for iso102
+    # it equals "recommended"): the BTF default, most accurate of the candidates on procedural
+    # BTF texels (docs/btf.md).
+    "operator": dict(RECOMMENDED, rule="average"),
 }
 check_registry("PRESETS", PRESETS)
 

@@ -113,6 +113,10 @@ def reconstruct_scipy(
 ):
     """Full reconstruction to an (81, 81, 3) table with scipy's RBFInterpolator."""
     slices = split_slices(ti, pi_, tv, pv, rgb, alpha)
+    # ε from the slice samples (a sample where two slices cross counts for both)
+    eps = log_eps * np.mean(np.abs(np.concatenate([v for _, v in slices.values()])), 0) + 1e-19
+    if value_space == "logsamples":  # the log of the samples, before slice interpolation
+        slices = {k: (a, np.log(np.maximum(v, 0) + eps)) for k, (a, v) in slices.items()}
     xs, ys, idx = [], [], []
     th, ph = ubo()
     for pair in PAIRS:
@@ -126,12 +130,7 @@ def reconstruct_scipy(
     x = np.concatenate(xs) / np.asarray(widths)
     y = np.concatenate(ys)
     idx = np.concatenate(idx)
-    if value_space == "log":
-        # ε from the slice samples (a sample where two slices cross counts for both)
-        eps = log_eps * np.mean(np.abs(np.concatenate([v for _, v in slices.values()])), 0) + 1e-19
-        y_fit = np.log(np.maximum(y, 0) + eps)
-    else:
-        y_fit = y
+    y_fit = np.log(np.maximum(y, 0) + eps) if value_space == "log" else y
     wi = vec(np.repeat(th, 81), np.repeat(ph, 81))
     wv = vec(np.tile(th, 81), np.tile(ph, 81))
     xq = np.concatenate([onion(wi), onion(wv)], -1) / np.asarray(widths)
@@ -140,7 +139,12 @@ def reconstruct_scipy(
     out = RBFInterpolator(x, y_fit, kernel=kernel, epsilon=1.0, smoothing=smoothing, degree=degree)(
         xq
     )
-    if value_space == "log":
+    if value_space == "logsamples":
+        out[idx] = y  # the reconstructed subspaces where they were measured (log values)
         out = np.exp(out) - eps
-    out[idx] = y  # keep the reconstructed subspaces where they were measured
+    elif value_space == "log":
+        out = np.exp(out) - eps
+        out[idx] = y
+    else:
+        out[idx] = y  # keep the reconstructed subspaces where they were measured
     return np.maximum(out, 0.0).reshape(81, 81, 3)

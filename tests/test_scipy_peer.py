@@ -25,6 +25,8 @@ def model(wi, wv):
         ("aniso204", "gaussian", "linear"),
         ("aniso204", "thin_plate_spline", "log"),
         ("iso102", "multiquadric", "log"),
+        ("iso102", "thin_plate_spline", "logsamples"),
+        ("aniso204", "thin_plate_spline", "logsamples"),
     ],
 )
 def test_jax_matches_scipy_peer(budget, kernel, value_space):

@@ -28,9 +28,9 @@ METRICS = {"de76": "dE76", "de2000": "dE2000", "rmse8": "RMSE8", "psnr": "PSNR",
 
 #: What each preset is, for ``--help`` and the model record (``abrdf_jax.preset(NAME, budget)``).
 PRESET_HELP = {
-    "recommended": "thin-plate spline on log values, chosen on the MERL train split",
+    "recommended": "thin-plate spline on the log of the samples, chosen on the MERL train split",
     "paper": "Filip 2012 as published: Gaussian kernel on linear values",
-    "operator": "the recommended kernel, linear in the log of the samples: one matrix product",
+    "operator": "recommended with the linear 'average' rule for axial slices: one matrix product",
 }
 check_registry("PRESETS", PRESET_HELP)
 
