@@ -142,13 +142,19 @@ def test_held_out_error_equals_selfcalibration_sample_folds(steel, steel_errors)
 
 def test_select_model(plastic, steel, steel_errors):
     sel = select.select_model(steel)
-    assert not sel.isotropy.isotropic and sel.config.budget == "aniso204"
+    # Anisotropic by the test on the axial slices; the model is then the held-out evidence's
+    # (brushed steel's diagonal-only model predicts its held-out samples as well as any).
+    assert not sel.isotropy.isotropic
     assert sel.errors == pytest.approx(steel_errors, rel=1e-12) and all(
         np.isfinite(list(sel.errors.values()))
     )
     # The tolerance rule on the reported errors gives the reported choice.
     assert sel.name == select.tolerance_choice(sel.errors, sel.ranks, sel.tol)[0]
-    assert sel.errors["iso"] > (1 + sel.tol) * min(sel.errors.values())  # anisotropy matters here
+    metal = select.select_model(
+        aj.sample(materials.get_material("ggx-aniso-metal"), CFG_A, as_measurements=True)
+    )
+    assert metal.config.budget == "aniso204" and not metal.isotropy.isotropic
+    assert metal.errors["iso"] > (1 + metal.tol) * min(metal.errors.values())  # it matters here
     iso = select.select_model(plastic)
     assert iso.name == "iso" and iso.isotropy.isotropic and iso.config.budget == "iso102"
     forced = select.select_model(plastic, budget="iso102", candidates=("iso",))
@@ -191,7 +197,8 @@ def test_sample_count_curve_from_a_measurement(plastic):
 
 def test_cli_model_auto_and_fixed(tmp_path, capsys):
     meas = tmp_path / "steel.csv"
-    assert main(["sample", "ward-brushed-steel", "-o", str(meas)]) == 0  # aniso204 by default
+    # strongly anisotropic: the held-out errors pick an anisotropic model
+    assert main(["sample", "ggx-aniso-metal", "-o", str(meas)]) == 0  # aniso204 by default
     out = tmp_path / "rec.npz"
     assert main(["reconstruct", str(meas), "-o", str(out)]) == 0  # --model auto is the default
     text = capsys.readouterr().out
