@@ -1,0 +1,248 @@
+"""Output of :mod:`benchmarks.cli`: derived figures, issue 13's targets, the markdown table.
+
+Imports neither JAX nor the package, so that the target checks and the table can be tested on a
+made-up result (``tests/test_benchmark_cli.py``). A result is ``payload["runs"][key] =
+{"what", "files", "package": run, "peer": run | None}`` where a run is what
+:func:`benchmarks.cli.timed` returns (``seconds``, ``exit_code``, ``peak_rss_mib``, ...).
+"""
+
+from __future__ import annotations
+
+import operator
+
+GiB_MiB = 1024.0
+_OPS = {"<=": operator.le, ">=": operator.ge}
+
+
+def per_file(run: dict | None) -> float | None:
+    """Seconds per file of a run (start-up, compile and I/O included), or ``None``."""
+    if not run or not run.get("files") or run.get("seconds") is None:
+        return None
+    return run["seconds"] / run["files"]
+
+
+def ratio(entry: dict) -> float | None:
+    """Peer seconds per file over package seconds per file (> 1: the package is faster)."""
+    a, b = per_file(entry.get("peer")), per_file(entry.get("package"))
+    return None if a is None or not b else a / b
+
+
+def derive(runs: dict) -> None:
+    """Add ``s_per_file``, ``files_per_s`` to every run and ``ratio`` to every entry, in place."""
+    for entry in runs.values():
+        for who in ("package", "peer"):
+            run = entry.get(who)
+            if run:
+                s = per_file(run)
+                run["s_per_file"] = s
+                run["files_per_s"] = None if not s else 1.0 / s
+        entry["ratio"] = ratio(entry)
+
+
+def _seconds(runs, key):
+    run = runs.get(key, {}).get("package")
+    return None if not run else run.get("seconds")
+
+
+def _quotient(runs, top, bottom):
+    a, b = _seconds(runs, top), _seconds(runs, bottom)
+    return None if a is None or not b else a / b
+
+
+def _cold_multiple(runs, key):
+    """Package seconds over peer seconds (the inverse of the ratio) of one file."""
+    r = runs.get(key, {}).get("ratio")
+    return None if not r else 1.0 / r
+
+
+def _rss(runs, key):
+    run = runs.get(key, {}).get("package")
+    return None if not run else run.get("peak_rss_mib")
+
+
+def _failed_runs(runs) -> list[str]:
+    out = []
+    for key, entry in runs.items():
+        for who in ("package", "peer"):
+            run = entry.get(who)
+            if run and not run.get("ok", False):
+                out.append(f"{key}/{who}")
+    return out
+
+
+def _n(runs, key) -> str:
+    return str(runs.get(key, {}).get("files", "?"))
+
+
+#: ``(label, value(runs), op, limit, details(runs) | None)``; ``{n[key]}`` in a label is the file
+#: count of run ``key``.
+TARGETS = (
+    ("`abrdf-jax --help` <= 0.3 s", lambda r: _seconds(r, "help"), "<=", 0.3, None),
+    (
+        "input error (bad CSV, exit 2) <= 0.5 s",
+        lambda r: _seconds(r, "input_error"),
+        "<=",
+        0.5,
+        None,
+    ),
+    (
+        "one iso102 file, warm cache: ratio to the peer >= 1",
+        lambda r: r.get("iso1_warm", {}).get("ratio"),
+        ">=",
+        1.0,
+        None,
+    ),
+    (
+        "one iso102 file, cold cache: package s / peer s <= 3",
+        lambda r: _cold_multiple(r, "iso1_cold"),
+        "<=",
+        3.0,
+        None,
+    ),
+    (
+        "{n[iso_large]} iso102 files, one call: ratio per file >= 200",
+        lambda r: r.get("iso_large", {}).get("ratio"),
+        ">=",
+        200.0,
+        None,
+    ),
+    (
+        "{n[aniso_large]} aniso204 files, one call: ratio per file >= 100",
+        lambda r: r.get("aniso_large", {}).get("ratio"),
+        ">=",
+        100.0,
+        None,
+    ),
+    (
+        "peak RSS of the {n[iso_large]}-file iso102 run <= 1 GiB (MiB)",
+        lambda r: _rss(r, "iso_large"),
+        "<=",
+        GiB_MiB,
+        None,
+    ),
+    (
+        "peak RSS of the {n[aniso_large]}-file aniso204 run <= 1 GiB (MiB)",
+        lambda r: _rss(r, "aniso_large"),
+        "<=",
+        GiB_MiB,
+        None,
+    ),
+    (
+        "one aniso204 file, warm: --model auto s / --model aniso s <= 2",
+        lambda r: _quotient(r, "aniso1_auto_warm", "aniso1_aniso_warm"),
+        "<=",
+        2.0,
+        None,
+    ),
+    (
+        "one aniso204 file, cold: --model auto s / --model aniso s <= 2",
+        lambda r: _quotient(r, "aniso1_auto_cold", "aniso1_aniso_cold"),
+        "<=",
+        2.0,
+        None,
+    ),
+    (
+        "every run exits as expected and writes every output (runs failing)",
+        lambda r: len(_failed_runs(r)),
+        "<=",
+        0,
+        _failed_runs,
+    ),
+)
+
+
+def check_targets(runs: dict) -> list[dict]:
+    """Every target of :data:`TARGETS`: ``{"target", "value", "op", "limit", "pass"}``.
+
+    A value that could not be measured (a run missing or failed) is ``None`` and fails.
+    """
+    n = {key: _n(runs, key) for key in ("iso_large", "aniso_large")}
+    out = []
+    for label, value, op, limit, details in TARGETS:
+        try:
+            v = value(runs)
+        except (KeyError, TypeError, ZeroDivisionError):
+            v = None
+        row = {"target": label.format(n=n), "value": v, "op": op, "limit": limit}
+        row["pass"] = v is not None and _OPS[op](v, limit)
+        if details is not None:
+            row["failed"] = details(runs)
+        out.append(row)
+    return out
+
+
+def _f(x, fmt=".3g") -> str:
+    return "–" if x is None else format(x, fmt)
+
+
+def _row(entry: dict, who: str) -> str:
+    run = entry[who]
+    note = ""
+    if run.get("repeats", 1) > 1:
+        note = f" (median of {run['repeats']})"
+    if run.get("scaled_from"):
+        note = f" (scaled from {run['scaled_from']} files)"
+    r = entry.get("ratio") if who == "package" else None
+    return (
+        f"| {entry['what']} | {who} | `{run['shown']}` | {entry['files']} | {_f(run['seconds'])}{note} | "
+        f"{_f(run.get('files_per_s'))} | {_f(run.get('s_per_file'))} | {_f(r)} | "
+        f"{_f(run.get('peak_rss_mib'), '.0f')} | {run['exit_code']} |"
+    )
+
+
+def markdown(payload: dict) -> str:
+    runs = payload["runs"]
+    m = payload["machine"]
+    out = [
+        f"# The command line against the scipy peer's command line ({payload['mode']} run)",
+        "",
+        f"`{payload['commands']['benchmark']}` on {m.get('processor')} ({m.get('cpu_count')} "
+        f"CPUs, {m.get('platform')}), {m.get('date')}. Load average before / after: "
+        f"{payload['load_average_before']} / {payload['load_average_after']}; "
+        f"{payload['seconds']:.0f} s in all. Each row is one process (wall time around it, peak "
+        "RSS of that process); `$WORK` is the run's temporary folder. "
+        f"{payload['inputs']['what']} {payload['caches']} {payload['peer_note']}",
+        "",
+        "| run | who | command | files | s | files/s | s per file | ratio | peak RSS MiB | exit |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    shown = set()  # a peer run shared by several entries (cold and warm) is one row
+    for entry in runs.values():
+        out.append(_row(entry, "package"))
+        peer = entry.get("peer")
+        if peer and id(peer) not in shown:
+            shown.add(id(peer))
+            out.append(_row(entry, "peer"))
+    out += [
+        "",
+        "ratio = peer s per file / package s per file (above 1: the package is faster).",
+        "",
+        "## Targets (issue 13)",
+        "",
+        "| target | value | limit | result |",
+        "|---|---|---|---|",
+    ]
+    for t in payload["targets"]:
+        v = _f(t["value"])
+        if t.get("failed"):
+            v += " failed: " + ", ".join(t["failed"])
+        out.append(
+            f"| {t['target']} | {v} | {t['op']} {t['limit']:g} | "
+            f"{'PASS' if t['pass'] else 'FAIL'} |"
+        )
+    if payload["mode"] == "quick":
+        out += ["", "Quick run: a smoke test of the harness (small folders), not figures to quote."]
+    return "\n".join(out) + "\n"
+
+
+def pass_fail_lines(targets: list[dict]) -> list[str]:
+    """One ``PASS``/``FAIL`` line per target, for the console."""
+    out = []
+    for t in targets:
+        v = _f(t["value"])
+        if t.get("failed"):
+            v += " failed: " + ", ".join(t["failed"])
+        out.append(
+            f"{'PASS' if t['pass'] else 'FAIL'}  {t['target']}: {v} ({t['op']} {t['limit']:g})"
+        )
+    return out

@@ -1,0 +1,416 @@
+"""The command line as a user runs it, against the scipy peer's command line (issue 13).
+
+Run: ``python -m benchmarks.cli [--quick] [--peer-limit N] [--repeats K]``. Writes
+``benchmarks/results/cli.json`` and the README table ``cli.md`` (``--quick``: ``cli_quick.*``).
+
+Everything runs in this one process tree and one run, each command a child process of the small
+launcher :mod:`benchmarks._timed_child`, which times it by ``time.perf_counter`` around
+``subprocess.run`` and reads its peak RSS from ``getrusage(RUSAGE_CHILDREN)`` (its one child; a
+command forked straight from this process would inherit this process's RSS as its peak):
+
+- the package: ``abrdf-jax --help`` (the installed entry point), a bad CSV (exit 2), one iso102
+  file ``python -m abrdf_jax.cli reconstruct m.csv -o m.npz`` cold (``ABRDF_JAX_CACHE_DIR`` a fresh
+  empty folder) and warm (the same folder, the median of ``--repeats`` further calls), one
+  aniso204 file with ``--model auto`` and with ``--model aniso`` (cold and warm each), and folders
+  ``reconstruct DIR -o OUT -q`` of 100 and 1000 iso102 files and 1000 aniso204 files, each with a
+  fresh cache (so compile is included, as the issue's targets say);
+- the peer: :mod:`benchmarks.scipy_cli` (numpy/scipy only, the paper's setting) on the same
+  inputs; on a folder of more than ``--peer-limit`` files it runs the first N (``--limit N``) and
+  its time is scaled to the whole folder as ``start-up + (T_N - start-up) * files / N``, where
+  start-up is the peer's ``--help`` (which imports numpy and scipy), so the peer's one start-up
+  is not counted once per N files.
+
+Inputs: the package's built-in analytic materials (:func:`abrdf_jax.materials.material_names`,
+file ``i`` of a folder is material ``i mod 8``), captured by :func:`abrdf_jax.simulate_capture`
+(protocol layout, 1 % relative value noise, seed ``SEED + i``, so no two files are equal) and
+written with :func:`abrdf_jax.io.write_samples_csv`; nothing is downloaded. Issue 13's targets
+are printed as PASS/FAIL lines (:func:`benchmarks._cli_report.check_targets`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import abrdf_jax as aj
+from abrdf_jax import io, materials
+
+from ._cli_report import check_targets, derive, markdown, pass_fail_lines
+from ._common import RESULTS, machine, write_json
+
+REPO = Path(__file__).resolve().parents[1]
+#: Seed of file ``i``'s capture: ``SEED + i``.
+SEED = 13
+#: Relative value noise of every capture (so that the files of a folder differ).
+NOISE = 0.01
+ISO_MATERIAL, ANISO_MATERIAL = "ggx-plastic", "ggx-aniso-metal"
+#: Folder sizes of each mode: ``iso_small``/``iso_large`` iso102 files, ``aniso_large`` aniso204.
+SIZES = {
+    "full": {"iso_small": 100, "iso_large": 1000, "aniso_large": 1000},
+    "quick": {"iso_small": 20, "iso_large": 50, "aniso_large": 50},
+}
+#: Default ``--peer-limit`` and ``--repeats`` of each mode.
+PEER_LIMIT = {"full": 100, "quick": 10}
+REPEATS = {"full": 3, "quick": 1}
+PACKAGE = ("-m", "abrdf_jax.cli")
+PEER = ("-m", "benchmarks.scipy_cli")
+LAUNCHER = ("-m", "benchmarks._timed_child")
+CACHE_ENV = "ABRDF_JAX_CACHE_DIR"
+
+
+def _load() -> list[float]:
+    return [round(x, 2) for x in os.getloadavg()]
+
+
+class Runner:
+    """Runs and times the commands of one benchmark run inside its work folder ``work``."""
+
+    def __init__(self, work: Path, log):
+        self.work, self.log = work, log
+        self.env = dict(os.environ)
+        self.env["PYTHONPATH"] = str(REPO) + os.pathsep + self.env.get("PYTHONPATH", "")
+        self.env.pop(CACHE_ENV, None)
+        entry = Path(sys.executable).parent / "abrdf-jax"
+        found = entry if entry.exists() else shutil.which("abrdf-jax")
+        self.entry_point = [str(found)] if found else [sys.executable, *PACKAGE]
+
+    def shown(self, cmd: list[str], env: dict) -> str:
+        """``cmd`` as a reader would type it: ``$WORK`` for the work folder, ``python``."""
+        words = [f"{k}={v}" for k, v in env.items()] + cmd
+        words = ["python" if w == sys.executable else w for w in words]
+        words = [
+            "abrdf-jax" if w == self.entry_point[0] and len(self.entry_point) == 1 else w
+            for w in words
+        ]
+        return shlex.join(words).replace(str(self.work), "$WORK").replace(str(REPO) + os.sep, "")
+
+    def once(self, cmd: list[str], env: dict, cwd: Path) -> dict:
+        """One call of ``cmd`` through :mod:`benchmarks._timed_child` (its own wall seconds, exit
+        code and peak RSS), the tail of its stderr, and the wall time around the launcher."""
+        with (
+            tempfile.TemporaryFile() as out,
+            tempfile.TemporaryFile() as err,
+            tempfile.TemporaryDirectory() as tmp,
+        ):
+            result = Path(tmp) / "result.json"
+            launch = [sys.executable, *LAUNCHER, str(result), *cmd]
+            t0 = time.perf_counter()
+            proc = subprocess.run(launch, env=self.env | env, cwd=cwd, stdout=out, stderr=err)
+            outer = time.perf_counter() - t0
+            err.seek(0)
+            tail = err.read()[-2000:].decode("utf-8", "replace")
+            if proc.returncode != 0 or not result.is_file():  # the launcher itself failed
+                return {
+                    "seconds": outer,
+                    "exit_code": -1,
+                    "peak_rss_mib": None,
+                    "stderr_tail": tail,
+                }
+            call = json.loads(result.read_text())
+        return call | {"launcher_seconds": outer, "stderr_tail": tail}
+
+    def timed(
+        self,
+        cmd: list[str],
+        *,
+        files: int,
+        env: dict | None = None,
+        cwd: Path | None = None,
+        repeats: int = 1,
+        expected_exit: int = 0,
+        outputs=None,
+    ) -> dict:
+        """``repeats`` calls of ``cmd``: median seconds, largest RSS, every exit as expected?
+
+        ``outputs`` (a callable returning the count of output files) is checked against
+        ``files`` after the calls.
+        """
+        env = env or {}
+        calls = [self.once(cmd, env, cwd or self.work) for _ in range(repeats)]
+        bad = [c["exit_code"] for c in calls if c["exit_code"] != expected_exit]
+        run = {
+            "command": shlex.join([f"{k}={v}" for k, v in env.items()] + cmd),
+            "shown": self.shown(cmd, env),
+            "files": files,
+            "seconds": statistics.median(c["seconds"] for c in calls),
+            "all_seconds": [c["seconds"] for c in calls],
+            "repeats": repeats,
+            "exit_code": bad[0] if bad else expected_exit,
+            "expected_exit": expected_exit,
+            "peak_rss_mib": max((c["peak_rss_mib"] or 0.0) for c in calls) or None,
+            "launcher_seconds": [c.get("launcher_seconds") for c in calls],
+            "stderr_tail": calls[-1]["stderr_tail"] if bad or expected_exit else "",
+        }
+        if outputs is not None:
+            run["outputs"] = outputs()
+        run["ok"] = not bad and run.get("outputs", files) == files
+        self.log(
+            f"  {run['shown'][:110]:110s} {run['seconds']:8.3f} s  exit {run['exit_code']}"
+            f"  {run['peak_rss_mib'] or 0:6.0f} MiB" + ("" if run["ok"] else "  NOT OK")
+        )
+        return run
+
+    def cache(self, name: str) -> dict:
+        """The environment of a fresh, empty cache folder ``$WORK/cache-NAME``."""
+        folder = self.work / f"cache-{name}"
+        folder.mkdir()
+        return {CACHE_ENV: str(folder)}
+
+
+def _count(folder: Path):
+    return lambda: len(list(folder.glob("*.npz"))) if folder.is_dir() else 0
+
+
+def _exists(path: Path):
+    return lambda: int(path.is_file())
+
+
+# --------------------------------------------------------------------------------------------
+# Inputs
+# --------------------------------------------------------------------------------------------
+
+
+def write_inputs(
+    folder: Path, budget: str, n: int, models: dict, names: list[str] | None = None
+) -> Path:
+    """``n`` measurement CSV files in ``folder``: file ``i`` captures ``names[i % len(names)]``."""
+    names = names or list(models)
+    folder.mkdir(parents=True)
+    for i in range(n):
+        name = names[i % len(names)]
+        s = aj.simulate_capture(models[name], budget=budget, noise=NOISE, seed=SEED + i)
+        io.write_samples_csv(folder / f"{i:04d}-{name}.csv", s)
+    return folder
+
+
+def write_bad_csv(path: Path) -> Path:
+    """A measurement file whose third line holds a field that is not a number."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(
+        "theta_i,phi_i,theta_v,phi_v,r,g,b\n30,0,30,345,0.1,0.1,0.1\n30,x,30,0,0.1,0.1,0.1\n"
+    )
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# The runs
+# --------------------------------------------------------------------------------------------
+
+
+def scale_peer(run: dict, files: int, startup: float) -> dict:
+    """The peer's run on the first ``run["files"]`` files scaled to ``files`` (see the module doc)."""
+    n, t = run["files"], run["seconds"]
+    if n >= files:
+        return run
+    scaled = startup + (t - startup) * files / n
+    return run | {"files": files, "seconds": scaled, "measured_seconds": t, "scaled_from": n}
+
+
+def single_file(r: Runner, key: str, csv: Path, extra: list[str], repeats: int) -> dict:
+    """``reconstruct CSV -o OUT.npz EXTRA``: cold (fresh cache), then ``repeats`` warm calls."""
+    py = sys.executable
+    env = r.cache(key)
+    cold_out, warm_out = csv.with_name(f"{key}-cold.npz"), csv.with_name(f"{key}-warm.npz")
+    mk = lambda out: [py, *PACKAGE, "reconstruct", str(csv), "-o", str(out), *extra]  # noqa: E731
+    cold = r.timed(mk(cold_out), files=1, env=env, outputs=_exists(cold_out))
+    warm = r.timed(mk(warm_out), files=1, env=env, repeats=repeats, outputs=_exists(warm_out))
+    return {"cold": cold, "warm": warm}
+
+
+def folder_runs(
+    r: Runner, key: str, folder: Path, files: int, peer_limit: int, startup: float
+) -> dict:
+    py = sys.executable
+    out = r.work / f"{key}.out"
+    cmd = [py, *PACKAGE, "reconstruct", str(folder), "-o", str(out), "-q"]
+    package = r.timed(cmd, files=files, env=r.cache(key), outputs=_count(out))
+    n = min(files, peer_limit)
+    pout = r.work / f"{key}.peer"
+    pcmd = [py, *PEER, str(folder), "-o", str(pout)] + (["--limit", str(n)] if n < files else [])
+    peer = r.timed(pcmd, files=n, cwd=REPO, outputs=_count(pout))
+    return {"package": package, "peer": scale_peer(peer, files, startup)}
+
+
+def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int) -> dict:
+    py, work, log = sys.executable, r.work, r.log
+    log("writing inputs ...")
+    t0 = time.perf_counter()
+    models = {n: materials.get_material(n) for n in materials.material_names()}
+    one_iso = write_inputs(work / "one-iso102", "iso102", 1, models, [ISO_MATERIAL])
+    one_aniso = write_inputs(work / "one-aniso204", "aniso204", 1, models, [ANISO_MATERIAL])
+    folders = {
+        "iso_small": write_inputs(work / "iso_small", "iso102", sizes["iso_small"], models),
+        "iso_large": write_inputs(work / "iso_large", "iso102", sizes["iso_large"], models),
+        "aniso_large": write_inputs(work / "aniso_large", "aniso204", sizes["aniso_large"], models),
+    }
+    bad = write_bad_csv(work / "bad" / "bad.csv")
+    log(f"  {time.perf_counter() - t0:.1f} s")
+    iso_csv, aniso_csv = next(one_iso.glob("*.csv")), next(one_aniso.glob("*.csv"))
+    runs = {}
+    h = max(repeats, 3)  # start-up figures are short: always a median of at least 3
+
+    log("start-up and input errors")
+    runs["help"] = {
+        "what": "`--help`",
+        "files": 1,
+        "package": r.timed([*r.entry_point, "--help"], files=1, repeats=h),
+        "peer": r.timed([py, *PEER, "--help"], files=1, cwd=REPO, repeats=h),
+    }
+    startup = runs["help"]["peer"]["seconds"]
+    runs["input_error"] = {
+        "what": "a bad CSV (exit 2)",
+        "files": 1,
+        "package": r.timed(
+            [py, *PACKAGE, "reconstruct", str(bad), "-o", str(bad.with_suffix(".npz"))],
+            files=1,
+            repeats=h,
+            expected_exit=2,
+        ),
+        "peer": r.timed(
+            [py, *PEER, str(bad), "-o", str(bad.with_suffix(".peer.npz"))],
+            files=1,
+            cwd=REPO,
+            repeats=h,
+            expected_exit=2,
+        ),
+    }
+
+    log("one iso102 file")
+    pout = iso_csv.with_name("peer.npz")
+    peer_iso = r.timed(
+        [py, *PEER, str(iso_csv), "-o", str(pout)],
+        files=1,
+        cwd=REPO,
+        repeats=repeats,
+        outputs=_exists(pout),
+    )
+    iso = single_file(r, "iso1", iso_csv, [], repeats)
+    for state in ("cold", "warm"):
+        what = f"one iso102 file, {state} cache"
+        runs[f"iso1_{state}"] = {"what": what, "files": 1, "package": iso[state], "peer": peer_iso}
+
+    log("one aniso204 file")
+    pout = aniso_csv.with_name("peer.npz")
+    peer_aniso = r.timed(
+        [py, *PEER, str(aniso_csv), "-o", str(pout)],
+        files=1,
+        cwd=REPO,
+        repeats=repeats,
+        outputs=_exists(pout),
+    )
+    for model in ("auto", "aniso"):
+        res = single_file(r, f"aniso1_{model}", aniso_csv, ["--model", model], repeats)
+        for state in ("cold", "warm"):
+            runs[f"aniso1_{model}_{state}"] = {
+                "what": f"one aniso204 file, --model {model}, {state} cache",
+                "files": 1,
+                "package": res[state],
+                "peer": peer_aniso,
+            }
+
+    for key, folder in folders.items():
+        n = sizes[key]
+        log(f"folder {key}: {n} files")
+        budget = "aniso204" if key.startswith("aniso") else "iso102"
+        runs[key] = {"what": f"a folder of {n} {budget} files", "files": n}
+        runs[key] |= folder_runs(r, key, folder, n, peer_limit, startup)
+    derive(runs)
+    return runs
+
+
+# --------------------------------------------------------------------------------------------
+# Main
+# --------------------------------------------------------------------------------------------
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="folders of 20 and 50 files: a smoke test")
+    ap.add_argument(
+        "--peer-limit",
+        type=int,
+        help="the peer runs the first N files of a larger folder, its time scaled "
+        f"(default {PEER_LIMIT['full']}, --quick {PEER_LIMIT['quick']})",
+    )
+    ap.add_argument(
+        "--repeats",
+        type=int,
+        help=f"warm calls of one file, median taken (default {REPEATS['full']}, --quick {REPEATS['quick']})",
+    )
+    ap.add_argument("--out", type=Path, default=RESULTS, help="results folder")
+    args = ap.parse_args(argv)
+    args.mode = "quick" if args.quick else "full"
+    args.sizes = SIZES[args.mode]
+    args.peer_limit = PEER_LIMIT[args.mode] if args.peer_limit is None else args.peer_limit
+    args.repeats = REPEATS[args.mode] if args.repeats is None else args.repeats
+    if args.peer_limit < 2 or args.repeats < 1:
+        ap.error("--peer-limit must be at least 2 and --repeats at least 1")
+    return args
+
+
+def main(argv=None, log=None) -> dict:
+    args = parse_args(argv)
+    log = log or (lambda s: print(s, flush=True))
+    suffix = "_quick" if args.quick else ""
+    argv_text = shlex.join(
+        ["python", "-m", "benchmarks.cli", *(sys.argv[1:] if argv is None else argv)]
+    )
+    payload = {
+        "mode": args.mode,
+        "machine": machine() | {"abrdf_jax": aj.__version__},
+        "load_average_before": _load(),
+        "commands": {"benchmark": argv_text},
+        "sizes": args.sizes,
+        "peer_limit": args.peer_limit,
+        "repeats": args.repeats,
+        "inputs": {
+            "what": f"Inputs: the {len(materials.material_names())} built-in analytic materials "
+            f"(file i of a folder: material i mod 8; one file: {ISO_MATERIAL} iso102, "
+            f"{ANISO_MATERIAL} aniso204), abrdf_jax.simulate_capture with {NOISE:.0%} value "
+            f"noise, seed {SEED} + i.",
+            "materials": materials.material_names(),
+            "seed": SEED,
+            "noise": NOISE,
+        },
+        "caches": f"Cold: {CACHE_ENV} a fresh empty folder; warm: the same folder again, the "
+        f"median of {args.repeats} call(s); every folder run is cold (compile included).",
+        "peer_note": f"Peer: python -m benchmarks.scipy_cli (numpy/scipy, paper setting); on a "
+        f"folder of more than {args.peer_limit} files it runs the first {args.peer_limit} and is "
+        "scaled as start-up + (T_N - start-up) * files / N, start-up = its --help.",
+    }
+    log(
+        f"load average {payload['load_average_before']}; mode {args.mode}, sizes {args.sizes}, "
+        f"peer limit {args.peer_limit}, repeats {args.repeats}"
+    )
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="clibench-") as tmp:
+        r = Runner(Path(tmp), log)
+        payload["entry_point"] = r.entry_point
+        payload["runs"] = run_all(r, args.sizes, args.peer_limit, args.repeats)
+    payload["seconds"] = time.perf_counter() - t0
+    payload["load_average_after"] = _load()
+    payload["targets"] = check_targets(payload["runs"])
+    args.out.mkdir(parents=True, exist_ok=True)
+    md = markdown(payload)
+    (args.out / f"cli{suffix}.md").write_text(md)
+    write_json(args.out / f"cli{suffix}.json", payload)
+    log(md)
+    for line in pass_fail_lines(payload["targets"]):
+        log(line)
+    log(
+        f"{payload['seconds']:.0f} s; load average after {payload['load_average_after']}; wrote {args.out / f'cli{suffix}.json'}"
+    )
+    return payload
+
+
+if __name__ == "__main__":
+    main()
