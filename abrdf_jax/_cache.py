@@ -31,6 +31,7 @@ import numpy as np
 
 from ._errors import InputError
 from ._compilation_cache import XLA, Warn, default_warn, os_reason, prune, touch
+from ._compilation_cache import disable_compilation_cache as disable_compilation_cache
 from ._compilation_cache import enable_compilation_cache as enable_compilation_cache
 from ._operator_entry import GRID, OperatorEntry, digest
 from .io._atomic import atomic_write
@@ -62,6 +63,7 @@ __all__ = [
     "cache_summary",
     "cached_entry",
     "clear_cache",
+    "disable_compilation_cache",
     "enable_compilation_cache",
     "operator_key",
 ]
@@ -362,8 +364,8 @@ def build_entry(meas, config, params, *, build_dtype: str = BUILD_DTYPE) -> Oper
 
     The matrix is computed in ``build_dtype`` (default float64, in a scoped ``jax.enable_x64``
     whatever the global switch) and rounded to float32 once: applied in float32 it matches the
-    float64 reconstruction to float32 rounding, which a float32 build does not (its RBF solve
-    loses about 4e-4 of the table's maximum; tests/test_cache.py measures both).
+    float64 reconstruction to float32 rounding (tests/test_cache.py), which a float32 build
+    does not: its RBF solve is off by about 4e-4 of the table's maximum (docs/cache.md).
 
     Raises:
         InputError: for settings that are not linear in the (log) samples, as

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import fnmatch
 import os
+import sys
 import tempfile
 import time
 import warnings
@@ -123,6 +124,20 @@ def enable_compilation_cache(folder: Path | None, warn: Warn = default_warn) -> 
             jax.config.update("jax_compilation_cache_dir", None)
         return False
     return True
+
+
+def disable_compilation_cache() -> None:
+    """Turn JAX's persistent compilation cache off again in this process (tests that turned it on
+    in a temporary folder call this before the folder goes)."""
+    if "jax" not in sys.modules:
+        return
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", None)
+    with contextlib.suppress(Exception):
+        from jax._src import compilation_cache as cc
+
+        cc.reset_cache()
 
 
 def _atomic_jax_cache(path: Path) -> bool:

@@ -235,6 +235,18 @@ def test_unwritable_folder_warns_and_still_works(tmp_path):
     assert len(warned) == 2 and "running without the compilation cache" in warned[1]
 
 
+def test_full_disk_warns_and_leaves_nothing(tmp_path, monkeypatch):
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(np, "savez", full)
+    warned = Warnings()
+    store = OperatorStore(tmp_path, warn=warned)
+    assert not store.save("i" * 64, _synthetic())
+    assert len(warned) == 1 and "No space left on device" in warned[0], warned
+    assert list(store.folder.iterdir()) == []  # no entry, no temporary file
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 def test_read_only_folder(tmp_path):
     (tmp_path / "operators").mkdir()
@@ -425,6 +437,21 @@ def test_compilation_cache_across_processes(tmp_path):
     assert fourth["misses"] == 0 and not fourth["warnings"], fourth
 
 
+def test_compilation_cache_in_process_on_and_off(tmp_path):
+    import jax
+    import jax.numpy as jnp
+
+    assert enable_compilation_cache(tmp_path)
+    try:
+        jax.jit(lambda x: jnp.cos(x) * 3.5 - x)(jnp.arange(7.0)).block_until_ready()
+        written = _xla_files(tmp_path)
+        assert any("jit__lambda" in f for f in written), written
+    finally:
+        _cache.disable_compilation_cache()
+    jax.jit(lambda x: jnp.tan(x) * 2.5 + x)(jnp.arange(9.0)).block_until_ready()
+    assert _xla_files(tmp_path) == written
+
+
 def test_compilation_cache_two_processes_at_once(tmp_path):
     procs = [
         subprocess.Popen(
@@ -443,3 +470,14 @@ def test_compilation_cache_two_processes_at_once(tmp_path):
         assert result["on"] and not result["warnings"], result
     assert not [f for f in _xla_files(tmp_path) if f.endswith(".tmp")]
     assert _compile(tmp_path)["misses"] == 0
+
+
+@pytest.mark.parametrize("name, n_in", [("iso-operator", 102), ("aniso-average-logsamples", 204)])
+def test_entry_size(built, tmp_path, name, n_in):
+    """One entry is its float32 matrix (6561 x n_in x 4 bytes) and about 4 kB more: 2,680,688
+    bytes for iso102 and 5,358,392 for aniso204 (docs/cache.md)."""
+    entry = built[name][3]
+    store = OperatorStore(tmp_path)
+    assert entry.matrix.shape == (6561, n_in) and store.save("s" * 64, entry)
+    size = os.path.getsize(store.path("s" * 64))
+    assert entry.matrix.nbytes < size < entry.matrix.nbytes + 8192
