@@ -1,4 +1,4 @@
-"""The ``abrdf-jax`` command line: reconstruct, sample, evaluate, demo, materials, fit, btf.
+"""The ``abrdf-jax`` command line: reconstruct, sample, evaluate, demo, materials, fit, btf, cache.
 
 One module per subcommand, each with ``register(subparsers)``; what they share lives in
 :mod:`abrdf_jax.cli._common` (the only module they import from this package's CLI). This module
@@ -18,11 +18,11 @@ import argparse
 import traceback
 
 from .._errors import InputError
-from . import btf, demo, evaluate, fit, materials, reconstruct, sample
+from . import btf, cache, demo, evaluate, fit, materials, reconstruct, sample
 from ._common import PROG, say, verbose_parent, version
 
 #: The subcommands, in ``--help`` order.
-SUBCOMMANDS = (reconstruct, sample, evaluate, demo, materials, fit, btf)
+SUBCOMMANDS = (reconstruct, sample, evaluate, demo, materials, fit, btf, cache)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,430 @@
+"""Caches that make a repeat call cheap (issue 13): where they live, and built operators.
+
+One folder per user (:func:`cache_dir`) holds two caches:
+
+- ``xla/``: JAX's persistent compilation cache (:func:`enable_compilation_cache`, from
+  ``_compilation_cache``), so a function compiled once on this machine is loaded, not compiled,
+  by the next process.
+- ``operators/``: built reconstruction operators (:class:`OperatorStore`), one ``KEY.npz`` per
+  operator, keyed by everything the matrix depends on (:func:`operator_key`). An entry is a
+  numpy :class:`OperatorEntry` (``_operator_entry``) whose ``apply`` is
+  :func:`abrdf_jax.compile_operator`'s single-stage map without JAX.
+
+Every write is atomic (a temporary file in the same folder, then ``os.replace``), so processes
+may share the folder. A cache that cannot be used (read-only, full, corrupt, stale) gives a
+warning and a run without it, never a failure. This module imports numpy and the standard
+library only; JAX is imported inside :func:`build_entry`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import hashlib
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from ._errors import InputError
+from ._compilation_cache import XLA, Warn, default_warn, os_reason, prune, touch
+from ._compilation_cache import disable_compilation_cache as disable_compilation_cache
+from ._compilation_cache import enable_compilation_cache as enable_compilation_cache
+from ._operator_entry import GRID, OperatorEntry, digest
+from .io._atomic import atomic_write
+
+CACHE_ENV = "ABRDF_JAX_CACHE_DIR"
+NO_CACHE_ENV = "ABRDF_JAX_NO_CACHE"
+#: Version of the operator entry format and key; bump it when either changes meaning.
+CACHE_FORMAT = 1
+#: ``cache_dir("off")``: no cache.
+OFF = "off"
+OPERATORS = "operators"
+#: Bound of ``operators/``: least recently used entries past it are removed on a save (an
+#: iso102 entry is about 2.7 MB, an aniso204 one 5.4 MB).
+OPERATORS_MAX_BYTES = 1 << 30
+#: dtype in which :func:`build_entry` computes the matrix (then rounded to float32).
+BUILD_DTYPE = "float64"
+_SUFFIX = ".npz"
+
+__all__ = [
+    "CACHE_ENV",
+    "CACHE_FORMAT",
+    "NO_CACHE_ENV",
+    "OperatorEntry",
+    "OperatorStore",
+    "build_entry",
+    "cache_dir",
+    "cache_disabled",
+    "cache_location",
+    "cache_summary",
+    "cached_entry",
+    "clear_cache",
+    "disable_compilation_cache",
+    "enable_compilation_cache",
+    "operator_key",
+]
+
+
+# --------------------------------------------------------------------------------------------
+# Where the cache lives
+# --------------------------------------------------------------------------------------------
+
+
+def cache_disabled(override: str | os.PathLike | None = None) -> str | None:
+    """Why the cache is off (``None``: it is on): ``override == "off"`` or ``$ABRDF_JAX_NO_CACHE``
+    set to anything but ``""`` or ``"0"``."""
+    if override is not None and str(override) == OFF:
+        return f"cache folder {OFF!r} was asked for"
+    if os.environ.get(NO_CACHE_ENV, "") not in ("", "0"):
+        return f"${NO_CACHE_ENV} is set"
+    return None
+
+
+def cache_location(override: str | os.PathLike | None = None) -> Path | None:
+    """The cache folder, whether or not the cache is on: ``override``, else
+    ``$ABRDF_JAX_CACHE_DIR``, else ``$XDG_CACHE_HOME/abrdf_jax``, else ``~/.cache/abrdf_jax``
+    (``None`` only when no home folder can be found)."""
+    for value in (override, os.environ.get(CACHE_ENV)):
+        if value is not None and str(value) not in ("", OFF):
+            return Path(os.path.abspath(os.path.expanduser(value)))
+    xdg = os.environ.get("XDG_CACHE_HOME", "")
+    if os.path.isabs(xdg):  # the XDG spec: a relative value is ignored
+        return Path(xdg) / "abrdf_jax"
+    try:
+        return Path.home() / ".cache" / "abrdf_jax"
+    except (RuntimeError, KeyError):  # no $HOME and no password entry
+        return None
+
+
+def cache_dir(override: str | os.PathLike | None = None) -> Path | None:
+    """The cache folder to use, or ``None`` when the cache is off (:func:`cache_disabled`).
+
+    The folder is not created here; each cache creates its subfolder on its first write.
+    """
+    return None if cache_disabled(override) else cache_location(override)
+
+
+# --------------------------------------------------------------------------------------------
+# The key: everything the matrix depends on
+# --------------------------------------------------------------------------------------------
+
+
+def _canon(value):
+    """A JSON value that is the same for equal settings (numbers as floats, tuples as lists)."""
+    if isinstance(value, (bool, str)) or value is None:
+        return value
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return float(value)
+    if isinstance(value, (tuple, list)):
+        return [_canon(v) for v in value]
+    if hasattr(value, "shape") and hasattr(value, "dtype"):  # a numpy or JAX array
+        return [float(v) for v in np.asarray(value, np.float64).reshape(-1)]
+    raise TypeError(f"cannot key a cache entry on {type(value).__name__} {value!r}")
+
+
+def package_version() -> str:
+    """The package's version (its source tree's ``__version__``)."""
+    from . import __version__
+
+    return __version__
+
+
+@functools.lru_cache(maxsize=1)
+def _code_digest() -> str:
+    """sha256 of the package's root modules: the numerics an operator is built from. An editable
+    install keeps one version number while its code changes; a changed module is a new key."""
+    h = hashlib.sha256()
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        with contextlib.suppress(OSError):
+            h.update(path.name.encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()
+
+
+@functools.lru_cache(maxsize=None)
+def _dist_version(name: str) -> str:
+    try:
+        from importlib.metadata import version
+
+        return version(name)
+    except Exception:  # noqa: BLE001 - not installed as a distribution
+        return ""
+
+
+def operator_key(config, params, meas, *, build_dtype: str = BUILD_DTYPE) -> str:
+    """The cache key of the operator built for ``config``, ``params`` and ``meas``'s layout.
+
+    sha256 (hex) of a canonical JSON of: the package version, :data:`CACHE_FORMAT`, a digest of
+    the package's modules, the JAX/jaxlib versions and ``JAX_PLATFORMS`` (they change the built
+    matrix's rounding), the entry dtype and the build dtype, every :class:`Config` field, the
+    parameter values (α, widths, λ) and the layout (pairs, axial slices, centre azimuths, the
+    valid slice parameters' bytes and dtype, the counts). No JAX is imported.
+    """
+    t = np.asarray(meas.t)
+    count = np.asarray(meas.count).astype(np.int64)
+    if t.ndim != 2 or count.shape != (t.shape[0],):
+        raise InputError(f"operator_key needs one measurement's layout, got t of shape {t.shape}")
+    valid = np.arange(t.shape[1])[None, :] < count[:, None]
+    t_bytes = np.ascontiguousarray(np.where(valid, t, 0)).tobytes()
+    doc = {
+        "format": CACHE_FORMAT,
+        "version": package_version(),
+        "code": _code_digest(),
+        "jax": [_dist_version("jax"), _dist_version("jaxlib")],
+        "platforms": os.environ.get("JAX_PLATFORMS", ""),
+        "dtype": "float32",
+        "build_dtype": build_dtype,
+        "config": {
+            "type": type(config).__qualname__,
+            **{f.name: _canon(getattr(config, f.name)) for f in dataclasses.fields(config)},
+        },
+        "params": {n: _canon(getattr(params, n)) for n in ("alpha", "widths", "reg")},
+        "layout": {
+            "pairs": _canon(meas.pairs),
+            "has_axial": bool(meas.has_axial),
+            "centre_azimuths": meas.centre_azimuths,
+            "t_shape": list(t.shape),
+            "t_dtype": t.dtype.name,
+            "t_sha256": hashlib.sha256(t_bytes).hexdigest(),
+            "count": count.tolist(),
+        },
+    }
+    text = json.dumps(doc, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+# --------------------------------------------------------------------------------------------
+# The store
+# --------------------------------------------------------------------------------------------
+
+
+class OperatorStore:
+    """Operator entries on disk, ``folder / "operators" / f"{key}.npz"``; never fatal.
+
+    An entry file holds the arrays, its own key, :data:`CACHE_FORMAT` and a sha256 of the arrays;
+    :meth:`load` checks all three (and the shapes), so a truncated, corrupt or misplaced entry is
+    a warning, is removed when possible, and reads as a miss.
+    """
+
+    def __init__(
+        self,
+        folder: str | os.PathLike,
+        warn: Warn = default_warn,
+        max_bytes: int = OPERATORS_MAX_BYTES,
+    ):
+        self.folder = Path(folder) / OPERATORS
+        self.warn = warn
+        self.max_bytes = max_bytes
+        self._warned: set[str] = set()
+
+    def path(self, key: str) -> Path:
+        return self.folder / f"{key}{_SUFFIX}"
+
+    def _warn_once(self, token: str, message: str, warn: Warn | None) -> None:
+        """Warn about ``token`` (an entry's key, or ``"write"`` for the folder) once."""
+        if token not in self._warned:
+            self._warned.add(token)
+            (self.warn if warn is None else warn)(message)
+
+    def load(self, key: str, warn: Warn | None = None) -> OperatorEntry | None:
+        """The entry stored under ``key``, or ``None`` (a miss, or a bad entry: warned, removed)."""
+        path = self.path(key)
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                arrays = {n: f[n] for n in ("matrix", "index", "t", "count")}
+                meta = json.loads(str(f["meta"][()]))
+        except (FileNotFoundError, NotADirectoryError):  # a miss (a broken folder warns on save)
+            return None
+        except Exception as e:  # noqa: BLE001 - a truncated or corrupt file of any kind
+            return self._reject(key, path, f"unreadable ({type(e).__name__}: {e})", warn)
+        problem = _check_entry(key, arrays, meta)
+        if problem:
+            return self._reject(key, path, problem, warn)
+        touch(path)
+        return OperatorEntry(**arrays, log_samples=meta["log_samples"], log_eps=meta["log_eps"])
+
+    def _reject(self, key: str, path: Path, why: str, warn: Warn | None) -> None:
+        removed = True
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError:
+            removed = False
+        action = "removed it" if removed else "could not remove it"
+        self._warn_once(key, f"operator cache entry {path} is {why}; {action} and rebuilding", warn)
+        return None
+
+    def save(self, key: str, entry: OperatorEntry, warn: Warn | None = None) -> bool:
+        """Store ``entry`` under ``key`` atomically; ``False`` (and a warning) when it cannot."""
+        arrays = entry.arrays()
+        meta = {
+            "key": key,
+            "format": CACHE_FORMAT,
+            "sha256": digest(arrays),
+            "log_samples": bool(entry.log_samples),
+            "log_eps": float(entry.log_eps),
+            "version": package_version(),
+        }
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            with atomic_write(self.path(key), "wb") as f:
+                np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
+        except (OSError, InputError) as e:  # read-only, full, not a folder: atomic_write says which
+            why = os_reason(e.__cause__ or e) if isinstance(e, InputError) else os_reason(e)
+            self._warn_once(
+                "write",
+                f"cannot write the operator cache {self.folder} ({why}); running without it",
+                warn,
+            )
+            return False
+        prune(self.folder, f"*{_SUFFIX}", self.max_bytes, keep=self.path(key))
+        return True
+
+    def entries(self) -> list[Path]:
+        """The entry files (``KEY.npz``)."""
+        return sorted(self.folder.glob(f"*{_SUFFIX}")) if self.folder.is_dir() else []
+
+    def size(self) -> int:
+        """Bytes in the store's folder (entries and any temporary files left by a killed writer)."""
+        return folder_size(self.folder)[0]
+
+    def clear(self) -> None:
+        """Remove every entry (and the store's folder)."""
+        if self.folder.exists():
+            shutil.rmtree(self.folder)
+
+
+def _check_entry(key: str, arrays: dict[str, np.ndarray], meta: dict) -> str | None:
+    """What is wrong with a loaded entry (``None``: nothing)."""
+    if not isinstance(meta, dict):
+        return "malformed (no metadata)"
+    if meta.get("format") != CACHE_FORMAT:
+        return f"of another format ({meta.get('format')!r}, this version reads {CACHE_FORMAT})"
+    if meta.get("key") != key:
+        return f"stored under another key ({str(meta.get('key'))[:12]}...)"
+    if meta.get("sha256") != digest(arrays):
+        return "corrupt (its checksum does not match)"
+    m, index, t, count = (arrays[n] for n in ("matrix", "index", "t", "count"))
+    if not (
+        m.dtype == np.float32
+        and m.ndim == 2
+        and m.shape[0] == GRID[0] * GRID[1]
+        and index.shape == (m.shape[1],)
+        and t.ndim == 2
+        and count.shape == (t.shape[0],)
+        and int(count.sum()) == m.shape[1]
+        and (index.size == 0 or 0 <= int(index.min()) <= int(index.max()) < t.size)
+    ):
+        return "malformed (inconsistent array shapes)"
+    if not isinstance(meta.get("log_samples"), bool) or not isinstance(meta.get("log_eps"), float):
+        return "malformed (no value space)"
+    return None
+
+
+def folder_size(folder: Path) -> tuple[int, int]:
+    """``(bytes, files)`` under ``folder`` (``(0, 0)`` when it does not exist)."""
+    total = files = 0
+    for root, _, names in os.walk(folder):
+        for name in names:
+            with contextlib.suppress(OSError):
+                total += os.stat(os.path.join(root, name)).st_size
+                files += 1
+    return total, files
+
+
+def cache_summary(folder: Path) -> dict:
+    """Size and entry counts of the two caches in ``folder``."""
+    xla_bytes, _ = folder_size(folder / XLA)
+    xla_entries = len(list((folder / XLA).glob("*-cache"))) if (folder / XLA).is_dir() else 0
+    store = OperatorStore(folder)
+    return {
+        XLA: {"bytes": xla_bytes, "entries": xla_entries},
+        OPERATORS: {"bytes": store.size(), "entries": len(store.entries())},
+    }
+
+
+def clear_cache(folder: Path) -> None:
+    """Remove both caches (``xla/`` and ``operators/``) under ``folder``; nothing else."""
+    for name in (XLA, OPERATORS):
+        if (folder / name).exists():
+            shutil.rmtree(folder / name)
+
+
+# --------------------------------------------------------------------------------------------
+# Build, or load when cached
+# --------------------------------------------------------------------------------------------
+
+
+def build_entry(meas, config, params, *, build_dtype: str = BUILD_DTYPE) -> OperatorEntry:
+    """Build the operator with :func:`abrdf_jax.compile_operator` as a float32 entry.
+
+    The matrix is computed in ``build_dtype`` (default float64, in a scoped ``jax.enable_x64``
+    whatever the global switch) and rounded to float32 once: applied in float32 it matches the
+    float64 reconstruction to float32 rounding (tests/test_cache.py), which a float32 build
+    does not: its RBF solve is off by about 4e-4 of the table's maximum (docs/cache.md).
+
+    Raises:
+        InputError: for settings that are not linear in the (log) samples, as
+            ``compile_operator`` does (the rules ``"filip2012"``/``"log"`` on aniso204, or
+            ``value_space="log"``).
+    """
+    from ._operator import compile_operator
+    from ._values import value_space
+
+    with _x64_scope(build_dtype == "float64"):
+        op = compile_operator(config, params, meas, dtype=build_dtype, build_dtype=build_dtype)
+        matrix = np.asarray(op.matrix)
+    return OperatorEntry(
+        matrix=np.ascontiguousarray(matrix.astype(np.float32)),
+        index=np.asarray(op.index, np.int64),
+        t=np.asarray(op.t, np.float32),
+        count=np.asarray(op.count, np.int32),
+        log_samples=value_space(config.value_space).log_samples,
+        log_eps=float(config.log_eps),
+    )
+
+
+def _x64_scope(on: bool):
+    """A context in which JAX computes in float64 (``on``), whatever the global switch."""
+    import jax
+
+    if not on or jax.config.jax_enable_x64:
+        return contextlib.nullcontext()
+    scope = getattr(jax, "enable_x64", None)
+    if scope is not None:
+        return scope(True)
+    from jax.experimental import enable_x64  # JAX before jax.enable_x64
+
+    return enable_x64()
+
+
+def _fits(entry: OperatorEntry, meas) -> bool:
+    count = np.asarray(meas.count)
+    return entry.t.shape == tuple(np.shape(meas.t)[-2:]) and np.array_equal(entry.count, count)
+
+
+def cached_entry(
+    store: OperatorStore | None, meas, config, params, warn: Warn = default_warn
+) -> tuple[OperatorEntry, bool]:
+    """The operator entry for ``(config, params, meas's layout)``: ``(entry, hit)``.
+
+    Loaded from ``store`` when it holds a valid entry (``hit=True``); else built (importing
+    JAX) and saved. ``store=None``: always built. A store that cannot be read or written gives a
+    warning through ``warn`` and the built entry.
+
+    Raises:
+        InputError: for nonlinear settings (see :func:`build_entry`).
+    """
+    if store is None:
+        return build_entry(meas, config, params), False
+    key = operator_key(config, params, meas)
+    entry = store.load(key, warn)
+    if entry is not None and _fits(entry, meas):
+        return entry, True
+    entry = build_entry(meas, config, params)
+    store.save(key, entry, warn)
+    return entry, False

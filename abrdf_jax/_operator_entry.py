@@ -1,0 +1,97 @@
+"""A built single-stage reconstruction operator as numpy arrays: applied without JAX (issue 13).
+
+:class:`OperatorEntry` is what the operator cache (``abrdf_jax._cache``) stores and loads; its
+:meth:`~OperatorEntry.apply` is the map of :class:`abrdf_jax.ReconstructionOperator` (single
+stage, ``abrdf_jax._operator._apply``) in numpy float32, with the value space's ``ε`` exactly as
+``abrdf_jax._values.value_eps`` computes it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+
+import numpy as np
+
+from ._errors import InputError
+
+#: The pipeline's ε offset, ``sqrt(tiny)`` of float32 (``_values.value_eps``).
+_EPS_FLOOR = np.finfo(np.float32).tiny ** 0.5
+GRID = (81, 81)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class OperatorEntry:
+    """A built single-stage reconstruction operator as numpy arrays (no JAX needed to apply it).
+
+    Attributes:
+        matrix: ``(6561, n_in)`` float32: the linear map of ``compile_operator``.
+        index: ``(n_in,)`` flat index ``s · nmax + k`` of each valid sample of the template.
+        t: ``(S, nmax)`` float32 slice parameters of the template (padding zero).
+        count: ``(S,)`` valid samples per slice.
+        log_samples: whether the map works on ``ln(max(y, 0) + ε)`` (``value_space="logsamples"``)
+            or on the values themselves (``"linear"``).
+        log_eps: ``Config.log_eps``: ``ε = log_eps · mean |y| + sqrt(tiny)`` per material and
+            channel over the valid samples (``_values.value_eps``).
+    """
+
+    matrix: np.ndarray
+    index: np.ndarray
+    t: np.ndarray
+    count: np.ndarray
+    log_samples: bool
+    log_eps: float
+
+    @property
+    def n_inputs(self) -> int:
+        return int(self.index.shape[0])
+
+    def apply(self, y) -> np.ndarray:
+        """Reconstruct from stacked sample values: ``(..., S, nmax, C)`` → ``(..., 81, 81, C)``.
+
+        The map of :class:`abrdf_jax.ReconstructionOperator` (single stage), in float32:
+        ``max(post(M · pre(x)), 0)`` over the valid samples ``x``, with ``pre``/``post`` the
+        identity (linear) or ``ln(max(x, 0) + ε)`` / ``exp(z) − ε``.
+
+        Raises:
+            InputError: when ``y`` does not have the template's slice shape.
+        """
+        y = np.asarray(y, np.float32)
+        s, nmax = self.t.shape
+        if y.ndim < 3 or y.shape[-3:-1] != (s, nmax):
+            raise InputError(f"values must have shape (..., {s}, {nmax}, C), got {y.shape}")
+        lead, c = y.shape[:-3], y.shape[-1]
+        x = y.reshape(-1, s * nmax, c)[:, self.index, :]
+        return self.apply_compact(x).reshape(*lead, *GRID, c)
+
+    def apply_compact(self, x) -> np.ndarray:
+        """The same from the valid samples only, ``(B, n_in, C)`` → ``(B, 81, 81, C)``."""
+        x = np.asarray(x, np.float32)
+        b, n_in, c = x.shape
+        q = self.matrix.shape[0]
+        eps = None
+        if self.log_samples:
+            eps = np.float32(self.log_eps) * np.mean(np.abs(x), axis=1) + _EPS_FLOOR  # (B, C)
+            x = np.log(np.maximum(x, np.float32(0.0)) + eps[:, None, :])
+        # every material and channel is a row: one GEMM (B·C, n_in) · (n_in, q), as _operator
+        rows = np.ascontiguousarray(np.transpose(x, (0, 2, 1))).reshape(b * c, n_in)
+        out = (rows @ self.matrix.T).reshape(b, c, q)
+        if eps is not None:
+            np.exp(out, out=out)
+            out -= eps[:, :, None]
+        np.maximum(out, np.float32(0.0), out=out)
+        return np.ascontiguousarray(np.transpose(out, (0, 2, 1))).reshape(b, *GRID, c)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The arrays by name (what the cache stores)."""
+        return {"matrix": self.matrix, "index": self.index, "t": self.t, "count": self.count}
+
+
+def digest(arrays: dict[str, np.ndarray]) -> str:
+    """sha256 (hex) of named arrays: names, dtypes, shapes and bytes."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
