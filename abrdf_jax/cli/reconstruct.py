@@ -21,8 +21,8 @@ from .._errors import InputError
 from .._names import MODEL_TOL, MODELS, PRESETS, TABLE_SUFFIXES
 from . import _common as common
 
-#: Materials per batched reconstruction call (bounds memory, drives the progress bar).
-CHUNK = 32
+#: Threads writing the finished tables while the next batch computes.
+WRITERS = 2
 FORMATS = [s.lstrip(".") for s in TABLE_SUFFIXES]
 #: The ``--help`` texts: the command's and each option's.
 HELP = {
@@ -42,6 +42,8 @@ HELP = {
     "--model": "auto (default: isotropy test, then the simplest candidate within --tol of the best "
     "held-out error) or a fixed model: " + ", ".join(MODELS),
     "--tol": f"tolerance of the automatic choice, relative (default {MODEL_TOL:g})",
+    "--resume": "folder mode: keep the tables of an earlier (interrupted) run that are complete "
+    "and named in its model record; reconstruct only the others",
     "--noise": "relative noise of one sample for the isotropy test (default: estimated from the "
     "data)",
 }
@@ -61,6 +63,7 @@ def register(sub) -> None:
     add("--model", metavar="MODEL")
     add("--tol", type=float, metavar="FRAC")
     add("--noise", type=float, metavar="SIGMA")
+    add("--resume", action="store_true")
 
 
 # --------------------------------------------------------------------------------------------
@@ -173,11 +176,45 @@ def _targets(files: list[Path], out: Path, folder_mode: bool, fmt: str | None) -
     return [out / (f.stem + ext) for f in files]
 
 
+def _resumable(files: list[Path], targets: list[Path], out: Path):
+    """``--resume``: the inputs whose table is already complete and valid in ``out`` and named
+    in its model record are kept (their record entries with them); the others are redone."""
+    import json
+
+    from .. import io
+
+    record = out.parent / (out.name + ".model.json")
+    try:
+        entries = {e["input"]: e for e in json.loads(record.read_text())["inputs"]}
+    except (OSError, ValueError, KeyError, TypeError):
+        entries = {}  # no record (or a torn one): nothing is known to be finished
+    todo, kept = [], []
+    for f, t in zip(files, targets):
+        entry = entries.get(str(f))
+        if entry is not None and t.exists():
+            try:
+                io.read_table(t)  # complete and finite, or redone
+                kept.append({"record": entry})
+                continue
+            except InputError:
+                pass
+        todo.append((f, t))
+    return [f for f, _ in todo], [t for _, t in todo], kept
+
+
 def run(args) -> int:
     files, folder_mode = common.expand_inputs(args.inputs)
     out = Path(args.output)
     targets = _targets(files, out, folder_mode, args.format)
     check_model_arguments(args)
+    args.resumed = []
+    if args.resume:
+        if not folder_mode:
+            raise InputError("--resume needs an output folder (several inputs or a folder)")
+        files, targets, args.resumed = _resumable(files, targets, out)
+        if not files:
+            print(f"{out}: all {len(args.resumed)} tables are complete (--resume); nothing to do")
+            return 0
     # Read and check every input before computing or writing anything.
     forced = common.forced_budget(args)
     items = common.read_inputs(files, forced, args.alpha)
@@ -187,18 +224,27 @@ def run(args) -> int:
     return _reconstruct_one(items[0], choices[0], out, args)
 
 
+def _operators(args):
+    """Where the compiled operators of this run come from (:mod:`abrdf_jax._engine`)."""
+    return None  # compile_operator (the operator cache plugs in here)
+
+
 def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args) -> int:
     import numpy as np
 
     import abrdf_jax as aj
     from .. import io
 
+    from .._engine import reconstruct_many
+
     config, params = choice["config"], choice["params"]
     meas = common.measurements_for(item, config)
     common.warn_guard(item.path, meas, config, params, args.params)
-    table = np.asarray(aj.reconstruct(meas, config, params))
+    ((_, tables, engine),) = reconstruct_many([meas], config, params, operator=_operators(args))
+    table = np.asarray(tables[0])
     aj.check_finite(table, str(item.path))
     io.write_table(out, table)
+    choice["record"]["engine"] = engine
     how = f"parameters from {args.params}" if args.params else f"model {choice['name']}"
     print(
         f"{out}: reconstructed from {len(item.samples)} samples ({config.budget}, alpha "
@@ -210,38 +256,69 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args) -> in
 
 
 def _reconstruct_folder(items, choices: list[dict], targets: list[Path], out: Path, args) -> int:
-    import numpy as np
+    """Every input through :func:`abrdf_jax._engine.reconstruct_many` (operator groups and
+    padded pipeline batches), each batch's tables written by a small thread pool while the next
+    batch computes, the folder's model record rewritten (atomically) after every batch: an
+    interrupted run keeps every table it finished, and the record lists only those."""
+    from concurrent.futures import ThreadPoolExecutor
 
     import abrdf_jax as aj
     from .. import io
+    from .._engine import reconstruct_many
 
     out.mkdir(exist_ok=True)
     groups: dict[tuple, list[int]] = {}
     for k, (item, choice) in enumerate(zip(items, choices)):
-        layout = (item.meas.pairs, item.meas.centre_azimuths)  # what one stack must share
-        key = (item.budget, item.alpha, layout, choice["config"])
+        key = (item.budget, item.alpha, choice["config"])  # what one call must share
         groups.setdefault(key, []).append(k)
     failed: list[str] = []
-    with common.progress(len(items), "reconstruct", args.quiet) as bar:
-        for (_, _, _, config), members in groups.items():
+    done = list(args.resumed)  # records of the outputs a --resume run kept
+    paths = {"operator": 0, "pipeline": 0}
+    operator = _operators(args)
+    with (
+        common.progress(len(items), "reconstruct", args.quiet) as bar,
+        ThreadPoolExecutor(max_workers=WRITERS) as pool,
+    ):
+        pending: list = []  # (futures, records) of the batch being written
+
+        def settle():
+            for futures, records in pending:
+                for f in futures:
+                    f.result()  # a write error ends the run (nothing partial: atomic writes)
+                done.extend(records)
+            pending.clear()
+            common.save_model_record(out, done, True)
+
+        for (_, _, config), members in groups.items():
             params = choices[members[0]]["params"]
             meas = [common.measurements_for(items[k], config) for k in members]
             common.warn_guard(items[members[0]].path, meas[0], config, params, args.params)
-            for start in range(0, len(members), CHUNK):
-                chunk = members[start : start + CHUNK]
-                tables = aj.reconstruct_batch(meas[start : start + CHUNK], config, params)
-                for k, table in zip(chunk, np.asarray(tables)):
+            for idx, tables, path in reconstruct_many(meas, config, params, operator=operator):
+                paths[path] += len(idx)
+                futures, records = [], []
+                for j, table in zip(idx, tables):
+                    k = members[j]
                     try:
                         aj.check_finite(table, str(items[k].path))
-                    except InputError as e:  # never write it; the other materials are still written
+                    except InputError as e:  # never written; the other materials still are
                         failed.append(str(e))
                         continue
-                    io.write_table(targets[k], table)
-                bar.update(len(chunk))
+                    futures.append(pool.submit(io.write_table, targets[k], table))
+                    choices[k]["record"]["engine"] = path
+                    records.append(choices[k])
+                settle()  # the previous batch's files are complete before the record names them
+                pending.append((futures, records))
+                bar.update(len(idx))
+        settle()
     budgets = ", ".join(sorted({c["config"].budget for c in choices}))
-    n = len(items)
-    print(f"{out}: wrote {n - len(failed)} tables ({budgets}; models {common.summary(choices)})")
-    print(f"model record: {common.save_model_record(out, choices, True)}")
+    n = len(items) + len(args.resumed)
+    engines = ", ".join(f"{v} by the {k}" for k, v in paths.items() if v)
+    kept = f", {len(args.resumed)} kept (--resume)" if args.resumed else ""
+    print(
+        f"{out}: wrote {len(items) - len(failed)} tables{kept} ({budgets}; {engines}; models "
+        f"{common.summary(choices)})"
+    )
+    print(f"model record: {common.save_model_record(out, done, True)}")
     for msg in failed:
         common.say(f"error: {msg}")
     if failed:
