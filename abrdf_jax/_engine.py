@@ -43,7 +43,9 @@ def operator_applies(config: Config, meas: Measurements) -> bool:
     from ._subspace import get_rule
     from ._values import value_space
 
-    linear = get_rule(config.subspace_rule).linear and not value_space(config.value_space).log_subspace
+    linear = (
+        get_rule(config.subspace_rule).linear and not value_space(config.value_space).log_subspace
+    )
     return linear and meas.centre_azimuths is None
 
 

@@ -9,6 +9,15 @@ import numpy as np
 import pytest
 
 jax.config.update("jax_enable_x64", True)
+# The caches of the command line (abrdf_jax._cache) go to a folder of this test session, never
+# to the user's ~/.cache; subprocesses inherit it. A test of the caches sets its own.
+if "ABRDF_JAX_CACHE_DIR" not in os.environ:
+    import atexit
+    import shutil
+    import tempfile
+
+    os.environ["ABRDF_JAX_CACHE_DIR"] = tempfile.mkdtemp(prefix="abrdf-jax-test-cache-")
+    atexit.register(shutil.rmtree, os.environ["ABRDF_JAX_CACHE_DIR"], True)
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # for tests.scipy_oracle and the benchmarks that the smoke tests run

@@ -204,13 +204,16 @@ def test_negative_values_warn_and_write_failure_keeps_output(tmp_path, capsys, m
     The reconstruction itself is replaced by a stub (this is about the boundary, and it saves a
     compilation); the real pipeline clamps its output at 0 (tests/test_pipeline.py).
     """
-    import abrdf_jax as aj
+    from abrdf_jax import _engine
 
     monkeypatch.chdir(tmp_path)
     seen = []
-    monkeypatch.setattr(
-        aj, "reconstruct", lambda samples, config, params: seen.append(samples) or _T
-    )
+
+    def stub(meas, config, params, operator=None):
+        seen.extend(meas)
+        yield [0], _T[None], "operator"
+
+    monkeypatch.setattr(_engine, "reconstruct_many", stub)
     rows = protocol_rows()
     rgb = np.tile([0.1, 0.2, 0.3], (len(rows), 1))
     rgb[5, 1] = -0.002  # dark-frame noise

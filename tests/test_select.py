@@ -11,6 +11,7 @@ import pytest
 import abrdf_jax as aj
 from abrdf_jax import materials, select, tuning
 from abrdf_jax.cli import main
+from tests.cli_runner import assert_cli_table
 
 CFG_A = aj.Config.recommended("aniso204")
 
@@ -210,10 +211,9 @@ def test_cli_model_auto_and_fixed(tmp_path, capsys):
     assert doc["reason"] in text and "held-out log RMS" in text
     cfg = select.CANDIDATES[doc["model"]].config()
     samples = aj.io.read_samples_csv(meas)
-    expected = aj.reconstruct(
-        samples, cfg, aj.Params.default(cfg, alpha_deg=doc["params"]["alpha_deg"])
-    )
-    np.testing.assert_allclose(aj.io.read_table(out), expected, rtol=1e-5, atol=1e-7)
+    params = aj.Params.default(cfg, alpha_deg=doc["params"]["alpha_deg"])
+    assert_cli_table(aj.io.read_table(out), samples, cfg, params)
+    assert doc["engine"] == ("operator" if doc["model"] != "aniso" else "pipeline")
 
     # --model iso forces the diagonal-only model on the same anisotropic data.
     out_iso = tmp_path / "iso.npz"
@@ -222,10 +222,8 @@ def test_cli_model_auto_and_fixed(tmp_path, capsys):
     assert doc["model"] == "iso" and doc["how"] == "fixed" and doc["config"]["budget"] == "iso102"
     assert "iso102" in capsys.readouterr().out
     cfg = select.CANDIDATES["iso"].config()
-    expected = aj.reconstruct(
-        samples, cfg, aj.Params.default(cfg, alpha_deg=doc["params"]["alpha_deg"])
-    )
-    np.testing.assert_allclose(aj.io.read_table(out_iso), expected, rtol=1e-5, atol=1e-7)
+    params = aj.Params.default(cfg, alpha_deg=doc["params"]["alpha_deg"])
+    assert_cli_table(aj.io.read_table(out_iso), samples, cfg, params)
 
     # Bad choices fail before any work, naming the problem; nothing is written.
     bad = tmp_path / "bad.npz"

@@ -309,14 +309,23 @@ def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measu
     return Measured(where, samples, meas, budget, report["alpha_deg"], used)
 
 
-def read_inputs(files: list[Path], forced: str | None, alpha: float | None) -> list[Measured]:
-    """Read and plan every input; one bad file fails the run before any work, naming them all."""
+def read_inputs(files: list[Path], forced: str | None, alpha: float | None, before=None):
+    """Read, then plan every input (``before()`` runs in between: the CSV reader needs no JAX,
+    the planning does); one bad file fails the run before any work, naming them all."""
     from .. import io
 
-    items, bad = [], []
+    read, bad = [], []
     for f in files:
         try:
-            items.append(plan(io.read_samples_csv(f), forced, alpha, f))
+            read.append((f, io.read_samples_csv(f)))
+        except InputError as e:
+            bad.append((f, str(e)))
+    items = []
+    if before is not None and not bad:
+        before()
+    for f, samples in read if not bad else ():
+        try:
+            items.append(plan(samples, forced, alpha, f))
         except InputError as e:
             bad.append((f, str(e)))
     if bad:

@@ -44,6 +44,9 @@ HELP = {
     "--tol": f"tolerance of the automatic choice, relative (default {MODEL_TOL:g})",
     "--resume": "folder mode: keep the tables of an earlier (interrupted) run that are complete "
     "and named in its model record; reconstruct only the others",
+    "--cache-dir": "cache folder of compiled code and built operators, or 'off' (default "
+    "$ABRDF_JAX_CACHE_DIR, else ~/.cache/abrdf_jax; ABRDF_JAX_NO_CACHE=1 turns it off; "
+    "see 'abrdf-jax cache')",
     "--noise": "relative noise of one sample for the isotropy test (default: estimated from the "
     "data)",
 }
@@ -64,6 +67,7 @@ def register(sub) -> None:
     add("--tol", type=float, metavar="FRAC")
     add("--noise", type=float, metavar="SIGMA")
     add("--resume", action="store_true")
+    add("--cache-dir", metavar="DIR")
 
 
 # --------------------------------------------------------------------------------------------
@@ -217,16 +221,36 @@ def run(args) -> int:
             return 0
     # Read and check every input before computing or writing anything.
     forced = common.forced_budget(args)
-    items = common.read_inputs(files, forced, args.alpha)
+    items = common.read_inputs(files, forced, args.alpha, before=lambda: _caches(args))
     choices = choose_all(items, args, forced)
     if folder_mode:
         return _reconstruct_folder(items, choices, targets, out, args)
     return _reconstruct_one(items[0], choices[0], out, args)
 
 
+def _caches(args):
+    """Turn on the caches of this run (``--cache-dir``, ``$ABRDF_JAX_CACHE_DIR``,
+    ``ABRDF_JAX_NO_CACHE``; docs/cache.md): JAX's persistent compilation cache, and the store
+    of built operators that :func:`_operators` reads. A folder that cannot be used is a warning
+    and a run without it, never a failure."""
+    from .. import _cache
+
+    folder = _cache.cache_dir(args.cache_dir)
+    _cache.enable_compilation_cache(folder, warn=common.warn)
+    args.operator_store = None if folder is None else _cache.OperatorStore(folder, warn=common.warn)
+
+
 def _operators(args):
-    """Where the compiled operators of this run come from (:mod:`abrdf_jax._engine`)."""
-    return None  # compile_operator (the operator cache plugs in here)
+    """Where the compiled operators of this run come from (:mod:`abrdf_jax._engine`): the
+    operator store first (a matrix built once per configuration, parameters and sample layout,
+    in float64 and stored as float32), else built and stored."""
+    from .. import _cache
+
+    def source(config, params, template):
+        entry, _ = _cache.cached_entry(args.operator_store, template, config, params, common.warn)
+        return entry.apply
+
+    return source
 
 
 def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args) -> int:

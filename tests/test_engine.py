@@ -1,0 +1,154 @@
+"""The batch engine of the command line (abrdf_jax._engine) and the folder run built on it:
+operator groups, fixed batch shapes (no recompile for the last batch), the record after every
+batch, --resume and an interrupted run."""
+
+import json
+
+import numpy as np
+import pytest
+
+import abrdf_jax as aj
+from abrdf_jax import _engine, _pipeline, io, materials
+from abrdf_jax.cli import main
+
+NAMES = ("ggx-plastic", "lambert-clay", "ward-brushed-steel", "rough-fabric", "ashikhmin-satin")
+
+
+def _meas(name, budget="iso102", **kw):
+    s = aj.simulate_capture(materials.get_material(name), budget=budget, **kw)
+    return aj.group_slices(s)[0]
+
+
+def test_operator_groups_match_the_pipeline_and_ignore_the_batch_size():
+    config = aj.preset("recommended", "iso102")
+    params = aj.Params.default(config)
+    meas = [_meas(n) for n in NAMES]
+    assert all(_engine.operator_applies(config, m) for m in meas)
+    assert len({_engine.layout_key(m) for m in meas}) == 1  # one template, one operator
+    built = []
+
+    def operator(c, p, template):
+        built.append(template)
+        return aj.compile_operator(c, p, template)
+
+    whole = list(_engine.reconstruct_many(meas, config, params, operator=operator, batch=8))
+    assert len(built) == 1 and [len(i) for i, _, _ in whole] == [5]
+    ((idx, tables, path),) = whole
+    assert idx == list(range(5)) and path == "operator" and tables.shape == (5, 81, 81, 3)
+    expected = np.asarray(aj.reconstruct_batch(meas, config, params))
+    np.testing.assert_allclose(tables, expected, rtol=0, atol=2e-3 * expected.max())
+    # batches of 2 (the last one padded): the same tables, bit for bit
+    parts = list(_engine.reconstruct_many(meas, config, params, batch=2))
+    assert [i for i, _, _ in parts] == [[0, 1], [2, 3], [4]]
+    np.testing.assert_array_equal(np.concatenate([t for _, t, _ in parts]), tables)
+
+
+def test_pipeline_groups_pad_the_last_batch_and_compile_once(monkeypatch):
+    """Dense captures (spike-capped) and nonlinear rules take the pipeline; 5 measurements in
+    batches of 2 trace it once (the last batch is padded to the same shape)."""
+    config = aj.preset("recommended", "aniso204")  # filip2012: not linear
+    params = aj.Params.default(config)
+    # 31 samples per slice and slices padded to 40 knots: a shape no other test compiles
+    meas = [
+        aj.group_slices(
+            aj.simulate_capture(materials.get_material(n), per_slice=31, seed=k), nmax=40
+        )[0]
+        for k, n in enumerate(NAMES)
+    ]
+    assert not any(_engine.operator_applies(config, m) for m in meas)
+    traces = []
+    real = _pipeline._reconstruct_core
+    monkeypatch.setattr(
+        _pipeline, "_reconstruct_core", lambda *a, **k: traces.append(1) or real(*a, **k)
+    )
+    parts = list(_engine.reconstruct_many(meas, config, params, batch=2))
+    assert [i for i, _, _ in parts] == [[0, 1], [2, 3], [4]] and {p for *_, p in parts} == {
+        "pipeline"
+    }
+    assert len(traces) == 1  # one trace (vmapped) for all three batches
+    expected = np.asarray(aj.reconstruct(meas[4], config, params))
+    np.testing.assert_allclose(parts[-1][1][0], expected, rtol=1e-5, atol=1e-6 * expected.max())
+
+
+def _folder(tmp_path, n=5):
+    src = tmp_path / "in"
+    src.mkdir()
+    for k in range(n):
+        s = aj.simulate_capture(
+            materials.get_material(NAMES[k % len(NAMES)]), budget="iso102", noise=0.01, seed=k
+        )
+        io.write_samples_csv(src / f"m{k}.csv", s)
+    return src
+
+
+def test_folder_resume_redoes_only_what_is_missing_or_torn(tmp_path, capsys):
+    src, out = _folder(tmp_path), tmp_path / "out"
+    assert main(["reconstruct", str(src), "-o", str(out), "-q"]) == 0
+    first = {p.name: p.read_bytes() for p in out.iterdir()}
+    record = json.loads((tmp_path / "out.model.json").read_text())
+    assert len(record["inputs"]) == 5 and {e["engine"] for e in record["inputs"]} == {"operator"}
+    (out / "m1.npz").unlink()
+    (out / "m3.npz").write_bytes(first["m3.npz"][:100])  # torn
+    capsys.readouterr()
+    assert main(["reconstruct", str(src), "-o", str(out), "-q", "--resume"]) == 0
+    text = capsys.readouterr().out
+    assert "wrote 2 tables, 3 kept (--resume)" in text
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == first
+    again = json.loads((tmp_path / "out.model.json").read_text())
+    assert sorted(e["input"] for e in again["inputs"]) == sorted(
+        e["input"] for e in record["inputs"]
+    )
+    assert main(["reconstruct", str(src), "-o", str(out), "-q", "--resume"]) == 0
+    assert "all 5 tables are complete" in capsys.readouterr().out
+
+
+def test_interrupted_folder_keeps_finished_tables_and_resumes_to_the_same_result(
+    tmp_path, monkeypatch
+):
+    src = _folder(tmp_path)
+    whole = tmp_path / "whole"
+    assert main(["reconstruct", str(src), "-o", str(whole), "-q"]) == 0
+    real = _engine.reconstruct_many
+
+    def killed_after_two_batches(meas, config, params, operator=None):
+        for k, part in enumerate(real(meas, config, params, operator=operator, batch=2)):
+            if k == 2:
+                raise KeyboardInterrupt
+            yield part
+
+    monkeypatch.setattr(_engine, "reconstruct_many", killed_after_two_batches)
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(src), "-o", str(out), "-q"]) == 130
+    record = json.loads((tmp_path / "out.model.json").read_text())
+    listed = {e["input"] for e in record["inputs"]}
+    assert 0 < len(listed) < 5  # the finished batches, never a file that is not complete
+    for e in record["inputs"]:
+        table = io.read_table(out / (e["input"].rsplit("/", 1)[-1][:-4] + ".npz"))
+        assert table.shape == (81, 81, 3)
+    assert not [p for p in out.iterdir() if p.suffix != ".npz"]  # no temporary file left
+    monkeypatch.setattr(_engine, "reconstruct_many", real)
+    assert main(["reconstruct", str(src), "-o", str(out), "-q", "--resume"]) == 0
+    for p in whole.iterdir():
+        assert (out / p.name).read_bytes() == p.read_bytes()
+
+
+def test_resume_needs_a_folder(tmp_path, capsys):
+    src = _folder(tmp_path, 1)
+    assert (
+        main(["reconstruct", str(src / "m0.csv"), "-o", str(tmp_path / "r.npz"), "--resume"]) == 2
+    )
+    assert "--resume needs an output folder" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("where", ["off", "file"])
+def test_cache_off_or_unusable_still_reconstructs(tmp_path, capsys, where):
+    src = _folder(tmp_path, 1)
+    cache = "off"
+    if where == "file":  # a file where the cache folder should be: a warning, no failure
+        (tmp_path / "c").write_text("x")
+        cache = str(tmp_path / "c")
+    out = tmp_path / "r.npz"
+    assert main(["reconstruct", str(src / "m0.csv"), "-o", str(out), "--cache-dir", cache]) == 0
+    err = capsys.readouterr().err
+    assert ("without the compilation cache" in err) == (where == "file")
+    assert io.read_table(out).shape == (81, 81, 3)
