@@ -9,7 +9,7 @@ import pytest
 
 import abrdf_jax as aj
 from abrdf_jax import _engine, _pipeline, io, materials
-from abrdf_jax.cli import main
+from abrdf_jax.cli import main, reconstruct
 
 NAMES = ("ggx-plastic", "lambert-clay", "ward-brushed-steel", "rough-fabric", "ashikhmin-satin")
 
@@ -117,6 +117,7 @@ def test_interrupted_folder_keeps_finished_tables_and_resumes_to_the_same_result
             yield part
 
     monkeypatch.setattr(_engine, "reconstruct_many", killed_after_two_batches)
+    monkeypatch.setattr(reconstruct, "RECORD_EVERY", 0.0)  # the record after every batch
     out = tmp_path / "out"
     assert main(["reconstruct", str(src), "-o", str(out), "-q"]) == 130
     record = json.loads((tmp_path / "out.model.json").read_text())

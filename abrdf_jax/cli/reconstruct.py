@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from pathlib import Path
 
 from .._errors import InputError
@@ -23,6 +24,10 @@ from . import _common as common
 
 #: Threads writing the finished tables while the next batch computes.
 WRITERS = 2
+#: A folder run rewrites its model record after a batch when this many seconds have passed
+#: since the last rewrite (and at the end): an interrupted run loses at most this much of the
+#: record, whose tables --resume then redoes.
+RECORD_EVERY = 2.0
 FORMATS = [s.lstrip(".") for s in TABLE_SUFFIXES]
 #: The ``--help`` texts: the command's and each option's.
 HELP = {
@@ -304,14 +309,18 @@ def _reconstruct_folder(items, choices: list[dict], targets: list[Path], out: Pa
         ThreadPoolExecutor(max_workers=WRITERS) as pool,
     ):
         pending: list = []  # (futures, records) of the batch being written
+        saved = [time.perf_counter()]
 
-        def settle():
+        def settle(final=False):
             for futures, records in pending:
                 for f in futures:
                     f.result()  # a write error ends the run (nothing partial: atomic writes)
                 done.extend(records)
             pending.clear()
-            common.save_model_record(out, done, True)
+            # the record of a big folder is large: rewritten at most every RECORD_EVERY s
+            if final or time.perf_counter() - saved[0] >= RECORD_EVERY:
+                common.save_model_record(out, done, True)
+                saved[0] = time.perf_counter()
 
         for (_, _, config), members in groups.items():
             params = choices[members[0]]["params"]
@@ -333,7 +342,7 @@ def _reconstruct_folder(items, choices: list[dict], targets: list[Path], out: Pa
                 settle()  # the previous batch's files are complete before the record names them
                 pending.append((futures, records))
                 bar.update(len(idx))
-        settle()
+        settle(final=True)
     budgets = ", ".join(sorted({c["config"].budget for c in choices}))
     n = len(items) + len(args.resumed)
     engines = ", ".join(f"{v} by the {k}" for k, v in paths.items() if v)
@@ -342,7 +351,7 @@ def _reconstruct_folder(items, choices: list[dict], targets: list[Path], out: Pa
         f"{out}: wrote {len(items) - len(failed)} tables{kept} ({budgets}; {engines}; models "
         f"{common.summary(choices)})"
     )
-    print(f"model record: {common.save_model_record(out, done, True)}")
+    print(f"model record: {common.save_model_record(out, done, True)}")  # all of them
     for msg in failed:
         common.say(f"error: {msg}")
     if failed:

@@ -118,21 +118,24 @@ def _interp_weights(t: np.ndarray) -> np.ndarray:
     return (t - tl) / span
 
 
-def _log_luminance(y, valid, log_eps: float):
-    """``ln(Y + ε)`` of slice values ``y`` ``(B, S, nmax, 3)``, ``ε = log_eps · mean |Y|`` per material."""
-    lum = jnp.einsum("bsnc,c->bsn", y, jnp.asarray(LUMA_WEIGHTS, y.dtype))
-    mean = jnp.sum(jnp.where(valid, jnp.abs(lum), 0.0), axis=(1, 2)) / max(int(valid.sum()), 1)
+def _log_luminance(y, valid, log_eps: float, xp=jnp):
+    """``ln(Y + ε)`` of slice values ``y`` ``(B, S, nmax, 3)``, ``ε = log_eps · mean |Y|`` per material.
+
+    ``xp``: the array module, ``jax.numpy`` (a batch, in JAX) or ``numpy`` (one material on the
+    host: no dispatch of a dozen small operations; the same formulas, one copy)."""
+    lum = xp.einsum("bsnc,c->bsn", y, xp.asarray(LUMA_WEIGHTS, y.dtype))
+    mean = xp.sum(xp.where(valid, xp.abs(lum), 0.0), axis=(1, 2)) / max(int(valid.sum()), 1)
     eps = log_eps * mean + np.finfo(np.float64).tiny ** 0.5
-    return jnp.log(jnp.maximum(lum, 0.0) + eps[:, None, None])
+    return xp.log(xp.maximum(lum, 0.0) + eps[:, None, None])
 
 
-def _noise(logl, t: np.ndarray, count: np.ndarray, rows):
+def _noise(logl, t: np.ndarray, count: np.ndarray, rows, xp=jnp):
     """Noise ``σ`` ``(B,)``: ``1.4826 · median |r|`` of the normalised residuals ``r`` of every
     sample of the slices ``rows`` against the linear interpolation of its two neighbours (a unit
     independent noise gives residuals of unit variance); ``nan`` when no slice has 3 samples."""
     rows = [s for s in rows if count[s] >= 3]
     if not rows:
-        return jnp.full((logl.shape[0],), jnp.nan, logl.dtype)
+        return xp.full((logl.shape[0],), np.nan, logl.dtype)
     ss, ks, lefts, rights, wls, wrs = [], [], [], [], [], []
     for s in rows:
         n = int(count[s])
@@ -141,22 +144,22 @@ def _noise(logl, t: np.ndarray, count: np.ndarray, rows):
         lefts.append(np.roll(np.arange(n), 1)), rights.append(np.roll(np.arange(n), -1))
         wls.append(1.0 - wr), wrs.append(wr)
     ss, ks, lefts, rights = (np.concatenate(a) for a in (ss, ks, lefts, rights))
-    wl, wr = (jnp.asarray(np.concatenate(a), logl.dtype) for a in (wls, wrs))
-    r = (logl[:, ss, ks] - (wl * logl[:, ss, lefts] + wr * logl[:, ss, rights])) / jnp.sqrt(
+    wl, wr = (xp.asarray(np.concatenate(a), logl.dtype) for a in (wls, wrs))
+    r = (logl[:, ss, ks] - (wl * logl[:, ss, lefts] + wr * logl[:, ss, rights])) / xp.sqrt(
         1.0 + wl**2 + wr**2
     )
-    return _MAD_TO_SIGMA * jnp.median(jnp.abs(r), axis=1)
+    return _MAD_TO_SIGMA * xp.median(xp.abs(r), axis=1)
 
 
-def _axial_sums(logl, count: np.ndarray):
+def _axial_sums(logl, count: np.ndarray, xp=jnp):
     """Sum of squared deviations from the slice mean of every axial slice with ≥ 3 samples:
     ``(B, S)`` (0 elsewhere), and the mask of those slices ``(S,)``."""
     S, nmax = logl.shape[1:]
     used = np.array([s % 2 == 0 and count[s] >= 3 for s in range(S)])
     amask = used[:, None] & (np.arange(nmax)[None, :] < count[:, None])
     n_p = np.where(used, count, 1)
-    slice_mean = jnp.sum(jnp.where(amask, logl, 0.0), axis=2, keepdims=True) / n_p[None, :, None]
-    return jnp.sum(jnp.where(amask, (logl - slice_mean) ** 2, 0.0), axis=2), used
+    slice_mean = xp.sum(xp.where(amask, logl, 0.0), axis=2, keepdims=True) / n_p[None, :, None]
+    return xp.sum(xp.where(amask, (logl - slice_mean) ** 2, 0.0), axis=2), used
 
 
 def estimate_noise(meas: Measurements, log_eps: float = None, slices: str = "axial") -> float:
@@ -175,8 +178,8 @@ def estimate_noise(meas: Measurements, log_eps: float = None, slices: str = "axi
     if slices not in ("axial", "diagonal", "all"):
         raise InputError(f"slices must be 'axial', 'diagonal' or 'all', got {slices!r}")
     t, cnt = np.asarray(meas.t, np.float64), np.asarray(meas.count)
-    y = jnp.asarray(meas.y)[None]
-    logl = _log_luminance(y, np.asarray(meas.mask)[None], log_eps)
+    y = np.asarray(meas.y)[None]  # one material: on the host (numpy)
+    logl = _log_luminance(y, np.asarray(meas.mask)[None], log_eps, np)
     if slices == "axial" and not np.any(cnt[0::2] >= 3):
         slices = "diagonal"
     rows = {
@@ -184,7 +187,7 @@ def estimate_noise(meas: Measurements, log_eps: float = None, slices: str = "axi
         "diagonal": range(1, len(cnt), 2),
         "all": range(len(cnt)),
     }[slices]
-    return float(_noise(logl, t, cnt, rows)[0])
+    return float(_noise(logl, t, cnt, rows, np)[0])
 
 
 def isotropy_test(
@@ -227,14 +230,15 @@ def isotropy_test(
         raise InputError(f"samples must be Samples or Measurements, got {type(samples).__name__}")
     meas = samples
     cnt = np.asarray(meas.count)
-    logl = _log_luminance(jnp.asarray(meas.y)[None], np.asarray(meas.mask)[None], log_eps)
+    # one material: on the host (numpy); the batched test below runs the same helpers in JAX
+    logl = _log_luminance(np.asarray(meas.y)[None], np.asarray(meas.mask)[None], log_eps, np)
     floor = 1e-6  # log units: float32 rounding of constant slices stays below it
     if noise is None:
         sigma, source = estimate_noise(meas, log_eps), "estimated"
     else:
         sigma, source = float(noise), "given"
     sigma = max(sigma, floor) if math.isfinite(sigma) else floor
-    sums, used = _axial_sums(logl, cnt)
+    sums, used = _axial_sums(logl, cnt, np)
     sums = np.asarray(sums[0], np.float64)
     per_pair = [
         dict(
