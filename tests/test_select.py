@@ -235,3 +235,25 @@ def test_cli_model_auto_and_fixed(tmp_path, capsys):
         assert main(["reconstruct", str(meas), "-o", str(bad), *argv]) == 2
         assert match in capsys.readouterr().err
     assert not bad.exists() and not (tmp_path / "bad.model.json").exists()
+
+
+def test_select_models_batches_the_folds_with_the_same_choices():
+    """Many materials at once: the held-out folds of one layout in one vmapped call (padded to
+    select._batch.BATCH), the same choices and errors as one by one (float32 rounding)."""
+    from abrdf_jax.select import _batch
+
+    names = ("ward-brushed-steel", "ggx-aniso-metal", "ggx-plastic", "ashikhmin-satin")
+    meas = [
+        aj.group_slices(aj.simulate_capture(materials.get_material(n), noise=0.01, seed=i))[0]
+        for i, n in enumerate(names * 5)  # 20: one full batch of 16 and one padded one
+    ]
+    done = []
+    many = select.select_models(meas, on_done=done.append)
+    assert sum(done) == len(meas) and len(many) == len(meas)
+    for m, s in zip(meas, many):
+        one = select.select_model(m)
+        assert s.name == one.name and s.isotropy.isotropic == one.isotropy.isotropic
+        assert set(s.errors) == set(one.errors)
+        for n, e in one.errors.items():
+            assert s.errors[n] == pytest.approx(e, rel=1e-4, nan_ok=True)
+    assert _batch.BATCH < len(meas)

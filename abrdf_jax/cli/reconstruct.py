@@ -118,16 +118,13 @@ def choose(item: common.Measured, args, forced: str | None) -> dict:
         config, params = common.params_for(budget, alpha, params_file=args.params)
         why = f"parameters and model fixed by {args.params}"
         return common.model_choice(where, None, config, params, "params", why)
-    if args.preset is None and args.model in (None, "auto"):
+    if _automatic(args):
         tol = {} if args.tol is None else {"tol": args.tol}
         try:
             s = select_model(item.meas, budget=forced, noise=args.noise, alpha_deg=alpha, **tol)
         except InputError as e:
             raise InputError(f"{where}: {e}") from e
-        d = s.to_dict()
-        extra = {"rank": CANDIDATES[s.name].rank, "tol": s.tol, "folds": s.k}
-        extra |= {"candidates": d["candidates"], "isotropy": d["isotropy"], "seconds": s.seconds}
-        return common.model_choice(where, s.name, s.config, s.params, "auto", s.reason, extra)
+        return _auto_choice(where, s)
     if args.preset is not None:
         config, how, flag = aj.preset(args.preset, budget), "preset", f"--preset {args.preset}"
         c = next((c for c in CANDIDATES.values() if c.config() == config), None)  # its name, if any
@@ -145,15 +142,50 @@ def choose(item: common.Measured, args, forced: str | None) -> dict:
     return common.model_choice(where, c.name, config, params, how, why, {"rank": c.rank})
 
 
+def _automatic(args) -> bool:
+    return args.params is None and args.preset is None and args.model in (None, "auto")
+
+
+def _auto_choice(where, s) -> dict:
+    """The model record of an automatic choice (a :class:`abrdf_jax.select.Selection`)."""
+    from ..select import CANDIDATES
+
+    d = s.to_dict()
+    extra = {"rank": CANDIDATES[s.name].rank, "tol": s.tol, "folds": s.k}
+    extra |= {"candidates": d["candidates"], "isotropy": d["isotropy"], "seconds": s.seconds}
+    return common.model_choice(where, s.name, s.config, s.params, "auto", s.reason, extra)
+
+
 def choose_all(items: list[common.Measured], args, forced: str | None) -> list[dict]:
-    """:func:`choose` for every input, with a progress bar when there are several."""
-    out = []
-    with common.progress(len(items), "select model", args.quiet or len(items) < 2) as bar:
-        for item in items:
-            choice = choose(item, args, forced)
-            choice["record"]["measurement"] = item.used  # what of the file was used, and why not
-            out.append(choice)
-            bar.update(1)
+    """:func:`choose` for every input, with a progress bar when there are several; the
+    automatic choice of several inputs runs their held-out folds in batches
+    (:func:`abrdf_jax.select.select_models`: the same choices)."""
+    quiet = args.quiet or len(items) < 2
+    with common.progress(len(items), "select model", quiet) as bar:
+        out = None
+        if _automatic(args) and len(items) > 1:
+            from ..select import select_models
+
+            tol = {} if args.tol is None else {"tol": args.tol}
+            try:
+                sels = select_models(
+                    [it.meas for it in items],
+                    budget=forced,
+                    noise=args.noise,
+                    alpha_deg=[it.alpha for it in items],
+                    on_done=bar.update,
+                    **tol,
+                )
+                out = [_auto_choice(it.path, s) for it, s in zip(items, sels)]
+            except InputError:
+                bar.reset()  # one by one below, so that the error names its file
+        if out is None:
+            out = []
+            for item in items:
+                out.append(choose(item, args, forced))
+                bar.update(1)
+    for item, choice in zip(items, out):
+        choice["record"]["measurement"] = item.used  # what of the file was used, and why not
     return out
 
 

@@ -7,6 +7,7 @@
 
     report = select.isotropy_test(samples)            # noise-aware test on the axial slices
     sel = select.select_model(samples)                # isotropy, then held-out error + 5 % rule
+    sels = select.select_models(many)                 # the same for many, folds batched
     print(sel.name, sel.reason, sel.errors)
     table = aj.reconstruct(samples, sel.config, sel.params)
 
@@ -41,6 +42,7 @@ from ._select import (
     select_model as select_model,
     tolerance_choice as tolerance_choice,
 )
+from ._batch import select_models as select_models
 from ._samplecount import (
     DEFAULT_COUNTS as DEFAULT_COUNTS,
     SampleCountCurve as SampleCountCurve,

@@ -34,6 +34,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -386,6 +387,26 @@ def select_model(
         A :class:`Selection`.
     """
     t0 = time.perf_counter()
+    plan = _plan(samples, candidates, budget, noise, level, min_effect, alpha_deg, dtype)
+    errors = None
+    if len(plan.configs) > 1:
+        errors = held_out_errors(plan.meas, plan.configs, alpha_deg=plan.alpha, k=k)
+    return _finish(plan, errors, tol, k, time.perf_counter() - t0)
+
+
+class _Plan(NamedTuple):
+    """A measurement's selection before the held-out errors: its candidates and the evidence."""
+
+    meas: Measurements
+    alpha: float
+    budget: str | None
+    report: IsotropyReport | None
+    configs: dict
+    ranks: dict
+
+
+def _plan(samples, candidates, budget, noise, level, min_effect, alpha_deg, dtype) -> _Plan:
+    """Group, test isotropy and list the candidates left (everything before the folds)."""
     if budget not in (None, "iso102", "aniso204"):
         raise InputError(f"budget must be 'iso102', 'aniso204' or None, got {budget!r}")
     meas, alpha = _grouped(samples, alpha_deg, dtype)
@@ -411,19 +432,22 @@ def select_model(
         names = [n for n in names if CANDIDATES[n].settings["budget"] == "iso102"] or ["iso"]
     configs = {n: CANDIDATES[n].config(pairs=meas.pairs) for n in names}
     ranks = {n: CANDIDATES[n].rank for n in names}
-    if len(names) == 1:
+    return _Plan(meas, alpha, budget, report, configs, ranks)
+
+
+def _finish(plan: _Plan, errors: dict | None, tol: float, k: int, seconds: float) -> Selection:
+    """The tolerance rule on the held-out errors (``None``: a single candidate)."""
+    names = list(plan.configs)
+    if errors is None:
         errors = {names[0]: float("nan")}
         pick = names[0]
         reason = f"{pick}: the only candidate left"
     else:
-        errors = held_out_errors(meas, configs, alpha_deg=alpha, k=k)
-        pick, reason = tolerance_choice(errors, ranks, tol)
-    if report is not None:
-        reason = f"{report.reason}. {reason}"
-    elif budget is not None:
-        reason = f"budget forced to {budget}. {reason}"
-    config = configs[pick]
-    params = Params.default(config, alpha_deg=alpha, dtype=meas.y.dtype)
-    return Selection(
-        pick, config, params, errors, ranks, report, reason, tol, k, time.perf_counter() - t0
-    )
+        pick, reason = tolerance_choice(errors, plan.ranks, tol)
+    if plan.report is not None:
+        reason = f"{plan.report.reason}. {reason}"
+    elif plan.budget is not None:
+        reason = f"budget forced to {plan.budget}. {reason}"
+    config = plan.configs[pick]
+    params = Params.default(config, alpha_deg=plan.alpha, dtype=plan.meas.y.dtype)
+    return Selection(pick, config, params, errors, plan.ranks, plan.report, reason, tol, k, seconds)
