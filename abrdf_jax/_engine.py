@@ -34,6 +34,14 @@ from ._params import Config, Params
 #: 6561 x 3 floats a material, 20 MiB at 256); the general pipeline holds one RBF evaluation a
 #: material, so its batches are smaller.
 OPERATOR_BATCH, PIPELINE_BATCH = 256, 32
+#: A slice layout shared by fewer measurements than this (in a call of several) goes through
+#: the pipeline: building an operator costs an RBF solve with one right-hand side per sample,
+#: about as much as reconstructing dozens of materials in a batch, and a jittered capture's
+#: layout is never seen again (100 jittered iso102 files, each with its own α: 55 s and 257 MB
+#: of operator cache with one operator each). A caller with one measurement (``abrdf-jax
+#: reconstruct FILE``) passes ``min_group=1``: the next call with its layout loads the operator
+#: from the operator store.
+OPERATOR_MIN_GROUP = 32
 
 
 def operator_applies(config: Config, meas: Measurements) -> bool:
@@ -87,6 +95,7 @@ def reconstruct_many(
     *,
     operator: Callable | None = None,
     batch: int | None = None,
+    min_group: int = OPERATOR_MIN_GROUP,
 ) -> Iterator[tuple[list[int], np.ndarray, str]]:
     """Reconstruct measurements that share ``config`` and ``params`` (module docstring).
 
@@ -96,6 +105,8 @@ def reconstruct_many(
             sample values ``(B, S, nmax, C)`` (e.g. one
             that looks in an operator store first); default :func:`~abrdf_jax.compile_operator`.
         batch: materials per call (default ``OPERATOR_BATCH`` / ``PIPELINE_BATCH``).
+        min_group: the fewest measurements of one slice layout that get an operator
+            (:data:`OPERATOR_MIN_GROUP`).
 
     Yields:
         ``(indices, tables, path)``: positions in ``meas``, their ``(len(indices), 81, 81, 3)``
@@ -105,10 +116,14 @@ def reconstruct_many(
     from ._pipeline import reconstruct_batch
 
     operator = operator or compile_operator
+    layouts: dict[str, list[int]] = {}
+    for k, m in enumerate(meas):
+        if operator_applies(config, m):
+            layouts.setdefault(layout_key(m), []).append(k)
+    fast = {k for members in layouts.values() if len(members) >= min_group for k in members}
     groups: dict[tuple, list[int]] = {}
     for k, m in enumerate(meas):
-        fast = operator_applies(config, m)
-        key = ("operator", layout_key(m)) if fast else ("pipeline", m.pairs, m.centre_azimuths)
+        key = ("operator", layout_key(m)) if k in fast else ("pipeline", m.pairs, m.centre_azimuths)
         groups.setdefault(key, []).append(k)
     for key, members in groups.items():
         if key[0] == "operator":
@@ -118,6 +133,8 @@ def reconstruct_many(
                 yield chunk, np.asarray(op(y))[: len(chunk)], "operator"
         else:
             nmax = max(meas[k].t.shape[-1] for k in members)
+            # always the full batch, also for a group of one: XLA's rounding depends on the
+            # batch shape, and a resumed run must give the same bits as an uninterrupted one
             for chunk, padded in _batches(members, batch or PIPELINE_BATCH):
                 stack = stack_measurements([_pad_slices(meas[k], nmax) for k in padded])
                 tables = reconstruct_batch(stack, config, params)

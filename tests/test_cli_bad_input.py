@@ -209,7 +209,7 @@ def test_negative_values_warn_and_write_failure_keeps_output(tmp_path, capsys, m
     monkeypatch.chdir(tmp_path)
     seen = []
 
-    def stub(meas, config, params, operator=None):
+    def stub(meas, config, params, operator=None, **kw):
         seen.extend(meas)
         yield [0], _T[None], "operator"
 

@@ -31,16 +31,22 @@ def test_operator_groups_match_the_pipeline_and_ignore_the_batch_size():
         built.append(template)
         return aj.compile_operator(c, p, template)
 
-    whole = list(_engine.reconstruct_many(meas, config, params, operator=operator, batch=8))
+    whole = list(
+        _engine.reconstruct_many(meas, config, params, operator=operator, batch=8, min_group=1)
+    )
     assert len(built) == 1 and [len(i) for i, _, _ in whole] == [5]
     ((idx, tables, path),) = whole
     assert idx == list(range(5)) and path == "operator" and tables.shape == (5, 81, 81, 3)
     expected = np.asarray(aj.reconstruct_batch(meas, config, params))
     np.testing.assert_allclose(tables, expected, rtol=0, atol=2e-3 * expected.max())
     # batches of 2 (the last one padded): the same tables, bit for bit
-    parts = list(_engine.reconstruct_many(meas, config, params, batch=2))
+    parts = list(_engine.reconstruct_many(meas, config, params, batch=2, min_group=1))
     assert [i for i, _, _ in parts] == [[0, 1], [2, 3], [4]]
     np.testing.assert_array_equal(np.concatenate([t for _, t, _ in parts]), tables)
+    # fewer than OPERATOR_MIN_GROUP of a layout: the pipeline (no operator built for a few)
+    few = list(_engine.reconstruct_many(meas, config, params, operator=operator))
+    assert len(built) == 1 and {p for *_, p in few} == {"pipeline"}
+    np.testing.assert_allclose(few[0][1], tables, rtol=0, atol=2e-3 * expected.max())
 
 
 def test_pipeline_groups_pad_the_last_batch_and_compile_once(monkeypatch):
@@ -86,7 +92,8 @@ def test_folder_resume_redoes_only_what_is_missing_or_torn(tmp_path, capsys):
     assert main(["reconstruct", str(src), "-o", str(out), "-q"]) == 0
     first = {p.name: p.read_bytes() for p in out.iterdir()}
     record = json.loads((tmp_path / "out.model.json").read_text())
-    assert len(record["inputs"]) == 5 and {e["engine"] for e in record["inputs"]} == {"operator"}
+    # five files of one layout: fewer than OPERATOR_MIN_GROUP, so the pipeline
+    assert len(record["inputs"]) == 5 and {e["engine"] for e in record["inputs"]} == {"pipeline"}
     (out / "m1.npz").unlink()
     (out / "m3.npz").write_bytes(first["m3.npz"][:100])  # torn
     capsys.readouterr()
@@ -106,12 +113,14 @@ def test_interrupted_folder_keeps_finished_tables_and_resumes_to_the_same_result
     tmp_path, monkeypatch
 ):
     src = _folder(tmp_path)
+    # batches of 2 in every run (XLA's rounding depends on the batch shape, not on the partners)
+    monkeypatch.setattr(_engine, "PIPELINE_BATCH", 2)
     whole = tmp_path / "whole"
     assert main(["reconstruct", str(src), "-o", str(whole), "-q"]) == 0
     real = _engine.reconstruct_many
 
-    def killed_after_two_batches(meas, config, params, operator=None):
-        for k, part in enumerate(real(meas, config, params, operator=operator, batch=2)):
+    def killed_after_two_batches(meas, config, params, operator=None, **kw):
+        for k, part in enumerate(real(meas, config, params, operator=operator, **kw)):
             if k == 2:
                 raise KeyboardInterrupt
             yield part

@@ -301,7 +301,9 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args) -> in
     config, params = choice["config"], choice["params"]
     meas = common.measurements_for(item, config)
     common.warn_guard(item.path, meas, config, params, args.params)
-    ((_, tables, engine),) = reconstruct_many([meas], config, params, operator=_operators(args))
+    ((_, tables, engine),) = reconstruct_many(
+        [meas], config, params, operator=_operators(args), min_group=1
+    )
     table = np.asarray(tables[0])
     aj.check_finite(table, str(item.path))
     io.write_table(out, table)
