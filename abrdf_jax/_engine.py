@@ -23,6 +23,7 @@ is done and an interrupted run keeps what it finished.
 from __future__ import annotations
 
 import hashlib
+from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
@@ -37,8 +38,8 @@ OPERATOR_BATCH, PIPELINE_BATCH = 256, 32
 #: A slice layout shared by fewer measurements than this (in a call of several) goes through
 #: the pipeline: building an operator costs an RBF solve with one right-hand side per sample,
 #: about as much as reconstructing dozens of materials in a batch, and a jittered capture's
-#: layout is never seen again (100 jittered iso102 files, each with its own α: 55 s and 257 MB
-#: of operator cache with one operator each). A caller with one measurement (``abrdf-jax
+#: layout is never seen again (docs/notes.md, "Issue 13": 100 jittered files, one operator
+#: each, took 55 s and 257 MB of cache against 33 s through the pipeline). A caller with one measurement (``abrdf-jax
 #: reconstruct FILE``) passes ``min_group=1``: the next call with its layout loads the operator
 #: from the operator store.
 OPERATOR_MIN_GROUP = 32
@@ -116,15 +117,13 @@ def reconstruct_many(
     from ._pipeline import reconstruct_batch
 
     operator = operator or compile_operator
-    layouts: dict[str, list[int]] = {}
-    for k, m in enumerate(meas):
-        if operator_applies(config, m):
-            layouts.setdefault(layout_key(m), []).append(k)
-    fast = {k for members in layouts.values() if len(members) >= min_group for k in members}
+    keys = [layout_key(m) if operator_applies(config, m) else None for m in meas]
+    sizes = Counter(keys)
     groups: dict[tuple, list[int]] = {}
-    for k, m in enumerate(meas):
-        key = ("operator", layout_key(m)) if k in fast else ("pipeline", m.pairs, m.centre_azimuths)
-        groups.setdefault(key, []).append(k)
+    for k, (m, key) in enumerate(zip(meas, keys)):
+        fast = key is not None and sizes[key] >= min_group
+        group = ("operator", key) if fast else ("pipeline", m.pairs, m.centre_azimuths)
+        groups.setdefault(group, []).append(k)
     for key, members in groups.items():
         if key[0] == "operator":
             op = operator(config, params, meas[members[0]])

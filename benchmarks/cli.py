@@ -284,29 +284,20 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int) -> dict:
         ),
     }
 
+    def peer_one(csv):  # the peer on one file
+        pout = csv.with_name("peer.npz")
+        cmd = [py, *PEER, str(csv), "-o", str(pout)]
+        return r.timed(cmd, files=1, cwd=REPO, repeats=repeats, outputs=_exists(pout))
+
     log("one iso102 file")
-    pout = iso_csv.with_name("peer.npz")
-    peer_iso = r.timed(
-        [py, *PEER, str(iso_csv), "-o", str(pout)],
-        files=1,
-        cwd=REPO,
-        repeats=repeats,
-        outputs=_exists(pout),
-    )
+    peer_iso = peer_one(iso_csv)
     iso = single_file(r, "iso1", iso_csv, [], repeats)
     for state in ("cold", "warm"):
         what = f"one iso102 file, {state} cache"
         runs[f"iso1_{state}"] = {"what": what, "files": 1, "package": iso[state], "peer": peer_iso}
 
     log("one aniso204 file")
-    pout = aniso_csv.with_name("peer.npz")
-    peer_aniso = r.timed(
-        [py, *PEER, str(aniso_csv), "-o", str(pout)],
-        files=1,
-        cwd=REPO,
-        repeats=repeats,
-        outputs=_exists(pout),
-    )
+    peer_aniso = peer_one(aniso_csv)
     for model in ("auto", "aniso"):
         res = single_file(r, f"aniso1_{model}", aniso_csv, ["--model", model], repeats)
         for state in ("cold", "warm"):

@@ -10,10 +10,15 @@ REPO = Path(__file__).resolve().parents[1]
 
 def run_cli(*args, cwd, timeout: int = 300):
     """``python -m abrdf_jax.cli ARGS`` in ``cwd``: the completed process (text output)."""
+    return run_module("abrdf_jax.cli", *args, cwd=cwd, timeout=timeout)
+
+
+def run_module(module: str, *args, cwd, timeout: int = 300):
+    """``python -m MODULE ARGS`` in ``cwd`` with this checkout first on the path."""
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     return subprocess.run(
-        [sys.executable, "-m", "abrdf_jax.cli", *map(str, args)],
+        [sys.executable, "-m", module, *map(str, args)],
         cwd=cwd,
         env=env,
         capture_output=True,

@@ -15,19 +15,14 @@ from abrdf_jax import io, materials
 from benchmarks import cli, scipy_cli
 from benchmarks._cli_report import check_targets, derive, markdown, pass_fail_lines
 from benchmarks.scipy_peer import scipy_kwargs
+from tests.cli_runner import run_module
 from tests.scipy_oracle import reconstruct_scipy
 
 REPO = cli.REPO
 
 
 def _peer(*args, timeout=300):
-    return subprocess.run(
-        [sys.executable, "-m", "benchmarks.scipy_cli", *map(str, args)],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
+    return run_module("benchmarks.scipy_cli", *args, cwd=REPO, timeout=timeout)
 
 
 @pytest.mark.parametrize("budget", ["iso102", "aniso204"])
