@@ -38,14 +38,8 @@ _EXPORTS = {
         "stack_measurements",
     ),
     "_grouping": ("estimate_alpha", "group_slices", "infer_pairs"),
-    "_slices": (
-        "PROTOCOL_ALPHA_DEG",
-        "PROTOCOL_COUNTS",
-        "PROTOCOL_PAIRS",
-        "protocol_counts",
-        "slice_angles",
-        "slice_directions",
-    ),
+    "_protocol": ("PROTOCOL_ALPHA_DEG", "PROTOCOL_COUNTS", "PROTOCOL_PAIRS", "protocol_counts"),
+    "_slices": ("slice_angles", "slice_directions"),
     "_sampling": ("sample", "sample_model", "sample_table"),
     "_capture": ("simulate_capture",),
     "_subspace": ("RULES", "subspace"),
@@ -58,7 +52,8 @@ _EXPORTS = {
         "rbf_system",
     ),
     "_params": ("Config", "Params", "PRESETS", "preset"),
-    "_pipeline": ("check_finite", "infer_budget", "reconstruct", "reconstruct_batch", "solve_info"),
+    "_arrays": ("check_finite",),
+    "_pipeline": ("infer_budget", "reconstruct", "reconstruct_batch", "solve_info"),
     "_operator": ("ReconstructionOperator", "compile_operator"),
 }
 _SUBPACKAGES = ("btf", "cli", "io", "materials", "metrics", "render", "select", "tuning")

@@ -25,6 +25,7 @@ import hashlib
 import json
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -372,9 +373,11 @@ def build_entry(meas, config, params, *, build_dtype: str = BUILD_DTYPE) -> Oper
             ``compile_operator`` does (the rules ``"filip2012"``/``"log"`` on aniso204, or
             ``value_space="log"``).
     """
+    from ._engine import as_jax
     from ._operator import compile_operator
     from ._values import value_space
 
+    meas, params = as_jax(meas, params)
     with _x64_scope(build_dtype == "float64"):
         op = compile_operator(config, params, meas, dtype=build_dtype, build_dtype=build_dtype)
         matrix = np.asarray(op.matrix)
@@ -408,23 +411,31 @@ def _fits(entry: OperatorEntry, meas) -> bool:
 
 
 def cached_entry(
-    store: OperatorStore | None, meas, config, params, warn: Warn = default_warn
+    store: OperatorStore | None,
+    meas,
+    config,
+    params,
+    warn: Warn = default_warn,
+    before_build: Callable[[], None] | None = None,
 ) -> tuple[OperatorEntry, bool]:
     """The operator entry for ``(config, params, meas's layout)``: ``(entry, hit)``.
 
     Loaded from ``store`` when it holds a valid entry (``hit=True``); else built (importing
-    JAX) and saved. ``store=None``: always built. A store that cannot be read or written gives a
-    warning through ``warn`` and the built entry.
+    JAX; ``before_build()`` first) and saved. ``store=None``: always built. A store that cannot
+    be read or written gives a warning through ``warn`` and the built entry.
 
     Raises:
         InputError: for nonlinear settings (see :func:`build_entry`).
     """
+    before_build = before_build or (lambda: None)
     if store is None:
+        before_build()
         return build_entry(meas, config, params), False
     key = operator_key(config, params, meas)
     entry = store.load(key, warn)
     if entry is not None and _fits(entry, meas):
         return entry, True
+    before_build()
     entry = build_entry(meas, config, params)
     store.save(key, entry, warn)
     return entry, False

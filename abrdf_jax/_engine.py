@@ -25,11 +25,16 @@ from __future__ import annotations
 import hashlib
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ._measurements import Measurements, stack_measurements
-from ._params import Config, Params
+from ._config import Config
+
+if TYPE_CHECKING:  # JAX pytrees: the pipeline path makes them (importing JAX), the operator
+    # path needs none (the command line passes numpy slices and parameter values)
+    from ._measurements import Measurements
+    from ._params import Params
 
 #: Materials per batch: one matrix product per operator batch (bounded by the output's
 #: 6561 x 3 floats a material, 20 MiB at 256); the general pipeline holds one RBF evaluation a
@@ -45,17 +50,24 @@ OPERATOR_BATCH, PIPELINE_BATCH = 256, 32
 OPERATOR_MIN_GROUP = 32
 
 
-def operator_applies(config: Config, meas: Measurements) -> bool:
+def operator_applies(config: Config, meas) -> bool:
     """Whether ``config`` on ``meas`` is one matrix (:func:`~abrdf_jax.compile_operator`)
-    that reproduces :func:`~abrdf_jax.reconstruct`: a linear rule, no log after it, and no
-    dense layout (whose spike cap the pipeline applies and the operator does not)."""
-    from ._subspace import get_rule
-    from ._values import value_space
+    that reproduces :func:`~abrdf_jax.reconstruct`: a linear rule, no log after it
+    (:attr:`Config.linear`), and no dense layout (whose spike cap the pipeline applies and the
+    operator does not). No JAX is imported."""
+    return config.linear and meas.centre_azimuths is None
 
-    linear = (
-        get_rule(config.subspace_rule).linear and not value_space(config.value_space).log_subspace
-    )
-    return linear and meas.centre_azimuths is None
+
+def as_jax(meas, params) -> tuple["Measurements", "Params"]:
+    """The JAX pytrees of a measurement and parameters that may be numpy (the command line's
+    slices and parameter values, ``abrdf_jax._arrays``/``abrdf_jax._config``)."""
+    from ._params import Params
+
+    if hasattr(meas, "to_measurements"):
+        meas = meas.to_measurements()
+    if params is not None and not isinstance(params, Params):
+        params = Params(params.alpha, params.widths, params.reg)
+    return meas, params
 
 
 def layout_key(meas: Measurements) -> str:
@@ -78,7 +90,7 @@ def _batches(members: Sequence[int], size: int) -> Iterator[tuple[list[int], lis
         yield chunk, chunk + [chunk[-1]] * (size - len(chunk))
 
 
-def _pad_slices(meas: Measurements, nmax: int) -> Measurements:
+def _pad_slices(meas: "Measurements", nmax: int) -> "Measurements":
     import jax.numpy as jnp
 
     extra = nmax - meas.t.shape[-1]
@@ -90,33 +102,40 @@ def _pad_slices(meas: Measurements, nmax: int) -> Measurements:
 
 
 def reconstruct_many(
-    meas: Sequence[Measurements],
+    meas: Sequence["Measurements"],
     config: Config,
-    params: Params,
+    params: "Params",
     *,
     operator: Callable | None = None,
     batch: int | None = None,
     min_group: int = OPERATOR_MIN_GROUP,
+    before_jax: Callable[[], None] | None = None,
 ) -> Iterator[tuple[list[int], np.ndarray, str]]:
     """Reconstruct measurements that share ``config`` and ``params`` (module docstring).
 
     Args:
-        meas: the measurements; they may differ in pairs, layout and slice positions.
+        meas: the measurements (or their numpy slices); they may differ in pairs, layout and
+            slice positions. The operator path imports no JAX when ``operator`` does not.
         operator: ``operator(config, params, template)`` returning a callable on stacked
             sample values ``(B, S, nmax, C)`` (e.g. one
             that looks in an operator store first); default :func:`~abrdf_jax.compile_operator`.
         batch: materials per call (default ``OPERATOR_BATCH`` / ``PIPELINE_BATCH``).
         min_group: the fewest measurements of one slice layout that get an operator
             (:data:`OPERATOR_MIN_GROUP`).
+        before_jax: called before the pipeline's first JAX work (e.g. to turn on a
+            compilation cache); the operator path leaves JAX to ``operator``.
 
     Yields:
         ``(indices, tables, path)``: positions in ``meas``, their ``(len(indices), 81, 81, 3)``
         float32 tables (numpy), and ``"operator"`` or ``"pipeline"``.
     """
-    from ._operator import compile_operator
-    from ._pipeline import reconstruct_batch
+    if operator is None:
+        from ._operator import compile_operator
 
-    operator = operator or compile_operator
+        def operator(config, params, template):
+            template, params = as_jax(template, params)
+            return compile_operator(config, params, template)
+
     keys = [layout_key(m) if operator_applies(config, m) else None for m in meas]
     sizes = Counter(keys)
     groups: dict[tuple, list[int]] = {}
@@ -131,10 +150,18 @@ def reconstruct_many(
                 y = np.stack([np.asarray(meas[k].y) for k in padded])
                 yield chunk, np.asarray(op(y))[: len(chunk)], "operator"
         else:
+            if before_jax is not None:
+                before_jax()
+            from ._measurements import stack_measurements
+            from ._pipeline import reconstruct_batch
+
+            jparams = as_jax(meas[members[0]], params)[1]
             nmax = max(meas[k].t.shape[-1] for k in members)
             # always the full batch, also for a group of one: XLA's rounding depends on the
             # batch shape, and a resumed run must give the same bits as an uninterrupted one
             for chunk, padded in _batches(members, batch or PIPELINE_BATCH):
-                stack = stack_measurements([_pad_slices(meas[k], nmax) for k in padded])
-                tables = reconstruct_batch(stack, config, params)
+                stack = stack_measurements(
+                    [_pad_slices(as_jax(meas[k], None)[0], nmax) for k in padded]
+                )
+                tables = reconstruct_batch(stack, config, jparams)
                 yield chunk, np.asarray(tables)[: len(chunk)], "pipeline"

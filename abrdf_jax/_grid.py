@@ -22,9 +22,7 @@ import numpy as np
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-# UBO2003: elevations and the number of azimuths on each ring (PROTOCOL.md).
-UBO_THETAS_DEG = (0.0, 15.0, 30.0, 45.0, 60.0, 75.0)
-UBO_COUNTS = (1, 6, 12, 18, 20, 24)
+from ._protocol import UBO_COUNTS as UBO_COUNTS, UBO_THETAS_DEG as UBO_THETAS_DEG
 
 
 def ubo_grid() -> tuple[np.ndarray, np.ndarray]:

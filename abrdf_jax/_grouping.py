@@ -39,13 +39,16 @@ averaged), so the BTF path reads the same grouping off as one matrix
 
 from __future__ import annotations
 
-import jax.numpy as jnp
+from typing import TYPE_CHECKING
+
 import numpy as np
 
+from ._arrays import SliceArrays
 from ._errors import InputError
-from ._grid import UBO_THETAS_DEG
-from ._measurements import Measurements, Samples
-from ._slices import PROTOCOL_PAIRS
+from ._protocol import PROTOCOL_PAIRS, UBO_THETAS_DEG
+
+if TYPE_CHECKING:  # JAX pytrees: built from the numpy result only by group_slices
+    from ._measurements import Measurements, Samples
 
 #: Elevation levels further apart than this are different pairs (degrees).
 PAIR_GAP_DEG = 2.5
@@ -124,7 +127,7 @@ def _near_offsets(pi_, pv, alpha_deg, window):
     return both[np.abs(both) <= window]
 
 
-def estimate_alpha(samples: Samples) -> float:
+def estimate_alpha(samples: "Samples") -> float:
     """Estimate the slice offset α (degrees) from measured samples.
 
     Every on-slice sample has either ``φi − φv ≡ α`` (axial) or ``φi + φv ≡ α`` (diagonal),
@@ -135,7 +138,7 @@ def estimate_alpha(samples: Samples) -> float:
     return estimate_alpha_spread(samples)[0]
 
 
-def estimate_alpha_spread(samples: Samples) -> tuple[float, float, float]:
+def estimate_alpha_spread(samples: "Samples") -> tuple[float, float, float]:
     """``(α, standard error of α, robust σ of the across-slice offsets)``, degrees."""
     s = samples.to_numpy()
     pi_, pv = np.asarray(s.phi_i, float), np.asarray(s.phi_v, float)
@@ -197,7 +200,7 @@ def _gaps(angle_deg) -> list[tuple[float, float]]:
 
 
 def group_slices(
-    samples: Samples,
+    samples: "Samples",
     alpha_deg: float | None = None,
     pairs=None,
     tol_deg: float | None = None,
@@ -206,11 +209,34 @@ def group_slices(
     min_axial: int = 3,
     max_knots: int = MAX_KNOTS,
     centre_azimuths: int | None | str = "auto",
-) -> tuple[Measurements, dict]:
+) -> tuple["Measurements", dict]:
     """Group arbitrary measured samples into slices (steps 1–6 of the module docstring).
 
+    :func:`group_arrays` (numpy, no JAX), its slices as a :class:`~abrdf_jax.Measurements`;
+    the arguments, report and errors are that function's.
+    """
+    arrays, report = group_arrays(
+        samples, alpha_deg, pairs, tol_deg, nmax, dtype, min_axial, max_knots, centre_azimuths
+    )
+    return arrays.to_measurements(), report
+
+
+def group_arrays(
+    samples,
+    alpha_deg: float | None = None,
+    pairs=None,
+    tol_deg: float | None = None,
+    nmax: int | None = None,
+    dtype=np.float32,
+    min_axial: int = 3,
+    max_knots: int = MAX_KNOTS,
+    centre_azimuths: int | None | str = "auto",
+) -> tuple[SliceArrays, dict]:
+    """Group arbitrary measured samples into slices (steps 1–6 of the module docstring), numpy.
+
     Args:
-        samples: the measured samples (degrees).
+        samples: the measured samples (degrees): :class:`~abrdf_jax.Samples` or the columns of
+            :func:`abrdf_jax.io.read_sample_columns`.
         alpha_deg: the slice offset; ``None`` estimates it with :func:`estimate_alpha`.
         pairs: elevation pairs to group on; ``None`` infers them from the data
             (:func:`infer_pairs`). Given pairs without any sample are left out.
@@ -222,7 +248,8 @@ def group_slices(
             ``DENSE_AZIMUTHS`` for a dense capture (step 6), else ``None``.
 
     Returns:
-        ``(measurements, report)``; ``report`` has ``alpha_deg``, ``alpha_se_deg``, ``tol_deg``,
+        ``(slices, report)``: the slices (``SliceArrays``, the fields of
+        :class:`~abrdf_jax.Measurements` as numpy arrays of ``dtype``); ``report`` has ``alpha_deg``, ``alpha_se_deg``, ``tol_deg``,
         ``offset_sigma_deg``, ``n_used``, ``n_off_slice`` (all samples left out), ``n_stray`` (those at no pair),
         ``n_raw`` (on-slice samples per slice before reduction), ``counts`` (knots per slice),
         ``gaps`` and ``dropped_pairs`` (expected pairs without samples: the given ones, or the
@@ -293,10 +320,10 @@ def group_slices(
     if centre_azimuths == "auto":
         dense = min(counts[1::2]) >= DENSE_KNOTS
         centre_azimuths = DENSE_AZIMUTHS if dense else None
-    meas = Measurements(
-        jnp.asarray(t, dtype),
-        jnp.asarray(y, dtype),
-        jnp.asarray(counts, jnp.int32),
+    meas = SliceArrays(
+        np.asarray(t, dtype),
+        np.asarray(y, dtype),
+        np.asarray(counts, np.int32),
         pairs,
         any(c > 0 for c in counts[0::2]),
         centre_azimuths,
@@ -317,9 +344,12 @@ def group_slices(
     return meas, report
 
 
+_SAMPLE_FIELDS = ("theta_i", "phi_i", "theta_v", "phi_v", "rgb", "to_numpy")
+
+
 def _check_arguments(samples, alpha_deg, pairs, tol_deg, max_knots, centre_azimuths) -> None:
     """An InputError naming the argument of :func:`group_slices` that cannot be used."""
-    if not isinstance(samples, Samples):
+    if not all(hasattr(samples, f) for f in _SAMPLE_FIELDS):
         raise InputError(f"group_slices: samples must be Samples, got {type(samples).__name__}")
     if len(samples) == 0:
         raise InputError("group_slices: no samples")

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ._names import check_registry
+from ._names import check_registry, check_trait
 
 # kernel -> (function of r², minimum polynomial degree, positive definite)
 _KERNELS = {}
@@ -72,6 +72,7 @@ def linear(r2):
 
 KERNELS = tuple(_KERNELS)
 check_registry("KERNELS", KERNELS)
+check_trait("KERNEL_MIN_DEGREE", {n: v[1] for n, v in _KERNELS.items()})
 
 
 def kernel_fn(name: str):

@@ -36,6 +36,22 @@ MODELS = (
     "aniso",
     "paper-aniso",
 )
+#: Traits of some choices that code without JAX needs (the configuration's checks, the command
+#: line's choice of the compiled operator); the registries check at import that they agree
+#: (:func:`check_trait`): each kernel's lowest polynomial-tail degree (-1: none), the subspace
+#: rules that are linear in the slice values, the value spaces that take the log of the
+#: subspace values (after the rule: never one matrix).
+KERNEL_MIN_DEGREE = {
+    "gaussian": -1,
+    "inverse_multiquadric": -1,
+    "inverse_quadratic": -1,
+    "multiquadric": 0,
+    "thin_plate_spline": 1,
+    "cubic": 1,
+    "linear": 0,
+}
+LINEAR_RULES = ("average", "crossing", "diagonal")
+LOG_SUBSPACE = ("log",)
 SOLVERS = ("lm", "gn", "bfgs", "lbfgs", "lbfgsb")
 FOLD_KINDS = ("pairs", "samples")
 LOSSES = ("lab", "log", "lab+log")
@@ -62,6 +78,15 @@ def lookup(registry: dict, name: str, what: str):
         from ._errors import InputError
 
         raise InputError(f"unknown {what} {name!r}; choose one of {tuple(registry)}") from None
+
+
+def check_trait(kind: str, value) -> None:
+    """Fail at import when a registry's traits differ from those listed here for ``kind``."""
+    listed = globals()[kind]
+    if value != listed:
+        raise AssertionError(
+            f"registry traits {kind} are {value!r}, but abrdf_jax._names.{kind} lists {listed!r}"
+        )
 
 
 def check_registry(kind: str, keys) -> None:

@@ -261,21 +261,3 @@ def solve_info(
 def _solve_info_jit(pairs, dtype, config, params, azimuths=None):
     n = sum(len(a) for a, _ in centre_layout(pairs, azimuths))
     return _fit_centres(jnp.zeros((n, 1), dtype), pairs, config, params, True, azimuths)[1]
-
-
-def check_finite(table, where: str = "reconstruction") -> None:
-    """Raise :class:`InputError` if ``table`` holds NaN or inf (never write such a table).
-
-    Args:
-        table: a reconstructed table (any shape, last axis RGB).
-        where: what to name in the message (the input file).
-    """
-    arr = np.asarray(table)
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        first = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise InputError(
-            f"{where}: the reconstruction holds {int(bad.sum())} NaN or infinite value(s) (first at "
-            f"index {first}): the sample values are too large for {arr.dtype} arithmetic or the RBF solve failed; "
-            "nothing was written for it (rescale the values, e.g. to a maximum near 1)"
-        )

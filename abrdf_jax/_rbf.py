@@ -47,7 +47,8 @@ import jax.scipy.linalg as jsl
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._kernels import is_positive_definite, kernel_fn, min_degree, scaled_sqdist
+from ._config import resolve_degree as resolve_degree
+from ._kernels import is_positive_definite, kernel_fn, scaled_sqdist
 
 _HI = jax.lax.Precision.HIGHEST
 
@@ -72,18 +73,6 @@ def _poly(x, shift, scale, degree):
         for e in _exponents(x.shape[1], degree)
     ]
     return jnp.stack(cols, axis=-1)
-
-
-def resolve_degree(kernel: str, degree: int | None) -> int:
-    """The polynomial degree to use: ``None`` means the kernel's minimum."""
-    lo = min_degree(kernel)
-    if degree is None:
-        return lo
-    if degree < lo:
-        raise ValueError(
-            f"kernel {kernel!r} needs a polynomial tail of degree >= {lo}, got {degree}"
-        )
-    return degree
 
 
 class RBFInterpolant(eqx.Module):

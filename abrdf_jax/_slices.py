@@ -20,10 +20,13 @@ from jaxtyping import Array, Float
 
 from ._grid import to_vector
 
-PROTOCOL_PAIRS = ((30.0, 30.0), (30.0, 75.0), (75.0, 30.0), (75.0, 75.0))
-PROTOCOL_COUNTS = (25, 25, 26, 26)
-PROTOCOL_ALPHA_DEG = 15.0
-KINDS = ("axial", "diagonal")
+from ._protocol import (  # noqa: F401 - re-exported: the geometry's constants
+    KINDS,
+    PROTOCOL_ALPHA_DEG,
+    PROTOCOL_COUNTS,
+    PROTOCOL_PAIRS,
+    protocol_counts,
+)
 
 
 def slice_angles(kind: str, param: Float[Array, "..."], alpha: Float[Array, ""]):
@@ -42,15 +45,6 @@ def slice_angles(kind: str, param: Float[Array, "..."], alpha: Float[Array, ""])
     else:
         raise ValueError(f"slice kind must be one of {KINDS}, got {kind!r}")
     return jnp.mod(phi_i, two_pi), jnp.mod(phi_v, two_pi)
-
-
-def protocol_counts(budget: str) -> tuple[int, ...]:
-    """Per-slice sample counts (axial, diagonal per pair) of a PROTOCOL budget."""
-    if budget == "iso102":
-        return tuple(c for n in PROTOCOL_COUNTS for c in (0, n))
-    if budget == "aniso204":
-        return tuple(c for n in PROTOCOL_COUNTS for c in (n, n))
-    raise ValueError(f"budget must be 'iso102' or 'aniso204', got {budget!r}")
 
 
 def protocol_parameters(counts: tuple[int, ...], nmax: int | None = None, dtype=jnp.float32):

@@ -42,7 +42,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ._interp1d import periodic_interp
-from ._names import check_registry, lookup
+from ._names import check_registry, check_trait, lookup
 
 TWO_PI = 2.0 * jnp.pi
 
@@ -189,6 +189,7 @@ def _diagonal(sl: _Slices):
 
 
 check_registry("RULES", RULES)
+check_trait("LINEAR_RULES", tuple(n for n, r in RULES.items() if r.linear))
 
 
 def get_rule(name: str) -> Rule:

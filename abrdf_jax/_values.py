@@ -16,7 +16,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ._measurements import Measurements
-from ._names import check_registry, lookup
+from ._names import check_registry, check_trait, lookup
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,6 +61,7 @@ VALUE_SPACES: dict[str, ValueSpace] = {
     )
 }
 check_registry("VALUE_SPACES", VALUE_SPACES)
+check_trait("LOG_SUBSPACE", tuple(n for n, v in VALUE_SPACES.items() if v.log_subspace))
 
 
 def value_space(name: str) -> ValueSpace:

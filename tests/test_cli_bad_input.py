@@ -230,14 +230,14 @@ def test_negative_values_warn_and_write_failure_keeps_output(tmp_path, capsys, m
     good = (tmp_path / "rec.npz").read_bytes()
 
     # The disk fills up half-way through the archive: the old file stays, no temp file remains.
-    real = np.savez_compressed
+    real = np.savez
 
     def half_then_full(f, **arrays):
         real(f, **arrays)
         f.truncate(f.tell() // 2)
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(np, "savez_compressed", half_then_full)
+    monkeypatch.setattr(np, "savez", half_then_full)
     before = snapshot(tmp_path)
     fails(
         capsys, ["reconstruct", "m.csv", "-o", "rec.npz"], "cannot write rec.npz", "No space left"

@@ -113,8 +113,9 @@ def test_materials_listing_imports_no_jax(tmp_path):
 
 
 def test_subcommands_import_only_the_shared_module():
-    """Arrows point into cli/_common only: no subcommand imports another, nor the package's
-    __init__ (checked on the source: relative imports inside abrdf_jax/cli)."""
+    """Arrows point into cli/_common only (which holds cli/_record, the model record): no
+    subcommand imports another, nor the package's __init__ (checked on the source: relative
+    imports inside abrdf_jax/cli)."""
     import ast
 
     folder = REPO / "abrdf_jax" / "cli"
@@ -126,7 +127,9 @@ def test_subcommands_import_only_the_shared_module():
                 isinstance(node, ast.ImportFrom) and node.level == 1
             ):  # "from . import x", "from .x import y"
                 targets = [node.module] if node.module else [a.name for a in node.names]
-                allowed = {"_common"} if path.name != "_common.py" else set()
+                allowed = {"_common.py": {"_record"}, "_record.py": set()}.get(
+                    path.name, {"_common"}
+                )
                 assert set(targets) <= allowed, (path.name, targets)
 
 
@@ -172,3 +175,52 @@ def test_help_defaults_match_the_package():
             name in text for name in aj.PRESETS
         ), path
     assert "default operator" in " ".join(helps[("btf", "reconstruct"), "preset"].split())
+
+
+def test_warm_reconstruct_imports_no_jax(tmp_path):
+    """A repeat call whose operators are in the operator store runs in numpy (issue 13): one
+    file (``--model auto`` left with one candidate, and a fixed linear model on an aniso204
+    file) and a folder of one layout; the tables are bit-identical to the cold call's."""
+    import abrdf_jax as aj
+    from abrdf_jax import io, materials
+
+    iso, aniso = materials.get_material("ggx-plastic"), materials.get_material("ggx-aniso-metal")
+    io.write_samples_csv(tmp_path / "iso.csv", aj.sample(iso, aj.Config(budget="iso102")))
+    io.write_samples_csv(tmp_path / "aniso.csv", aj.sample(aniso, aj.Config(budget="aniso204")))
+    (tmp_path / "dir").mkdir()
+    for k in range(33):  # an operator group (>= OPERATOR_MIN_GROUP of one layout)
+        s = aj.simulate_capture(iso, budget="iso102", noise=0.01, seed=k)
+        io.write_samples_csv(tmp_path / "dir" / f"m{k:02d}.csv", s)
+    cache = ["--cache-dir", "cache"]
+
+    def cases(tag):
+        return [
+            (["reconstruct", "iso.csv", "-o", f"iso-{tag}.npz", *cache], 0),
+            (
+                [
+                    "reconstruct",
+                    "aniso.csv",
+                    "-o",
+                    f"an-{tag}.npz",
+                    "--model",
+                    "aniso-average",
+                    *cache,
+                ],
+                0,
+            ),
+            (["reconstruct", "dir", "-o", f"out-{tag}", "-q", *cache], 0),
+        ]
+
+    cold, err = _run(cases("cold"), tmp_path)
+    assert [c[1] for c in cold] == [0, 0, 0], err
+    assert cold[0][2], "the cold call built its operator (with JAX)"
+    for case in cases("warm"):  # each in a fresh interpreter
+        ((argv, code, jax_loaded),), err = _run([case], tmp_path)
+        assert code == 0, (argv, err)
+        assert not jax_loaded, f"warm {argv} imported jax"
+    for a, b in [("iso-cold.npz", "iso-warm.npz"), ("an-cold.npz", "an-warm.npz")] + [
+        (f"out-cold/m{k:02d}.npz", f"out-warm/m{k:02d}.npz") for k in range(33)
+    ]:
+        np.testing.assert_array_equal(io.read_table(tmp_path / a), io.read_table(tmp_path / b))
+    record = json.loads((tmp_path / "out-warm.model.json").read_text())
+    assert [e["engine"] for e in record["inputs"]] == ["operator"] * 33

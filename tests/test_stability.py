@@ -13,7 +13,8 @@ import pytest
 import abrdf_jax as aj
 from abrdf_jax.cli import main
 from abrdf_jax._errors import InputError
-from abrdf_jax._pipeline import check_finite, solve_info
+from abrdf_jax._arrays import check_finite
+from abrdf_jax._pipeline import solve_info
 from abrdf_jax._rbf import GUARD_FACTOR, fit_rbf_info
 from abrdf_jax import group_slices
 from abrdf_jax._subspace import RULES, subspace

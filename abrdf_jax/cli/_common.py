@@ -9,11 +9,9 @@ every check of an argument or a file that needs no numerics stay free of JAX.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
-from collections import Counter
 from pathlib import Path
 from typing import NamedTuple
 
@@ -22,7 +20,6 @@ from .._names import check_registry
 
 PROG = "abrdf-jax"
 #: Format tag of the model record written beside a reconstruction (``OUT.model.json``).
-MODEL_FORMAT = "abrdf_jax.model/1"
 #: The protocol's metrics (``abrdf_jax.metrics.evaluate`` keys) and their labels, in print order.
 METRICS = {"de76": "dE76", "de2000": "dE2000", "rmse8": "RMSE8", "psnr": "PSNR", "logerr": "LogErr"}
 
@@ -189,8 +186,8 @@ class Measured(NamedTuple):
     """One input file on its way to the output: read once, grouped into slices once."""
 
     path: Path
-    samples: object  # abrdf_jax.Samples, as read (negative values kept)
-    meas: object  # abrdf_jax.Measurements: the slices, passed on to every later step
+    samples: object  # the file's columns (numpy, as abrdf_jax.Samples), negative values kept
+    meas: object  # the slices (numpy, as abrdf_jax.Measurements), passed on to every later step
     budget: str
     alpha: float  # slice offset, degrees
     used: dict  # what of the file was used (the model record's "measurement" entry)
@@ -285,18 +282,19 @@ def _noise(meas) -> float | None:
     """The capture's value noise (log units, per slice knot: after bin means) from the slices'
     neighbour residuals (:func:`abrdf_jax.select.estimate_noise` over all slices); an upper
     bound where a sparse slice's own curvature dominates its residuals."""
-    from ..select import estimate_noise
+    from ..select._isotropy import estimate_noise
 
     sigma = float(estimate_noise(meas, slices="all"))
     return round(sigma, 6) if math.isfinite(sigma) else None
 
 
 def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measured:
-    """Group one measurement into slices (once) and decide its budget and slice offset α."""
-    import abrdf_jax as aj
+    """Group one measurement into slices (once, numpy: no JAX) and decide its budget and slice
+    offset α."""
+    from .._grouping import group_arrays
 
     try:
-        meas, report = aj.group_slices(samples, None if alpha is None else float(alpha))
+        meas, report = group_arrays(samples, None if alpha is None else float(alpha))
     except InputError as e:
         raise InputError(f"{where}: {e}") from e
     meas, report, weak = _support(meas, report, where)
@@ -310,14 +308,14 @@ def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measu
 
 
 def read_inputs(files: list[Path], forced: str | None, alpha: float | None, before=None):
-    """Read, then plan every input (``before()`` runs in between: the CSV reader needs no JAX,
-    the planning does); one bad file fails the run before any work, naming them all."""
+    """Read, then plan every input (numpy: no JAX; ``before()`` runs in between); one bad file
+    fails the run before any work, naming them all."""
     from .. import io
 
     read, bad = [], []
     for f in files:
         try:
-            read.append((f, io.read_samples_csv(f)))
+            read.append((f, io.read_sample_columns(f)))
         except InputError as e:
             bad.append((f, str(e)))
     items = []
@@ -340,12 +338,13 @@ def read_inputs(files: list[Path], forced: str | None, alpha: float | None, befo
 def measurements_for(item: Measured, config):
     """``item``'s slices for ``config``: the grouping made once, unless the configuration names
     elevation pairs other than those it was grouped on (a hand-made parameter file)."""
-    import abrdf_jax as aj
+    from .._grouping import group_arrays
+    from .._protocol import PROTOCOL_PAIRS
 
     pairs = tuple(tuple(float(x) for x in p) for p in config.pairs)
-    if pairs in (tuple(item.meas.pairs), tuple(aj.PROTOCOL_PAIRS)):
+    if pairs in (tuple(item.meas.pairs), tuple(PROTOCOL_PAIRS)):
         return item.meas
-    return aj.group_slices(item.samples, item.alpha, pairs=config.pairs)[0]
+    return group_arrays(item.samples, item.alpha, pairs=config.pairs)[0]
 
 
 def params_for(budget: str, alpha_deg: float, preset: str = "recommended", params_file=None):
@@ -366,10 +365,7 @@ def params_for(budget: str, alpha_deg: float, preset: str = "recommended", param
                 f"{params_file}: parameters were fitted for {config.budget}, but the "
                 f"measurement is {budget}; fit for {budget} or pass --{flag}"
             )
-        import jax.numpy as jnp
-
-        alpha = aj.Params.default(config, alpha_deg=alpha_deg).alpha
-        return config, aj.Params(jnp.asarray(alpha, params.alpha.dtype), params.widths, params.reg)
+        return config, params.with_alpha_deg(alpha_deg)
     config = aj.preset(preset, budget)
     return config, aj.Params.default(config, alpha_deg=alpha_deg)
 
@@ -403,7 +399,9 @@ def warn_guard(path: Path, meas, config, params, params_file) -> None:
     if params_file is None:
         return
     import abrdf_jax as aj
+    from .._engine import as_jax
 
+    meas, params = as_jax(meas, params)
     info = aj.solve_info(meas, config, params)
     if int(info.retries) or not bool(info.ok):
         state = "raised" if bool(info.ok) else "raised, still ill-conditioned"
@@ -414,86 +412,11 @@ def warn_guard(path: Path, meas, config, params, params_file) -> None:
         )
 
 
-# --------------------------------------------------------------------------------------------
-# The model record (``OUT.model.json``)
-# --------------------------------------------------------------------------------------------
-
-
-def model_choice(where: Path, name, config, params, how: str, reason: str, extra=None) -> dict:
-    """One input's model: ``{"name", "config", "params", "record"}`` (``record``: its JSON entry)."""
-    from ..io._paramfile import params_to_dict
-
-    p = params_to_dict(config, params)
-    rec = {"input": str(where), "model": name, "how": how, "config": p["config"]}
-    rec |= {"params": p["params"], "reason": reason, **(extra or {})}
-    return {"name": name, "config": config, "params": params, "record": rec}
-
-
-def save_model_record(out: Path, choices: list[dict], folder_mode: bool) -> Path:
-    """Write the model record(s) atomically to ``OUT.model.json``, beside the output file or folder."""
-    from ..io import atomic_write
-
-    out = Path(out)
-    path = out.parent / ((out.name if folder_mode else out.stem) + ".model.json")
-    doc = {"format": MODEL_FORMAT}
-    if folder_mode:
-        doc["inputs"] = [c["record"] for c in choices]
-    else:
-        doc.update(choices[0]["record"])
-    text = json.dumps(_clean(doc), indent=2, allow_nan=False)
-    with atomic_write(path, "w") as fh:
-        fh.write(text + "\n")
-    return path
-
-
-def _clean(x):
-    """JSON-safe copy: non-finite floats as ``None``, numpy scalars as Python numbers."""
-    if isinstance(x, dict):
-        return {str(k): _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    if isinstance(x, (bool, int, str)) or x is None:
-        return x
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return str(x)
-    return v if math.isfinite(v) else None
-
-
-def describe(choice: dict) -> list[str]:
-    """Lines printed for one measurement's model."""
-    rec = choice["record"]
-    name = rec["model"] or "from parameter file"
-    lines = [f"  model: {name} ({rec['how']}): {rec['reason']}"]
-    if "measurement" in rec:
-        m = rec["measurement"]
-        per = ", ".join(
-            f"{tuple(p)} {c['axial']}+{c['diagonal']}"
-            for p, c in zip(m["pairs"], m["samples_per_slice"])
-        )
-        left = m["n_samples"] - m["n_used"]
-        lines.append(
-            f"  used: {m['n_used']} of {m['n_samples']} samples, axial+diagonal per pair {per}"
-            + (f"; {left} left out" if left else "")
-        )
-        alpha = f"alpha {m['alpha_deg']:.3f} +- {m['alpha_se_deg']:.3f} deg"
-        # on sparse slices the neighbour residuals hold the slices' own curvature: an upper bound
-        dense = min(c["diagonal_knots"] for c in m["samples_per_slice"]) >= 48
-        noise = "n/a" if m.get("noise_log") is None else f"{100 * m['noise_log']:.2g} %"
-        noise = noise if dense or noise == "n/a" else f"<= {noise} (sparse slices: an upper bound)"
-        lines.append(
-            f"  capture: {alpha}, slice tolerance {m['tolerance_deg']:.2g} deg, noise {noise}"
-            + (f", {len(m['gaps'])} gap(s)" if m["gaps"] else "")
-        )
-    for c in rec.get("candidates") or []:
-        err = "n/a" if c["held_out_log_rms"] is None else f"{c['held_out_log_rms']:.4f}"
-        mark = "*" if c["name"] == rec["model"] else " "
-        lines.append(f"   {mark} {c['name']:<15} rank {c['rank']}  held-out log RMS {err}")
-    return lines
-
-
-def summary(choices: list[dict]) -> str:
-    """``"iso x2, aniso-crossing x1"``: how often each model was used."""
-    counts = Counter(c["record"]["model"] or "parameter file" for c in choices)
-    return ", ".join(f"{n} x{k}" for n, k in counts.items())
+# The model record (``OUT.model.json``): its own module, used through this one
+from ._record import (  # noqa: E402, F401
+    MODEL_FORMAT,
+    describe,
+    model_choice,
+    save_model_record,
+    summary,
+)

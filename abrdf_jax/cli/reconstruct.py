@@ -108,25 +108,25 @@ def check_model_arguments(args) -> None:
             raise InputError(f"--model {fixed} {why}")
 
 
-def choose(item: common.Measured, args, forced: str | None) -> dict:
-    """The model for one measurement (see :func:`abrdf_jax.cli._common.model_choice`)."""
-    import abrdf_jax as aj
-    from ..select import CANDIDATES, candidate, select_model
+def choose(item: common.Measured, args, forced: str | None, caches: "_Caches") -> dict:
+    """The model for one measurement (see :func:`abrdf_jax.cli._common.model_choice`).
+
+    A fixed model, a preset and an automatic choice left with one candidate need no JAX
+    (:func:`abrdf_jax.select.quick_selection`); a parameter file and a comparison of candidates
+    by held-out errors do (``caches.numerics()`` first)."""
+    from .._config import default_values, preset
+    from ..select._candidates import CANDIDATES, candidate
 
     where, budget, alpha = item.path, item.budget, item.alpha
     if args.params is not None:
+        caches.numerics()
         config, params = common.params_for(budget, alpha, params_file=args.params)
         why = f"parameters and model fixed by {args.params}"
         return common.model_choice(where, None, config, params, "params", why)
     if _automatic(args):
-        tol = {} if args.tol is None else {"tol": args.tol}
-        try:
-            s = select_model(item.meas, budget=forced, noise=args.noise, alpha_deg=alpha, **tol)
-        except InputError as e:
-            raise InputError(f"{where}: {e}") from e
-        return _auto_choice(where, s)
+        return _auto_choices([item], args, forced, caches)[0]
     if args.preset is not None:
-        config, how, flag = aj.preset(args.preset, budget), "preset", f"--preset {args.preset}"
+        config, how, flag = preset(args.preset, budget), "preset", f"--preset {args.preset}"
         c = next((c for c in CANDIDATES.values() if c.config() == config), None)  # its name, if any
     else:
         c = candidate(args.model)
@@ -134,12 +134,53 @@ def choose(item: common.Measured, args, forced: str | None) -> dict:
             why = "needs axial slices (aniso204), but the measurement has none"
             raise InputError(f"{where}: --model {args.model} {why}")
         config, how, flag = c.config(), "fixed", f"--model {c.name}"
-    params = aj.Params.default(config, alpha_deg=alpha)
+    params = default_values(config, alpha)
     if c is None:
         why = f"{flag}: {common.PRESET_HELP[args.preset]}"
         return common.model_choice(where, args.preset, config, params, how, why)
     why = f"{flag}: {c.description}"
     return common.model_choice(where, c.name, config, params, how, why, {"rank": c.rank})
+
+
+def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
+    """The automatic choice of every input: without JAX where one candidate is left
+    (:func:`abrdf_jax.select.quick_selection`), else by held-out errors, the folds of several
+    inputs in batches (:func:`abrdf_jax.select.select_models`: the same choices)."""
+    from ..select import quick_selection
+
+    tol = {} if args.tol is None else {"tol": args.tol}
+    sels = []
+    for it in items:
+        try:
+            sels.append(quick_selection(it.meas, it.alpha, budget=forced, noise=args.noise, **tol))
+        except InputError as e:
+            raise InputError(f"{it.path}: {e}") from e
+    rest = [k for k, s in enumerate(sels) if s is None]
+    if rest:
+        caches.numerics()
+        from ..select import select_model, select_models
+
+        kw = dict(budget=forced, noise=args.noise, **tol)
+
+        def one(it):
+            try:
+                return select_model(it.meas, alpha_deg=it.alpha, **kw)
+            except InputError as e:
+                raise InputError(f"{it.path}: {e}") from e
+
+        found = None
+        if len(rest) > 1:
+            try:
+                alphas = [items[k].alpha for k in rest]
+                found = select_models([items[k].meas for k in rest], alpha_deg=alphas, **kw)
+            except InputError:
+                pass  # one by one below, so that the error names its file
+        found = found or [one(items[k]) for k in rest]
+        for k, s in zip(rest, found):
+            sels[k] = s
+    if on_done is not None:
+        on_done(len(items))
+    return [_auto_choice(it.path, s) for it, s in zip(items, sels)]
 
 
 def _automatic(args) -> bool:
@@ -148,7 +189,7 @@ def _automatic(args) -> bool:
 
 def _auto_choice(where, s) -> dict:
     """The model record of an automatic choice (a :class:`abrdf_jax.select.Selection`)."""
-    from ..select import CANDIDATES
+    from ..select._candidates import CANDIDATES
 
     d = s.to_dict()
     extra = {"rank": CANDIDATES[s.name].rank, "tol": s.tol, "folds": s.k}
@@ -156,33 +197,18 @@ def _auto_choice(where, s) -> dict:
     return common.model_choice(where, s.name, s.config, s.params, "auto", s.reason, extra)
 
 
-def choose_all(items: list[common.Measured], args, forced: str | None) -> list[dict]:
-    """:func:`choose` for every input, with a progress bar when there are several; the
-    automatic choice of several inputs runs their held-out folds in batches
-    (:func:`abrdf_jax.select.select_models`: the same choices)."""
+def choose_all(
+    items: list[common.Measured], args, forced: str | None, caches: "_Caches"
+) -> list[dict]:
+    """:func:`choose` for every input, with a progress bar when there are several."""
     quiet = args.quiet or len(items) < 2
     with common.progress(len(items), "select model", quiet) as bar:
-        out = None
-        if _automatic(args) and len(items) > 1:
-            from ..select import select_models
-
-            tol = {} if args.tol is None else {"tol": args.tol}
-            try:
-                sels = select_models(
-                    [it.meas for it in items],
-                    budget=forced,
-                    noise=args.noise,
-                    alpha_deg=[it.alpha for it in items],
-                    on_done=bar.update,
-                    **tol,
-                )
-                out = [_auto_choice(it.path, s) for it, s in zip(items, sels)]
-            except InputError:
-                bar.reset()  # one by one below, so that the error names its file
-        if out is None:
+        if _automatic(args):
+            out = _auto_choices(items, args, forced, caches, on_done=bar.update)
+        else:
             out = []
             for item in items:
-                out.append(choose(item, args, forced))
+                out.append(choose(item, args, forced, caches))
                 bar.update(1)
     for item, choice in zip(items, out):
         choice["record"]["measurement"] = item.used  # what of the file was used, and why not
@@ -258,54 +284,67 @@ def run(args) -> int:
             return 0
     # Read and check every input before computing or writing anything.
     forced = common.forced_budget(args)
-    items = common.read_inputs(files, forced, args.alpha, before=lambda: _caches(args))
-    choices = choose_all(items, args, forced)
+    caches: list[_Caches] = []
+    items = common.read_inputs(
+        files, forced, args.alpha, before=lambda: caches.append(_Caches(args.cache_dir))
+    )
+    choices = choose_all(items, args, forced, caches[0])
     if folder_mode:
-        return _reconstruct_folder(items, choices, targets, out, args)
-    return _reconstruct_one(items[0], choices[0], out, args)
+        return _reconstruct_folder(items, choices, targets, out, args, caches[0])
+    return _reconstruct_one(items[0], choices[0], out, args, caches[0])
 
 
-def _caches(args):
-    """Turn on the caches of this run (``--cache-dir``, ``$ABRDF_JAX_CACHE_DIR``,
-    ``ABRDF_JAX_NO_CACHE``; docs/cache.md): JAX's persistent compilation cache, and the store
-    of built operators that :func:`_operators` reads. A folder that cannot be used is a warning
+class _Caches:
+    """The caches of this run (``--cache-dir``, ``$ABRDF_JAX_CACHE_DIR``,
+    ``ABRDF_JAX_NO_CACHE``; docs/cache.md): the store of built operators, and JAX's persistent
+    compilation cache, turned on only when the run needs JAX (:meth:`numerics`): a warm run
+    whose operators are all stored imports no JAX. A folder that cannot be used is a warning
     and a run without it, never a failure."""
-    from .. import _cache
 
-    folder = _cache.cache_dir(args.cache_dir)
-    _cache.enable_compilation_cache(folder, warn=common.warn)
-    args.operator_store = None if folder is None else _cache.OperatorStore(folder, warn=common.warn)
+    def __init__(self, override):
+        from .. import _cache
 
+        self.folder = _cache.cache_dir(override)
+        self.store = None
+        if self.folder is not None:
+            self.store = _cache.OperatorStore(self.folder, warn=common.warn)
+        self._numerics = False
 
-def _operators(args):
-    """Where the compiled operators of this run come from (:mod:`abrdf_jax._engine`): the
-    operator store first (a matrix built once per configuration, parameters and sample layout,
-    in float64 and stored as float32), else built and stored."""
-    from .. import _cache
+    def numerics(self) -> None:
+        """Before the first JAX work of the run: JAX's compilation cache on (once)."""
+        if not self._numerics:
+            from .. import _cache
 
-    def source(config, params, template):
-        entry, _ = _cache.cached_entry(args.operator_store, template, config, params, common.warn)
+            self._numerics = True
+            _cache.enable_compilation_cache(self.folder, warn=common.warn)
+
+    def operator(self, config, params, template):
+        """The operator of ``config``, ``params`` and ``template``'s layout
+        (:mod:`abrdf_jax._engine`): from the store (no JAX), else built (a matrix built in
+        float64, stored as float32) and stored."""
+        from .. import _cache
+
+        entry, _ = _cache.cached_entry(
+            self.store, template, config, params, common.warn, before_build=self.numerics
+        )
         return entry.apply
 
-    return source
 
-
-def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args) -> int:
+def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, caches) -> int:
     import numpy as np
 
-    import abrdf_jax as aj
     from .. import io
-
+    from .._arrays import check_finite
     from .._engine import reconstruct_many
 
     config, params = choice["config"], choice["params"]
     meas = common.measurements_for(item, config)
     common.warn_guard(item.path, meas, config, params, args.params)
     ((_, tables, engine),) = reconstruct_many(
-        [meas], config, params, operator=_operators(args), min_group=1
+        [meas], config, params, operator=caches.operator, min_group=1, before_jax=caches.numerics
     )
     table = np.asarray(tables[0])
-    aj.check_finite(table, str(item.path))
+    check_finite(table, str(item.path))
     io.write_table(out, table)
     choice["record"]["engine"] = engine
     how = f"parameters from {args.params}" if args.params else f"model {choice['name']}"
@@ -318,15 +357,17 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args) -> in
     return 0
 
 
-def _reconstruct_folder(items, choices: list[dict], targets: list[Path], out: Path, args) -> int:
+def _reconstruct_folder(
+    items, choices: list[dict], targets: list[Path], out: Path, args, caches
+) -> int:
     """Every input through :func:`abrdf_jax._engine.reconstruct_many` (operator groups and
     padded pipeline batches), each batch's tables written by a small thread pool while the next
     batch computes, the folder's model record rewritten (atomically) after every batch: an
     interrupted run keeps every table it finished, and the record lists only those."""
     from concurrent.futures import ThreadPoolExecutor
 
-    import abrdf_jax as aj
     from .. import io
+    from .._arrays import check_finite
     from .._engine import reconstruct_many
 
     out.mkdir(exist_ok=True)
@@ -337,7 +378,6 @@ def _reconstruct_folder(items, choices: list[dict], targets: list[Path], out: Pa
     failed: list[str] = []
     done = list(args.resumed)  # records of the outputs a --resume run kept
     paths = {"operator": 0, "pipeline": 0}
-    operator = _operators(args)
     with (
         common.progress(len(items), "reconstruct", args.quiet) as bar,
         ThreadPoolExecutor(max_workers=WRITERS) as pool,
@@ -360,17 +400,20 @@ def _reconstruct_folder(items, choices: list[dict], targets: list[Path], out: Pa
             params = choices[members[0]]["params"]
             meas = [common.measurements_for(items[k], config) for k in members]
             common.warn_guard(items[members[0]].path, meas[0], config, params, args.params)
-            for idx, tables, path in reconstruct_many(meas, config, params, operator=operator):
+            for idx, tables, path in reconstruct_many(
+                meas, config, params, operator=caches.operator, before_jax=caches.numerics
+            ):
                 paths[path] += len(idx)
                 futures, records = [], []
                 for j, table in zip(idx, tables):
                     k = members[j]
                     try:
-                        aj.check_finite(table, str(items[k].path))
+                        check_finite(table, str(items[k].path))
                     except InputError as e:  # never written; the other materials still are
                         failed.append(str(e))
                         continue
-                    futures.append(pool.submit(io.write_table, targets[k], table))
+                    # atomic, not fsync-ed: --resume reads every table it keeps (docs/cache.md)
+                    futures.append(pool.submit(io.write_table, targets[k], table, durable=False))
                     choices[k]["record"]["engine"] = path
                     records.append(choices[k])
                 settle()  # the previous batch's files are complete before the record names them

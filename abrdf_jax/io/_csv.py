@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, BinaryIO
 import numpy as np
 
 from ._atomic import _check_readable, atomic_write
+from .._arrays import SampleColumns
 from .._errors import InputError, located
 
 if (
@@ -225,7 +226,14 @@ def _count_lines(f: BinaryIO) -> int:
 
 
 def read_samples_csv(path: str | os.PathLike) -> Samples:
-    """Read a measurement CSV file (``PROTOCOL.md``, "Measurement file").
+    """Read a measurement CSV file (``PROTOCOL.md``, "Measurement file") as
+    :class:`~abrdf_jax.Samples`: :func:`read_sample_columns`, whose rules and errors it has.
+    """
+    return read_sample_columns(path).to_samples()
+
+
+def read_sample_columns(path: str | os.PathLike) -> SampleColumns:
+    """Read a measurement CSV file (``PROTOCOL.md``, "Measurement file") into numpy columns.
 
     The header must name the seven columns ``theta_i,phi_i,theta_v,phi_v,r,g,b`` (surrounding
     whitespace and letter case are ignored, any order); other columns are ignored. Blank lines are
@@ -242,8 +250,8 @@ def read_samples_csv(path: str | os.PathLike) -> Samples:
         path: the file (str or path-like).
 
     Returns:
-        :class:`~abrdf_jax.Samples` holding float64 numpy arrays, angles in degrees, in
-        file order.
+        The columns (a ``SampleColumns``: the fields of :class:`~abrdf_jax.Samples`, float64
+        numpy arrays, angles in degrees, in file order); no JAX is imported.
 
     Raises:
         InputError: (message ``path:line: ...``) the file is missing, unreadable, not UTF-8 text or
@@ -287,9 +295,7 @@ def read_samples_csv(path: str | os.PathLike) -> Samples:
         angles, rgb = angles[:, :n].copy(), rgb[:n].copy()
     ti, pi, tv, pv = angles[0, :n], angles[1, :n], angles[2, :n], angles[3, :n]
     _check_units(path, ti, pi, tv, pv)
-    from .._measurements import Samples  # imports JAX: only now that the file is known good
-
-    return Samples(ti, pi, tv, pv, rgb[:n])
+    return SampleColumns(ti, pi, tv, pv, rgb[:n])
 
 
 def _check_units(path: Path, ti, pi, tv, pv) -> None:

@@ -16,10 +16,15 @@ import json
 import math
 from pathlib import Path
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .._errors import InputError
-from .._params import Config, Params
+from .._config import Config
+
+if TYPE_CHECKING:  # the traced parameters (JAX): made only when a file is read
+    from .._params import Params
 
 FORMAT = "abrdf_jax.params/1"
 _CONFIG_FIELDS = (
@@ -35,7 +40,7 @@ _CONFIG_FIELDS = (
 )
 
 
-def params_to_dict(config: Config, params: Params, fit: dict | None = None) -> dict:
+def params_to_dict(config: Config, params: "Params", fit: dict | None = None) -> dict:
     """The JSON-ready dictionary of a configuration and its parameters."""
     cfg = {k: getattr(config, k) for k in _CONFIG_FIELDS}
     cfg["pairs"] = [list(map(float, p)) for p in config.pairs]
@@ -53,7 +58,7 @@ def params_to_dict(config: Config, params: Params, fit: dict | None = None) -> d
     }
 
 
-def save_params(path, config: Config, params: Params, fit: dict | None = None) -> Path:
+def save_params(path, config: Config, params: "Params", fit: dict | None = None) -> Path:
     """Write ``config`` and ``params`` (and the fit's provenance) to ``path`` atomically."""
     from ._atomic import atomic_write
 
@@ -64,7 +69,7 @@ def save_params(path, config: Config, params: Params, fit: dict | None = None) -
     return path
 
 
-def params_from_dict(d: dict, where: str = "parameters") -> tuple[Config, Params, dict]:
+def params_from_dict(d: dict, where: str = "parameters") -> tuple[Config, "Params", dict]:
     """Inverse of :func:`params_to_dict`, with errors naming ``where`` and the field."""
     if not isinstance(d, dict) or d.get("format") != FORMAT:
         got = d.get("format") if isinstance(d, dict) else type(d).__name__
@@ -105,13 +110,15 @@ def params_from_dict(d: dict, where: str = "parameters") -> tuple[Config, Params
     import jax.numpy as jnp
 
     dt = jnp.zeros(()).dtype
+    from .._params import Params
+
     params = Params(
         jnp.asarray(np.deg2rad(alpha), dt), jnp.asarray(widths, dt), jnp.asarray(reg, dt)
     )
     return config, params, dict(d.get("fit") or {})
 
 
-def load_params(path) -> tuple[Config, Params, dict]:
+def load_params(path) -> tuple[Config, "Params", dict]:
     """Read a parameter file written by :func:`save_params` (or ``abrdf-jax fit``)."""
     path = Path(path)
     try:

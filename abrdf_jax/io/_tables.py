@@ -135,8 +135,12 @@ def _check_table_header(shape, dtype, where: str) -> None:
         raise InputError(f"{where}: table has dtype {dtype}, expected a real floating type")
 
 
-def write_table(path: str | os.PathLike, table) -> None:
-    """Write one ABRDF table atomically as ``.npz`` (key ``abrdf``, compressed) or ``.exr``.
+def write_table(path: str | os.PathLike, table, *, durable: bool = True) -> None:
+    """Write one ABRDF table atomically as ``.npz`` (key ``abrdf``) or ``.exr``.
+
+    ``.npz`` tables are stored uncompressed (79 kB): deflating one took 4.5 ms against 0.3 ms
+    for the write (a folder run writes thousands) for files 2.6x smaller; ``.exr`` files are
+    ZIP-compressed.
 
     EXR files hold float32 channels ``R``, ``G``, ``B`` (ZIP, lossless), row = illumination index,
     column = view index, so that :func:`read_table` returns the table bit for bit.
@@ -144,6 +148,8 @@ def write_table(path: str | os.PathLike, table) -> None:
     Args:
         path: the destination (str or path-like); the format is chosen by its extension.
         table: array-like of shape ``(81, 81, 3)``; converted to float32.
+        durable: as :func:`abrdf_jax.io.atomic_write` (``False``: renamed into place without
+            ``fsync``; a folder run's tables, whose ``--resume`` reads every table it keeps).
 
     Raises:
         InputError: unknown extension, wrong shape, non-real dtype, NaN or infinite values (also
@@ -153,12 +159,13 @@ def write_table(path: str | os.PathLike, table) -> None:
     ext = _table_extension(path)
     arr = check_table(table, f"cannot write {path}")
     if ext == ".npz":
-        with atomic_write(path, "wb") as f:
-            np.savez_compressed(f, **{NPZ_KEY: arr})
+        with atomic_write(path, "wb", durable=durable) as f:  # stored, not deflated: docstring
+            np.savez(f, **{NPZ_KEY: arr})
     else:
         write_rgb_exr(
             path,
             arr,
             comment="abrdf_jax ABRDF table: row = illumination index, column = view index "
             "(UBO2003 81-direction grid), linear RGB BRDF*cos(theta_i)",
+            durable=durable,
         )

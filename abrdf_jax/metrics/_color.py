@@ -9,13 +9,14 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InputError
+from .._protocol import LUMA
 
 
 # --------------------------------------------------------------------------------------------------
 # Constants (float64 numpy, derived once at import).
 
 #: Exposure luminance weights (PROTOCOL.md item 1, the literal values).
-LUMA_WEIGHTS = np.array([0.2126, 0.7152, 0.0722])
+LUMA_WEIGHTS = np.array(LUMA)
 #: Middle grey the median luminance is mapped to.
 MIDDLE_GREY = 0.18
 #: CIE 1931 2° chromaticity of D65, as in colour-science's ``CCS_ILLUMINANTS``.

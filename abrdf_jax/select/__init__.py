@@ -17,34 +17,38 @@ See :mod:`abrdf_jax.select._isotropy` (the test) and :mod:`abrdf_jax.select._sel
 held-out errors, the tolerance rule).
 """
 
-from ._isotropy import (
-    LEVEL as LEVEL,
-    MIN_EFFECT as MIN_EFFECT,
-    IsotropyReport as IsotropyReport,
-    isotropy_batch as isotropy_batch,
-    chi2_sf as chi2_sf,
-    estimate_noise as estimate_noise,
-    isotropy_test as isotropy_test,
-)
-from ._select import (
-    CANDIDATES as CANDIDATES,
-    DEFAULT_ANISO as DEFAULT_ANISO,
-    DEFAULT_ISO as DEFAULT_ISO,
-    KERNEL_FAMILY as KERNEL_FAMILY,
-    TOL as TOL,
-    Candidate as Candidate,
-    Selection as Selection,
-    candidate as candidate,
-    fold_data as fold_data,
-    group_configs as group_configs,
-    held_out_errors as held_out_errors,
-    held_out_errors_batch as held_out_errors_batch,
-    select_model as select_model,
-    tolerance_choice as tolerance_choice,
-)
-from ._batch import select_models as select_models
-from ._samplecount import (
-    DEFAULT_COUNTS as DEFAULT_COUNTS,
-    SampleCountCurve as SampleCountCurve,
-    sample_count_curve as sample_count_curve,
-)
+from .._lazy import lazy_exports
+
+# public name -> private module that defines it; loaded on first use (PEP 562): the candidates,
+# the isotropy test and the choice of one candidate need no JAX (the command line's warm path)
+_EXPORTS = {
+    "_isotropy": (
+        "LEVEL",
+        "MIN_EFFECT",
+        "IsotropyReport",
+        "isotropy_batch",
+        "chi2_sf",
+        "estimate_noise",
+        "isotropy_test",
+    ),
+    "_candidates": (
+        "CANDIDATES",
+        "DEFAULT_ANISO",
+        "DEFAULT_ISO",
+        "KERNEL_FAMILY",
+        "TOL",
+        "Candidate",
+        "candidate",
+    ),
+    "_choice": ("Selection", "quick_selection", "tolerance_choice"),
+    "_select": (
+        "fold_data",
+        "group_configs",
+        "held_out_errors",
+        "held_out_errors_batch",
+        "select_model",
+    ),
+    "_batch": ("select_models",),
+    "_samplecount": ("DEFAULT_COUNTS", "SampleCountCurve", "sample_count_curve"),
+}
+__getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS)

@@ -38,14 +38,24 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import jax.numpy as jnp
+from typing import TYPE_CHECKING
+
 import numpy as np
-from jax.scipy.special import gammaincc
 
 from .._errors import InputError
-from ..metrics._color import LUMA_WEIGHTS
-from .._grouping import group_slices
-from .._measurements import Measurements, Samples
+from .._grouping import group_arrays
+from .._protocol import LUMA
+
+if TYPE_CHECKING:  # JAX pytrees; one material's test runs in numpy on their fields
+    from .._measurements import Measurements, Samples
+
+
+def _jnp():
+    """``jax.numpy``, imported where a batch runs in JAX (the one-material test needs none)."""
+    import jax.numpy as jnp
+
+    return jnp
+
 
 #: Default significance level and minimum effect (RMS log variation of the axial slices).
 LEVEL = 1e-3
@@ -104,35 +114,39 @@ class IsotropyReport:
 
 def chi2_sf(q, dof):
     """Survival function ``P(χ²_dof ≥ q)``: the regularised upper incomplete gamma ``Q(dof/2, q/2)``."""
+    from jax.scipy.special import gammaincc
+
+    jnp = _jnp()
     return gammaincc(jnp.asarray(dof / 2.0, jnp.result_type(float)), jnp.asarray(q) / 2.0)
 
 
 def _interp_weights(t: np.ndarray) -> np.ndarray:
     """Weight ``wr`` of the right neighbour when each sample of a periodic slice (parameters
     ``t``, sorted) is linearly interpolated from its two neighbours (``wl = 1 − wr``)."""
-    tl = np.roll(t, 1).copy()
-    tl[0] -= 2 * np.pi
-    tr = np.roll(t, -1).copy()
-    tr[-1] += 2 * np.pi
+    two_pi = 2 * np.pi
+    tl = np.concatenate([t[-1:] - two_pi, t[:-1]])  # left neighbours, periodic
+    tr = np.concatenate([t[1:], t[:1] + two_pi])  # right neighbours
     span = np.where(tr - tl > 0, tr - tl, 1.0)
     return (t - tl) / span
 
 
-def _log_luminance(y, valid, log_eps: float, xp=jnp):
+def _log_luminance(y, valid, log_eps: float, xp=None):
     """``ln(Y + ε)`` of slice values ``y`` ``(B, S, nmax, 3)``, ``ε = log_eps · mean |Y|`` per material.
 
     ``xp``: the array module, ``jax.numpy`` (a batch, in JAX) or ``numpy`` (one material on the
     host: no dispatch of a dozen small operations; the same formulas, one copy)."""
-    lum = xp.einsum("bsnc,c->bsn", y, xp.asarray(LUMA_WEIGHTS, y.dtype))
+    xp = xp or _jnp()
+    lum = xp.einsum("bsnc,c->bsn", y, xp.asarray(LUMA, y.dtype))
     mean = xp.sum(xp.where(valid, xp.abs(lum), 0.0), axis=(1, 2)) / max(int(valid.sum()), 1)
     eps = log_eps * mean + np.finfo(np.float64).tiny ** 0.5
     return xp.log(xp.maximum(lum, 0.0) + eps[:, None, None])
 
 
-def _noise(logl, t: np.ndarray, count: np.ndarray, rows, xp=jnp):
+def _noise(logl, t: np.ndarray, count: np.ndarray, rows, xp=None):
     """Noise ``σ`` ``(B,)``: ``1.4826 · median |r|`` of the normalised residuals ``r`` of every
     sample of the slices ``rows`` against the linear interpolation of its two neighbours (a unit
     independent noise gives residuals of unit variance); ``nan`` when no slice has 3 samples."""
+    xp = xp or _jnp()
     rows = [s for s in rows if count[s] >= 3]
     if not rows:
         return xp.full((logl.shape[0],), np.nan, logl.dtype)
@@ -141,7 +155,7 @@ def _noise(logl, t: np.ndarray, count: np.ndarray, rows, xp=jnp):
         n = int(count[s])
         wr = _interp_weights(t[s, :n])
         ss.append(np.full(n, s)), ks.append(np.arange(n))
-        lefts.append(np.roll(np.arange(n), 1)), rights.append(np.roll(np.arange(n), -1))
+        lefts.append((np.arange(n) - 1) % n), rights.append((np.arange(n) + 1) % n)
         wls.append(1.0 - wr), wrs.append(wr)
     ss, ks, lefts, rights = (np.concatenate(a) for a in (ss, ks, lefts, rights))
     wl, wr = (xp.asarray(np.concatenate(a), logl.dtype) for a in (wls, wrs))
@@ -151,9 +165,10 @@ def _noise(logl, t: np.ndarray, count: np.ndarray, rows, xp=jnp):
     return _MAD_TO_SIGMA * xp.median(xp.abs(r), axis=1)
 
 
-def _axial_sums(logl, count: np.ndarray, xp=jnp):
+def _axial_sums(logl, count: np.ndarray, xp=None):
     """Sum of squared deviations from the slice mean of every axial slice with ≥ 3 samples:
     ``(B, S)`` (0 elsewhere), and the mask of those slices ``(S,)``."""
+    xp = xp or _jnp()
     S, nmax = logl.shape[1:]
     used = np.array([s % 2 == 0 and count[s] >= 3 for s in range(S)])
     amask = used[:, None] & (np.arange(nmax)[None, :] < count[:, None])
@@ -162,7 +177,7 @@ def _axial_sums(logl, count: np.ndarray, xp=jnp):
     return xp.sum(xp.where(amask, (logl - slice_mean) ** 2, 0.0), axis=2), used
 
 
-def estimate_noise(meas: Measurements, log_eps: float = None, slices: str = "axial") -> float:
+def estimate_noise(meas: "Measurements", log_eps: float = None, slices: str = "axial") -> float:
     """Robust noise level (log units) from the slices' high-frequency residuals.
 
     Args:
@@ -191,7 +206,7 @@ def estimate_noise(meas: Measurements, log_eps: float = None, slices: str = "axi
 
 
 def isotropy_test(
-    samples: Samples | Measurements,
+    samples: "Samples | Measurements",
     *,
     noise: float | None = None,
     level: float = LEVEL,
@@ -224,9 +239,11 @@ def isotropy_test(
         raise InputError(f"level must lie in (0, 1), got {level!r}")
     if not min_effect >= 0:
         raise InputError(f"min_effect must be >= 0, got {min_effect!r}")
-    if isinstance(samples, Samples):
-        samples, _ = group_slices(samples, alpha_deg, dtype=np.float64)
-    elif not isinstance(samples, Measurements):
+    if all(hasattr(samples, f) for f in ("t", "y", "count", "pairs")):
+        pass  # grouped: Measurements (or the numpy slices of the command line)
+    elif all(hasattr(samples, f) for f in ("theta_i", "phi_i", "theta_v", "phi_v", "rgb")):
+        samples, _ = group_arrays(samples, alpha_deg, dtype=np.float64)
+    else:
         raise InputError(f"samples must be Samples or Measurements, got {type(samples).__name__}")
     meas = samples
     cnt = np.asarray(meas.count)
@@ -333,6 +350,7 @@ def isotropy_batch(
     count = np.asarray(count)
     S, nmax = t.shape
     B = y.shape[0]
+    jnp = _jnp()
     if not any(count[s] >= 3 for s in range(0, S, 2)):
         nan = jnp.full((B,), jnp.nan, y.dtype)
         return jnp.ones((B,), bool), nan, nan

@@ -31,10 +31,7 @@ MERL train split (log values before linear ones).
 
 from __future__ import annotations
 
-import dataclasses
-import math
 import time
-from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -42,8 +39,17 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from .._names import MODEL_TOL
-from ._isotropy import LEVEL, MIN_EFFECT, IsotropyReport, isotropy_test
+from ._choice import Plan, Selection, check_budget, finish, plan, tolerance_choice  # noqa: F401
+from ._candidates import (  # noqa: F401 - re-exported: the candidates' public home is select
+    CANDIDATES,
+    DEFAULT_ANISO,
+    DEFAULT_ISO,
+    KERNEL_FAMILY,
+    TOL,
+    Candidate,
+    candidate,
+)
+from ._isotropy import LEVEL, MIN_EFFECT
 from .._params import Config, Params
 from .._coords import pair_coordinates
 from .._folds import held_out_directions, log_rms, sample_folds
@@ -52,73 +58,6 @@ from .._pipeline import prepare, subspace_values
 from .._values import measurement_eps, value_space
 from .._rbf import fit_rbf
 from .._measurements import Measurements, Samples
-
-
-@dataclasses.dataclass(frozen=True)
-class Candidate:
-    """A named model: its configuration (budget ``iso102``/``aniso204`` and settings) and rank."""
-
-    name: str
-    settings: dict
-    rank: int
-    description: str
-
-    def config(self, **overrides) -> Config:
-        """The :class:`Config` of this candidate (``overrides``: e.g. ``pairs``)."""
-        return Config(**{**self.settings, **overrides})
-
-
-def _rec(budget, **kw):
-    from .._params import RECOMMENDED
-
-    return dict(budget=budget, **{**RECOMMENDED, **kw})
-
-
-# name -> settings, in complexity order (see the module docstring)
-_SETTINGS = {
-    "iso": _rec("iso102"),
-    "iso-linear": _rec("iso102", value_space="linear"),
-    "iso-gaussian": _rec("iso102", kernel="gaussian", degree=0),
-    "paper": dict(budget="iso102"),
-    "aniso-average": _rec("aniso204", rule="average"),
-    "aniso-crossing": _rec("aniso204", rule="crossing"),
-    # The multiplicative rule on the samples, log after: in the log of the samples (the
-    # recommended value space) it would multiply logs; there "crossing" is its counterpart.
-    "aniso-log": _rec("aniso204", rule="log", value_space="log"),
-    "aniso": _rec("aniso204"),
-    "paper-aniso": dict(budget="aniso204"),
-}
-_DESCRIPTIONS = {
-    "iso": "diagonal slices only (eq. 5); thin-plate spline on the log of the samples (recommended)",
-    "iso-linear": "diagonal slices only; thin-plate spline on linear values",
-    "iso-gaussian": "diagonal slices only; Gaussian kernel (a width) on log values",
-    "paper": "Filip 2012 as published, isotropic: Gaussian kernel on linear values",
-    "aniso-average": "all 8 slices, mean of the two slices (linear rule)",
-    "aniso-crossing": "all 8 slices, sum less the crossing value (reproduces both slices)",
-    "aniso-log": "all 8 slices, multiplicative rule (product over the crossing), log after it",
-    "aniso": "all 8 slices, eq. (2-4) min-max stretch (filip2012); the recommended anisotropic model",
-    "paper-aniso": "Filip 2012 as published, anisotropic: eq. (2-4), Gaussian on linear values",
-}
-#: The named models, in complexity order (rank = position; see the module docstring).
-CANDIDATES: dict[str, Candidate] = {
-    name: Candidate(name, settings, rank, _DESCRIPTIONS[name])
-    for rank, (name, settings) in enumerate(_SETTINGS.items())
-}
-#: Candidates tried by default: the budget and the subspace rule (one RBF factorisation).
-DEFAULT_ISO = ("iso",)
-#: ("aniso-log" is not among them: in the log of the samples "aniso-crossing" is the
-#: multiplicative rule, and its own value space would be one more RBF factorisation.)
-DEFAULT_ANISO = ("iso", "aniso-average", "aniso-crossing", "aniso")
-#: Optional kernel-family candidates (each family is one more compilation).
-KERNEL_FAMILY = ("iso", "iso-linear", "iso-gaussian")
-TOL = MODEL_TOL
-
-
-def candidate(name: str) -> Candidate:
-    """A named candidate; :class:`InputError` listing the names otherwise."""
-    if name not in CANDIDATES:
-        raise InputError(f"unknown model {name!r}; choose auto or one of: {', '.join(CANDIDATES)}")
-    return CANDIDATES[name]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -246,6 +185,8 @@ def held_out_errors(
 
 
 def _grouped(samples, alpha_deg, dtype=None) -> tuple[Measurements, float]:
+    if hasattr(samples, "to_measurements"):  # the command line's numpy slices
+        samples = samples.to_measurements()
     if isinstance(samples, Measurements):
         return samples, (15.0 if alpha_deg is None else float(alpha_deg))
     if not isinstance(samples, Samples):
@@ -253,105 +194,6 @@ def _grouped(samples, alpha_deg, dtype=None) -> tuple[Measurements, float]:
     params = None if alpha_deg is None else Params.default(Config(), alpha_deg=alpha_deg)
     meas, _, p = prepare(samples, None, params, dtype=dtype)
     return meas, p.alpha_deg
-
-
-# ------------------------------------------------------------------------------------------------
-# The tolerance rule and the selection
-
-
-def tolerance_choice(
-    errors: dict[str, float], ranks: dict[str, int], tol: float = TOL
-) -> tuple[str, str]:
-    """The simplest candidate whose error is within ``tol`` (relative) of the best.
-
-    Args:
-        errors: ``{name: held-out error}`` (non-finite errors never win).
-        ranks: ``{name: complexity rank}`` (lower is simpler; ties go to the lower error).
-        tol: relative tolerance, e.g. 0.05 for 5 %.
-
-    Returns:
-        ``(name, reason)``.
-
-    Raises:
-        InputError: no finite error, or a negative tolerance.
-    """
-    if not (tol >= 0 and math.isfinite(tol)):
-        raise InputError(f"tol must be a finite fraction >= 0, got {tol!r}")
-    finite = {n: e for n, e in errors.items() if math.isfinite(e)}
-    if not finite:
-        raise InputError(f"no candidate has a finite held-out error: {errors}")
-    best = min(finite, key=lambda n: (finite[n], ranks[n]))
-    bound = finite[best] * (1.0 + tol)
-    within = [n for n in finite if finite[n] <= bound]
-    pick = min(within, key=lambda n: (ranks[n], finite[n]))
-    if pick == best:
-        reason = f"{pick} has the lowest held-out error ({finite[pick]:.4g})"
-        simpler = [n for n in finite if ranks[n] < ranks[pick]]
-        if simpler:
-            s = min(simpler, key=lambda n: finite[n])
-            reason += f"; the best simpler model, {s}, is {100 * (finite[s] / finite[pick] - 1):.1f}% worse (> {100 * tol:g}%)"
-    else:
-        reason = (
-            f"{pick} is the simplest model within {100 * tol:g}% of the best held-out error "
-            f"({finite[pick]:.4g} vs {finite[best]:.4g} of {best})"
-        )
-    return pick, reason
-
-
-@dataclasses.dataclass(frozen=True)
-class Selection:
-    """What :func:`select_model` decided, and the evidence.
-
-    Attributes:
-        name: the chosen candidate's name (see :data:`CANDIDATES`).
-        config: its :class:`Config`; params: its :class:`Params` (α of the measurement).
-        errors: ``{name: held-out RMS log error}`` of the candidates tried.
-        ranks: ``{name: complexity rank}`` of those candidates.
-        isotropy: the :class:`IsotropyReport` (``None`` if the budget was forced).
-        reason: why this model (one or two sentences).
-        tol: the tolerance used; k: the number of folds; seconds: wall time of the selection.
-    """
-
-    name: str
-    config: Config
-    params: Params
-    errors: dict
-    ranks: dict
-    isotropy: IsotropyReport | None
-    reason: str
-    tol: float
-    k: int
-    seconds: float = 0.0
-
-    def to_dict(self) -> dict:
-        """JSON-ready summary (what ``abrdf-jax reconstruct`` saves as ``OUT.model.json``)."""
-        from ..io._paramfile import params_to_dict
-
-        p = params_to_dict(self.config, self.params)
-        return {
-            "format": "abrdf_jax.model/1",
-            "model": self.name,
-            "config": p["config"],
-            "params": p["params"],
-            "reason": self.reason,
-            "tol": self.tol,
-            "folds": self.k,
-            "candidates": [
-                {
-                    "name": n,
-                    "held_out_log_rms": _finite(self.errors[n]),
-                    "rank": self.ranks[n],
-                    "description": CANDIDATES[n].description if n in CANDIDATES else "",
-                }
-                for n in sorted(self.errors, key=lambda n: self.ranks[n])
-            ],
-            "isotropy": None if self.isotropy is None else self.isotropy.to_dict(),
-            "seconds": self.seconds,
-        }
-
-
-def _finite(x):
-    return float(x) if math.isfinite(x) else None
 
 
 def select_model(
@@ -394,60 +236,17 @@ def select_model(
     return _finish(plan, errors, tol, k, time.perf_counter() - t0)
 
 
-class _Plan(NamedTuple):
-    """A measurement's selection before the held-out errors: its candidates and the evidence."""
-
-    meas: Measurements
-    alpha: float
-    budget: str | None
-    report: IsotropyReport | None
-    configs: dict
-    ranks: dict
-
-
-def _plan(samples, candidates, budget, noise, level, min_effect, alpha_deg, dtype) -> _Plan:
+def _plan(samples, candidates, budget, noise, level, min_effect, alpha_deg, dtype) -> Plan:
     """Group, test isotropy and list the candidates left (everything before the folds)."""
-    if budget not in (None, "iso102", "aniso204"):
-        raise InputError(f"budget must be 'iso102', 'aniso204' or None, got {budget!r}")
+    check_budget(budget)
     meas, alpha = _grouped(samples, alpha_deg, dtype)
-    if budget == "aniso204" and not meas.has_axial:
-        raise InputError("budget 'aniso204' needs axial slices, but the measurement has none")
-    report = None
-    if budget is None:
-        report = isotropy_test(meas, noise=noise, level=level, min_effect=min_effect)
-        aniso_ok = not report.isotropic
-    else:
-        aniso_ok = budget == "aniso204"
-    if candidates in ("auto", "kernels"):
-        names = list(DEFAULT_ANISO if aniso_ok else DEFAULT_ISO)
-        if candidates == "kernels":
-            names += [n for n in KERNEL_FAMILY if n not in names]
-    else:
-        names = [candidate(n).name for n in candidates]
-        if not names:
-            raise InputError("candidates: give at least one model name")
-    if budget == "aniso204":
-        names = [n for n in names if CANDIDATES[n].settings["budget"] == "aniso204"] or ["aniso"]
-    elif budget == "iso102" or not aniso_ok:
-        names = [n for n in names if CANDIDATES[n].settings["budget"] == "iso102"] or ["iso"]
-    configs = {n: CANDIDATES[n].config(pairs=meas.pairs) for n in names}
-    ranks = {n: CANDIDATES[n].rank for n in names}
-    return _Plan(meas, alpha, budget, report, configs, ranks)
+    return plan(meas, alpha, candidates, budget, noise, level, min_effect)
 
 
-def _finish(plan: _Plan, errors: dict | None, tol: float, k: int, seconds: float) -> Selection:
+def _params(config, alpha_deg, dtype) -> Params:
+    return Params.default(config, alpha_deg=alpha_deg, dtype=dtype)
+
+
+def _finish(p: Plan, errors: dict | None, tol: float, k: int, seconds: float) -> Selection:
     """The tolerance rule on the held-out errors (``None``: a single candidate)."""
-    names = list(plan.configs)
-    if errors is None:
-        errors = {names[0]: float("nan")}
-        pick = names[0]
-        reason = f"{pick}: the only candidate left"
-    else:
-        pick, reason = tolerance_choice(errors, plan.ranks, tol)
-    if plan.report is not None:
-        reason = f"{plan.report.reason}. {reason}"
-    elif plan.budget is not None:
-        reason = f"budget forced to {plan.budget}. {reason}"
-    config = plan.configs[pick]
-    params = Params.default(config, alpha_deg=plan.alpha, dtype=plan.meas.y.dtype)
-    return Selection(pick, config, params, errors, plan.ranks, plan.report, reason, tol, k, seconds)
+    return finish(p, errors, tol, k, seconds, _params)

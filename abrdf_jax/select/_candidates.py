@@ -1,0 +1,78 @@
+"""The named models of the automatic choice, in complexity order (no JAX).
+
+The ranks and their reasons are the module docstring of :mod:`abrdf_jax.select._select`; the
+command line reads a fixed ``--model``'s settings here without importing the numerics.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from .._config import RECOMMENDED, Config
+from .._errors import InputError
+from .._names import MODEL_TOL
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """A named model: its configuration (budget ``iso102``/``aniso204`` and settings) and rank."""
+
+    name: str
+    settings: dict
+    rank: int
+    description: str
+
+    def config(self, **overrides) -> Config:
+        """The :class:`Config` of this candidate (``overrides``: e.g. ``pairs``)."""
+        return Config(**{**self.settings, **overrides})
+
+
+def _rec(budget, **kw):
+    return dict(budget=budget, **{**RECOMMENDED, **kw})
+
+
+# name -> settings, in complexity order (see the module docstring)
+_SETTINGS = {
+    "iso": _rec("iso102"),
+    "iso-linear": _rec("iso102", value_space="linear"),
+    "iso-gaussian": _rec("iso102", kernel="gaussian", degree=0),
+    "paper": dict(budget="iso102"),
+    "aniso-average": _rec("aniso204", rule="average"),
+    "aniso-crossing": _rec("aniso204", rule="crossing"),
+    # The multiplicative rule on the samples, log after: in the log of the samples (the
+    # recommended value space) it would multiply logs; there "crossing" is its counterpart.
+    "aniso-log": _rec("aniso204", rule="log", value_space="log"),
+    "aniso": _rec("aniso204"),
+    "paper-aniso": dict(budget="aniso204"),
+}
+_DESCRIPTIONS = {
+    "iso": "diagonal slices only (eq. 5); thin-plate spline on the log of the samples (recommended)",
+    "iso-linear": "diagonal slices only; thin-plate spline on linear values",
+    "iso-gaussian": "diagonal slices only; Gaussian kernel (a width) on log values",
+    "paper": "Filip 2012 as published, isotropic: Gaussian kernel on linear values",
+    "aniso-average": "all 8 slices, mean of the two slices (linear rule)",
+    "aniso-crossing": "all 8 slices, sum less the crossing value (reproduces both slices)",
+    "aniso-log": "all 8 slices, multiplicative rule (product over the crossing), log after it",
+    "aniso": "all 8 slices, eq. (2-4) min-max stretch (filip2012); the recommended anisotropic model",
+    "paper-aniso": "Filip 2012 as published, anisotropic: eq. (2-4), Gaussian on linear values",
+}
+#: The named models, in complexity order (rank = position; see the module docstring).
+CANDIDATES: dict[str, Candidate] = {
+    name: Candidate(name, settings, rank, _DESCRIPTIONS[name])
+    for rank, (name, settings) in enumerate(_SETTINGS.items())
+}
+#: Candidates tried by default: the budget and the subspace rule (one RBF factorisation).
+DEFAULT_ISO = ("iso",)
+#: ("aniso-log" is not among them: in the log of the samples "aniso-crossing" is the
+#: multiplicative rule, and its own value space would be one more RBF factorisation.)
+DEFAULT_ANISO = ("iso", "aniso-average", "aniso-crossing", "aniso")
+#: Optional kernel-family candidates (each family is one more compilation).
+KERNEL_FAMILY = ("iso", "iso-linear", "iso-gaussian")
+TOL = MODEL_TOL
+
+
+def candidate(name: str) -> Candidate:
+    """A named candidate; :class:`InputError` listing the names otherwise."""
+    if name not in CANDIDATES:
+        raise InputError(f"unknown model {name!r}; choose auto or one of: {', '.join(CANDIDATES)}")
+    return CANDIDATES[name]

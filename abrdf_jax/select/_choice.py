@@ -1,0 +1,206 @@
+"""The automatic model choice without the numerics (no JAX): candidates, the rule, the record.
+
+:func:`plan` is everything of :func:`abrdf_jax.select.select_model` before the held-out errors
+(the isotropy test and the candidates left), :func:`tolerance_choice` the rule after them and
+:func:`finish` the :class:`Selection`; the held-out errors themselves are JAX
+(:mod:`abrdf_jax.select._select`). A measurement left with one candidate is chosen here
+entirely (:func:`quick_selection`): the command line does so without importing JAX.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import NamedTuple
+
+from .._config import default_values
+from .._errors import InputError
+from ._candidates import CANDIDATES, DEFAULT_ANISO, DEFAULT_ISO, KERNEL_FAMILY, TOL, candidate
+from ._isotropy import LEVEL, MIN_EFFECT, IsotropyReport, isotropy_test
+
+
+def tolerance_choice(
+    errors: dict[str, float], ranks: dict[str, int], tol: float = TOL
+) -> tuple[str, str]:
+    """The simplest candidate whose error is within ``tol`` (relative) of the best.
+
+    Args:
+        errors: ``{name: held-out error}`` (non-finite errors never win).
+        ranks: ``{name: complexity rank}`` (lower is simpler; ties go to the lower error).
+        tol: relative tolerance, e.g. 0.05 for 5 %.
+
+    Returns:
+        ``(name, reason)``.
+
+    Raises:
+        InputError: no finite error, or a negative tolerance.
+    """
+    if not (tol >= 0 and math.isfinite(tol)):
+        raise InputError(f"tol must be a finite fraction >= 0, got {tol!r}")
+    finite = {n: e for n, e in errors.items() if math.isfinite(e)}
+    if not finite:
+        raise InputError(f"no candidate has a finite held-out error: {errors}")
+    best = min(finite, key=lambda n: (finite[n], ranks[n]))
+    bound = finite[best] * (1.0 + tol)
+    within = [n for n in finite if finite[n] <= bound]
+    pick = min(within, key=lambda n: (ranks[n], finite[n]))
+    if pick == best:
+        reason = f"{pick} has the lowest held-out error ({finite[pick]:.4g})"
+        simpler = [n for n in finite if ranks[n] < ranks[pick]]
+        if simpler:
+            s = min(simpler, key=lambda n: finite[n])
+            reason += f"; the best simpler model, {s}, is {100 * (finite[s] / finite[pick] - 1):.1f}% worse (> {100 * tol:g}%)"
+    else:
+        reason = (
+            f"{pick} is the simplest model within {100 * tol:g}% of the best held-out error "
+            f"({finite[pick]:.4g} vs {finite[best]:.4g} of {best})"
+        )
+    return pick, reason
+
+
+@dataclasses.dataclass(frozen=True)
+class Selection:
+    """What :func:`select_model` decided, and the evidence.
+
+    Attributes:
+        name: the chosen candidate's name (see :data:`CANDIDATES`).
+        config: its :class:`Config`; params: its :class:`Params` (α of the measurement).
+        errors: ``{name: held-out RMS log error}`` of the candidates tried.
+        ranks: ``{name: complexity rank}`` of those candidates.
+        isotropy: the :class:`IsotropyReport` (``None`` if the budget was forced).
+        reason: why this model (one or two sentences).
+        tol: the tolerance used; k: the number of folds; seconds: wall time of the selection.
+    """
+
+    name: str
+    config: object  # Config
+    params: object  # Params (select_model), or their numpy values (quick_selection)
+    errors: dict
+    ranks: dict
+    isotropy: IsotropyReport | None
+    reason: str
+    tol: float
+    k: int
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (what ``abrdf-jax reconstruct`` saves as ``OUT.model.json``)."""
+        from ..io._paramfile import params_to_dict
+
+        p = params_to_dict(self.config, self.params)
+        return {
+            "format": "abrdf_jax.model/1",
+            "model": self.name,
+            "config": p["config"],
+            "params": p["params"],
+            "reason": self.reason,
+            "tol": self.tol,
+            "folds": self.k,
+            "candidates": [
+                {
+                    "name": n,
+                    "held_out_log_rms": _finite(self.errors[n]),
+                    "rank": self.ranks[n],
+                    "description": CANDIDATES[n].description if n in CANDIDATES else "",
+                }
+                for n in sorted(self.errors, key=lambda n: self.ranks[n])
+            ],
+            "isotropy": None if self.isotropy is None else self.isotropy.to_dict(),
+            "seconds": self.seconds,
+        }
+
+
+def _finite(x):
+    return float(x) if math.isfinite(x) else None
+
+
+class Plan(NamedTuple):
+    """A measurement's selection before the held-out errors: its candidates and the evidence."""
+
+    meas: object  # Measurements, or the command line's numpy slices
+    alpha: float
+    budget: str | None
+    report: IsotropyReport | None
+    configs: dict
+    ranks: dict
+
+
+def check_budget(budget) -> None:
+    if budget not in (None, "iso102", "aniso204"):
+        raise InputError(f"budget must be 'iso102', 'aniso204' or None, got {budget!r}")
+
+
+def plan(meas, alpha: float, candidates, budget, noise, level, min_effect) -> Plan:
+    """Test isotropy and list the candidates left for a grouped measurement (everything before
+    the folds; numpy: the isotropy test imports JAX only for the χ² tail of axial slices)."""
+    check_budget(budget)
+    if budget == "aniso204" and not meas.has_axial:
+        raise InputError("budget 'aniso204' needs axial slices, but the measurement has none")
+    report = None
+    if budget is None:
+        report = isotropy_test(meas, noise=noise, level=level, min_effect=min_effect)
+        aniso_ok = not report.isotropic
+    else:
+        aniso_ok = budget == "aniso204"
+    if candidates in ("auto", "kernels"):
+        names = list(DEFAULT_ANISO if aniso_ok else DEFAULT_ISO)
+        if candidates == "kernels":
+            names += [n for n in KERNEL_FAMILY if n not in names]
+    else:
+        names = [candidate(n).name for n in candidates]
+        if not names:
+            raise InputError("candidates: give at least one model name")
+    if budget == "aniso204":
+        names = [n for n in names if CANDIDATES[n].settings["budget"] == "aniso204"] or ["aniso"]
+    elif budget == "iso102" or not aniso_ok:
+        names = [n for n in names if CANDIDATES[n].settings["budget"] == "iso102"] or ["iso"]
+    configs = {n: CANDIDATES[n].config(pairs=meas.pairs) for n in names}
+    ranks = {n: CANDIDATES[n].rank for n in names}
+    return Plan(meas, alpha, budget, report, configs, ranks)
+
+
+def finish(
+    plan: Plan, errors: dict | None, tol: float, k: int, seconds: float, make_params=None
+) -> Selection:
+    """The tolerance rule on the held-out errors (``None``: a single candidate).
+
+    ``make_params(config, alpha_deg, dtype)`` makes the chosen model's parameters: by default
+    their numpy values (:func:`abrdf_jax._config.default_values`); :func:`select_model` passes
+    :meth:`abrdf_jax.Params.default`."""
+    names = list(plan.configs)
+    if errors is None:
+        errors = {names[0]: float("nan")}
+        pick = names[0]
+        reason = f"{pick}: the only candidate left"
+    else:
+        pick, reason = tolerance_choice(errors, plan.ranks, tol)
+    if plan.report is not None:
+        reason = f"{plan.report.reason}. {reason}"
+    elif plan.budget is not None:
+        reason = f"budget forced to {plan.budget}. {reason}"
+    config = plan.configs[pick]
+    params = (make_params or default_values)(config, plan.alpha, plan.meas.y.dtype)
+    return Selection(pick, config, params, errors, plan.ranks, plan.report, reason, tol, k, seconds)
+
+
+def quick_selection(
+    meas,
+    alpha_deg: float,
+    *,
+    budget: str | None = None,
+    tol: float = TOL,
+    k: int = 4,
+    noise: float | None = None,
+    level: float = LEVEL,
+    min_effect: float = MIN_EFFECT,
+) -> Selection | None:
+    """:func:`select_model` (``candidates="auto"``) of a grouped measurement when the choice needs
+    no held-out errors (one candidate left: no axial slices, an isotropic material or a forced
+    budget with one model), without JAX (its ``params`` are numpy values,
+    :class:`abrdf_jax._config.ParamValues`); ``None`` when the candidates must be compared."""
+    t0 = time.perf_counter()
+    p = plan(meas, alpha_deg, "auto", budget, noise, level, min_effect)
+    if len(p.configs) > 1:
+        return None
+    return finish(p, None, tol, k, time.perf_counter() - t0)
