@@ -84,16 +84,26 @@ def fold_data(meas: Measurements, alpha, k: int = 4) -> dict:
         and ``res_eps`` ``(3,)`` (the ε of the log residual, from the whole measurement).
     """
     train, tt, ty, tm = sample_folds(meas, k)
-    a = jnp.asarray(alpha, meas.y.dtype)
-    wis, wvs = zip(*(held_out_directions(tt[j], meas.pairs, a) for j in range(k)))
+    wi, wv, eps = _fold_geometry(tt, jnp.asarray(alpha, meas.y.dtype), meas)
     return {
         "train": train,
-        "test_wi": jnp.stack(wis).astype(meas.y.dtype),
-        "test_wv": jnp.stack(wvs).astype(meas.y.dtype),
+        "test_wi": wi,
+        "test_wv": wv,
         "test_y": ty.reshape(k, -1, 3),
         "test_mask": tm.reshape(k, -1),
-        "res_eps": measurement_eps(meas, Config().log_eps),  # 1 % of the mean, as SelfCalibration
+        "res_eps": eps,
     }
+
+
+@eqx.filter_jit
+def _fold_geometry(test_t, alpha, meas: Measurements):
+    """The held-out directions ``(k, q, 3)`` of every fold and the residual's ε: one compiled
+    call per layout (op by op, a measurement's dozens of small slice operations cost more than
+    its held-out fits in a batch)."""
+    wis, wvs = zip(*(held_out_directions(t, meas.pairs, alpha) for t in test_t))
+    dt = meas.y.dtype
+    eps = measurement_eps(meas, Config().log_eps)  # 1 % of the mean, as SelfCalibration
+    return jnp.stack(wis).astype(dt), jnp.stack(wvs).astype(dt), eps
 
 
 def _cv_core(data: dict, configs: tuple, params: Params):
