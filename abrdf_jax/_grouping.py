@@ -99,13 +99,16 @@ def infer_pairs(theta_i, theta_v) -> tuple[tuple[tuple[float, float], ...], np.n
     ti, tv = np.asarray(theta_i, float), np.asarray(theta_v, float)
     ci, li = _levels(ti)
     cv, lv = _levels(tv)
-    combos, counts = np.unique(np.stack([li, lv], 1), axis=0, return_counts=True)
-    keep = [tuple(c) for c, n in zip(combos, counts) if n >= MIN_PAIR_SAMPLES]
+    nv = len(cv)
+    code = li * nv + lv  # the (level i, level v) combination of every sample
+    codes, counts = np.unique(code, return_counts=True)
+    keep = [divmod(int(c), nv) for c, n in zip(codes, counts) if n >= MIN_PAIR_SAMPLES]
     keep.sort(key=lambda c: (ci[c[0]], cv[c[1]]))
     pairs = tuple((float(ci[a]), float(cv[b])) for a, b in keep)
-    where = {c: k for k, c in enumerate(keep)}
-    index = np.asarray([where.get((a, b), -1) for a, b in zip(li, lv)], int)
-    return pairs, index
+    lookup = np.full(len(ci) * nv, -1)
+    for k, (a, b) in enumerate(keep):
+        lookup[a * nv + b] = k
+    return pairs, lookup[code]
 
 
 def _pair_index(ti, tv, pairs) -> np.ndarray:
