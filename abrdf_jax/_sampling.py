@@ -8,10 +8,9 @@ public entry point (budget and pairs from a :class:`Config`, α from :class:`Par
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 
 from ._errors import InputError
-from ._grid import ring_indices, ubo_grid
+from ._grid import ring_indices
 from ._measurements import Measurements
 from ._params import Config, Params
 from ._slices import KINDS, PROTOCOL_PAIRS, protocol_parameters, slice_angles, slice_directions

@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError, located
+from .._names import PRIOR_INPUT_SUFFIXES
 from ..io._atomic import _check_readable
 
-SUFFIXES = (".npz", ".exr", ".binary")
+SUFFIXES = PRIOR_INPUT_SUFFIXES
 
 
 def _file_sha256(path: Path) -> str:
@@ -52,7 +53,9 @@ def _npz_stack(path: Path, split: str | None):
             raise located(f"--split {split!r} asked for, but the file has no 'split' array", path)
         keep = np.nonzero(np.asarray(splits) == split)[0]
         if keep.size == 0:
-            raise located(f"no table has split {split!r} (the file has {sorted(set(splits))})", path)
+            raise located(
+                f"no table has split {split!r} (the file has {sorted(set(splits))})", path
+            )
     return stack[keep].astype(np.float32), [names[i] for i in keep], keep
 
 
@@ -113,4 +116,3 @@ def read_training_tables(paths, split: str | None = None):
     if dup:
         raise InputError(f"duplicate training names: {', '.join(dup[:5])}")
     return np.stack(tables), names, sources
-

@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._errors import InputError
+from .._names import PRIOR_CHANNELS
 
 #: ε of the log-relative map in the paper.
 NIELSEN_EPS = 1e-3
@@ -31,7 +32,7 @@ NIELSEN_EPS = 1e-3
 #: cross-validation on the MERL train split (``python -m benchmarks.pca_peer``).
 DEFAULT_EPS = 1e-6
 #: Channel layouts: one basis over RGB vectors, or one basis shared by the three channels.
-CHANNELS = ("joint", "shared")
+CHANNELS = PRIOR_CHANNELS
 DEFAULT_CHANNELS = "shared"
 
 

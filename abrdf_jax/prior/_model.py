@@ -209,9 +209,7 @@ def train_prior(
         "explained_variance": [float(v) for v in pca.variances],
         **(extra_meta or {}),
     }
-    return assemble_prior(
-        ref, pca, eps=eps, channels=channels, lam=lam, meta=meta, dtype=dtype
-    )
+    return assemble_prior(ref, pca, eps=eps, channels=channels, lam=lam, meta=meta, dtype=dtype)
 
 
 def basis_from_training(pca: PCA, x_s, cos_s, weight, *, channels: str, eps: float, dtype):

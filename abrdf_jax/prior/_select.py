@@ -102,14 +102,25 @@ def cross_validate_prior(
     y, mask, cos_s = _flat(meas)
     x_g = np.asarray(tables, np.float64).reshape(n, -1, 3)
     fold = np.arange(n) % folds
+    ref_tables = jnp.asarray(tables)
     rows = []
     for ch, eps in itertools.product(channels, eps_values):
-        recs = {}
+        fits = []
         for f in range(folds):
+            ref, train_rows = mapped_rows(x_g[fold != f], grid_cos_view(), ch, eps)
+            fits.append((ref, pca_components(train_rows, None)))
+        # one K grid for every fold: clipped to the smallest rank of the folds
+        kmax = min(max(ks), *(p.rank for _, p in fits))
+        grid = sorted({min(k, kmax) for k in ks})
+        # per held-out material: (ΔE76, LogErr); every fold fills its own
+        per = {key: np.full((2, n), np.nan) for key in itertools.product(grid, lams)}
+        for f, (ref, pca) in enumerate(fits):
             tr, te = fold != f, fold == f
-            kmax = min(max(ks), (tr.sum() if ch == "joint" else 3 * tr.sum()) - 1)
-            ref, train_rows = mapped_rows(x_g[tr], grid_cos_view(), ch, eps)
-            pca = pca_components(train_rows, kmax)
+            pca = pca._replace(
+                components=pca.components[:, :kmax],
+                weights=pca.weights[:, :kmax],
+                variances=pca.variances[:kmax],
+            )
             prior = assemble_prior(
                 ref, pca, eps=eps, channels=ch, lam=DEFAULT_LAM, meta={}, dtype=dtype
             )
@@ -119,18 +130,16 @@ def cross_validate_prior(
                 full = basis_from_training(
                     pca, y[tr], cos_s, mask, channels=ch, eps=eps, dtype=dtype
                 )
-            for k in sorted({min(k, kmax) for k in ks}):
-                pk = prior.truncate(k)
-                bk = full.truncate(k)
+            for k in grid:
+                pk, bk = prior.truncate(k), full.truncate(k)
                 for lam in lams:
-                    rec = np.asarray(_project(pk, bk, jnp.asarray(lam, dtype), y[te]))
-                    recs.setdefault((k, lam), np.zeros(tables.shape, np.float32))[te] = rec
-        for (k, lam), rec in recs.items():
-            de76, logerr = _metrics(jnp.asarray(rec), jnp.asarray(tables))
-            m = dict(de76=float(jnp.mean(de76)), logerr=float(jnp.mean(logerr)))
+                    rec = _project(pk, bk, jnp.asarray(lam, dtype), y[te])
+                    per[k, lam][:, te] = np.asarray(_metrics(rec, ref_tables[te]))
+        for (k, lam), (de76, logerr) in per.items():
+            m = dict(de76=float(np.mean(de76)), logerr=float(np.mean(logerr)))
             rows.append(dict(channels=ch, eps=eps, n_components=k, lam=lam, **m))
             if log:
-                log(f"  cv {ch} eps={eps:g} K={k} lam={lam:g}: dE76 {m['de76']:.3f} ")
+                log(f"  cv {ch} eps={eps:g} K={k} lam={lam:g}: dE76 {m['de76']:.3f}")
     return rows
 
 
