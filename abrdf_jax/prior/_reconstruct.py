@@ -67,20 +67,27 @@ def ridge_operator(basis: SampleBasis, lam) -> jax.Array:
     return jnp.linalg.solve(gram, qw.T)
 
 
+def _rows(x, *vectors):
+    """``vectors`` (one row each) with leading axes of size 1 to match ``x`` (explicit ranks)."""
+    lead = (1,) * (x.ndim - 1)
+    return tuple(v.reshape(lead + v.shape) for v in vectors)
+
+
 def project(prior: Prior, basis: SampleBasis, lam, y) -> jax.Array:
     """Tables ``(..., 81, 81, 3)`` from sample values ``y`` ``(..., P, 3)`` at ``basis``'s positions."""
     dt = prior.dtype
     r = ridge_operator(basis, lam)
     y = jnp.asarray(y, dt)
-    ref_g, cos_g = prior.grid_layout()
     lead = y.shape[:-2]
+    # joint: rows of P·3 values; shared: (..., 3, P), one row per channel
+    z = y.reshape(*lead, -1) if prior.channels == "joint" else jnp.swapaxes(y, -1, -2)
+    ref_s, cos_s, mean_s = _rows(z, basis.reference, basis.cos_v, basis.mean)
+    c = (log_relative(z, ref_s, cos_s, prior.eps) - mean_s) @ r.T
+    m = c @ prior.components.T
+    ref_g, cos_g, mean_g = _rows(m, *prior.grid_layout(), prior.mean)
+    out = inverse_log_relative(m + mean_g, ref_g, cos_g, prior.eps)
     if prior.channels == "joint":
-        z = log_relative(y.reshape(*lead, -1), basis.reference, basis.cos_v, prior.eps)
-        m = prior.mean + ((z - basis.mean) @ r.T) @ prior.components.T
-        return inverse_log_relative(m, ref_g, cos_g, prior.eps).reshape(*lead, 81, 81, 3)
-    z = log_relative(jnp.swapaxes(y, -1, -2), basis.reference, basis.cos_v, prior.eps)
-    m = prior.mean + ((z - basis.mean) @ r.T) @ prior.components.T  # (..., 3, 6561)
-    out = inverse_log_relative(m, ref_g, cos_g, prior.eps)
+        return out.reshape(*lead, 81, 81, 3)
     return jnp.swapaxes(out, -1, -2).reshape(*lead, 81, 81, 3)
 
 
