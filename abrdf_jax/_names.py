@@ -60,6 +60,9 @@ BTF_BACKENDS = ("auto", "operator", "pipeline")
 BTF_MODELS = ("fixed", "auto")
 #: dtypes of the values in a chunked BTF store
 STORE_DTYPES = ("float16", "float32")
+# learned priors (abrdf_jax.prior): channel layouts, training inputs
+PRIOR_CHANNELS = ("joint", "shared")
+PRIOR_INPUT_SUFFIXES = (".npz", ".exr", ".binary")
 #: relative tolerance of the automatic model choice (the simplest model within it of the best)
 MODEL_TOL = 0.05
 #: Table files by suffix (``abrdf_jax.io.read_table``/``write_table``).

@@ -8,10 +8,9 @@ public entry point (budget and pairs from a :class:`Config`, α from :class:`Par
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 
 from ._errors import InputError
-from ._grid import ring_indices, ubo_grid
+from ._grid import ring_indices
 from ._measurements import Measurements
 from ._params import Config, Params
 from ._slices import KINDS, PROTOCOL_PAIRS, protocol_parameters, slice_angles, slice_directions
@@ -41,27 +40,45 @@ def sample_table(table, counts, alpha, pairs=PROTOCOL_PAIRS, dtype=jnp.float32) 
     """Sample the PROTOCOL slices from a dense 81×81 UBO table, interpolating over azimuth.
 
     Both azimuths are interpolated periodically and linearly on their rings (bilinear over
-    ``(φi, φv)``), so the result is differentiable in α. The elevations must be UBO rings.
+    ``(φi, φv)``, :func:`table_corners`), so the result is differentiable in α. The elevations
+    must be UBO rings.
     """
     table = jnp.asarray(table, dtype)
     if table.shape != (81, 81, 3):
         raise InputError(f"table must have shape (81, 81, 3), got {table.shape}")
-    _, phi_deg = ubo_grid()
     t, count = protocol_parameters(counts, dtype=dtype)
-    alpha = jnp.asarray(alpha, dtype)
-    ys = []
+    y = interpolate_table(table, table_corners(t, jnp.asarray(alpha, dtype), pairs))
+    return _measured(t, y, count, pairs, counts)
+
+
+def table_corners(t, alpha, pairs):
+    """Where slice positions ``t`` (``(S, n)``, radians) fall on the 81×81 grid: bilinear corners.
+
+    Returns ``(i0, i1, v0, v1, a, b)``, each ``(S, n)``: grid rows (illumination) ``i0, i1`` and
+    columns (view) ``v0, v1`` of the four corners on the rings of ``pairs[s // 2]``, and the
+    weights ``a`` (of ``i1``) and ``b`` (of ``v1``). Differentiable in ``alpha`` and ``t``.
+    """
+    parts = []
     for s in range(t.shape[0]):
         ti, tv = pairs[s // 2]
         ri, rv = ring_indices(ti), ring_indices(tv)
         pi_, pv = slice_angles(KINDS[s % 2], t[s], alpha)
         ii0, ii1, wi_ = _ring_weights(pi_, len(ri))
         vv0, vv1, wv_ = _ring_weights(pv, len(rv))
-        sub = table[np.ix_(ri, rv)]  # (ni, nv, 3)
-        v00, v01 = sub[ii0, vv0], sub[ii0, vv1]
-        v10, v11 = sub[ii1, vv0], sub[ii1, vv1]
-        a, b = wi_[:, None], wv_[:, None]
-        ys.append((1 - a) * ((1 - b) * v00 + b * v01) + a * ((1 - b) * v10 + b * v11))
-    return _measured(t, jnp.stack(ys), count, pairs, counts)
+        ri, rv = jnp.asarray(ri), jnp.asarray(rv)
+        parts.append((ri[ii0], ri[ii1], rv[vv0], rv[vv1], wi_, wv_))
+    return tuple(jnp.stack(x) for x in zip(*parts))
+
+
+def interpolate_table(values, corners):
+    """Bilinear interpolation of ``values`` (``(81, 81, ...)``) at :func:`table_corners`:
+    ``(S, n, ...)`` (the trailing axes of ``values`` kept)."""
+    i0, i1, v0, v1, a, b = corners
+    extra = (1,) * (values.ndim - 2)
+    a, b = a.reshape(a.shape + extra), b.reshape(b.shape + extra)
+    v00, v01 = values[i0, v0], values[i0, v1]
+    v10, v11 = values[i1, v0], values[i1, v1]
+    return (1 - a) * ((1 - b) * v00 + b * v01) + a * ((1 - b) * v10 + b * v11)
 
 
 def _ring_weights(phi, n):

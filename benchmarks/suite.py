@@ -134,6 +134,7 @@ OTHER_SCRIPTS = """other benchmark scripts:
   python -m benchmarks.throughput [--quick]      fixed-parameter operator: ABRDFs/s against batch size
   python -m benchmarks.tuning [--quick]          gradient tuning of widths, λ and α
   python -m benchmarks.pca_peer [--quick]        the PCA peer: cross-validated choice on train, test figures
+  python -m benchmarks.prior [--quick]           the package's learned priors (default, MERL-train) vs the RBF
   python -m benchmarks.analytic_peer [--quick]   the analytic peer: model and ε chosen on train, test figures
   python -m benchmarks.btf [--quick]             whole BTFs: throughput, roofline, per-texel error
   python -m benchmarks.model_selection [--quick] automatic model choice: confusion, error, cost (issue 6)

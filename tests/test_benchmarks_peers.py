@@ -16,13 +16,8 @@ import pytest
 import abrdf_jax as aj
 from abrdf_jax.materials import GGX, dense_table
 from benchmarks.analytic_peer import fit_analytic, reconstruct_analytic
-from benchmarks.pca_peer import (
-    fit_pca_prior,
-    flat_samples,
-    inverse_log_relative,
-    log_relative,
-    reconstruct_pca,
-)
+from abrdf_jax.prior import inverse_log_relative, log_relative
+from benchmarks.pca_peer import fit_pca_prior, flat_samples, reconstruct_pca
 
 F64 = jnp.float64
 

@@ -55,6 +55,13 @@ NO_JAX_CASES = [
     (["cache", "--help"], 0),
     (["cache", "--cache-dir", "cachedir"], 0),  # shows an empty cache; creates nothing
     (["cache", "--cache-dir", "cachedir", "--clear"], 0),
+    (["prior", "--help"], 0),
+    (["prior", "train", "--help"], 0),
+    (["prior", "info", "--help"], 0),
+    (["prior", "default", "--help"], 0),
+    (["prior", "info", "missing.npz"], 2),
+    (["prior", "info", "bad.csv"], 2),  # not a prior file
+    (["prior", "train", "shape.npz", "-o", "p.txt"], 2),  # a bad output extension
 ]
 
 _SCRIPT = r"""
@@ -104,6 +111,16 @@ def test_help_and_input_errors_import_no_jax(tmp_path):
         "header.csv",
         "shape.npz",
     ]
+
+
+def test_prior_info_imports_no_jax(tmp_path, rng):
+    from abrdf_jax.prior import save_prior, train_prior
+
+    tables = rng.uniform(0.1, 1.0, (4, 81, 81, 3))
+    save_prior(train_prior(tables, k=2), tmp_path / "p.npz")
+    report, err = _run([(["prior", "info", "p.npz"], 0)], tmp_path)
+    assert report[0][1] == 0, err
+    assert not report[0][2], "abrdf-jax prior info imported jax"
 
 
 def test_materials_listing_imports_no_jax(tmp_path):

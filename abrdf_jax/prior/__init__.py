@@ -1,0 +1,38 @@
+"""Learned priors of ABRDF tables (public API): train, store, load, reconstruct with one.
+
+A prior in the style of Nielsen, Jensen & Ramamoorthi, "On Optimal, Minimal BRDF Sampling for
+Reflectance Acquisition", ACM TOG 34(6), 2015: a log-relative map of the tables against the
+database median, scaled principal components, and a ridge projection of a measurement's mapped
+samples (docs/prior.md). :func:`default_prior` is trained on the package's own analytic
+materials (no measured data ships, nothing is downloaded).
+
+The names are loaded on first use (PEP 562), so ``from abrdf_jax import prior`` imports no JAX;
+reading a prior file's summary (:func:`prior_info`) needs numpy only.
+"""
+
+from __future__ import annotations
+
+from .._lazy import lazy_exports
+
+# public name -> private module that defines it (the one place this package's API is listed)
+_EXPORTS = {
+    "_mapping": (
+        "CHANNELS",
+        "DEFAULT_EPS",
+        "NIELSEN_EPS",
+        "PCA",
+        "grid_cos_view",
+        "inverse_log_relative",
+        "log_relative",
+        "mapped_rows",
+        "median_reference",
+        "pca_components",
+    ),
+    "_model": ("Prior", "SampleBasis", "assemble_prior", "basis_from_training", "train_prior"),
+    "_file": ("PRIOR_FORMAT", "load_prior", "prior_info", "read_prior_file", "save_prior"),
+    "_inputs": ("read_training_tables",),
+    "_reconstruct": ("prior_at_samples", "project", "reconstruct_prior", "ridge_operator"),
+    "_select": ("cross_validate_prior", "select_prior", "table_samples"),
+    "_default": ("DEFAULT_RECIPE", "default_prior", "default_training_tables"),
+}
+__getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS)
