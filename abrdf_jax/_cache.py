@@ -44,6 +44,8 @@ CACHE_FORMAT = 1
 #: ``cache_dir("off")``: no cache.
 OFF = "off"
 OPERATORS = "operators"
+#: Subfolder of the default prior (``abrdf_jax.prior.default_prior``), built on first use.
+PRIORS = "priors"
 #: Bound of ``operators/``: least recently used entries past it are removed on a save (an
 #: iso102 entry is about 2.7 MB, an aniso204 one 5.4 MB).
 OPERATORS_MAX_BYTES = 1 << 30
@@ -338,19 +340,25 @@ def folder_size(folder: Path) -> tuple[int, int]:
 
 
 def cache_summary(folder: Path) -> dict:
-    """Size and entry counts of the two caches in ``folder``."""
+    """Size and entry counts of the caches in ``folder``."""
     xla_bytes, _ = folder_size(folder / XLA)
     xla_entries = len(list((folder / XLA).glob("*-cache"))) if (folder / XLA).is_dir() else 0
     store = OperatorStore(folder)
     return {
         XLA: {"bytes": xla_bytes, "entries": xla_entries},
         OPERATORS: {"bytes": store.size(), "entries": len(store.entries())},
+        PRIORS: {
+            "bytes": folder_size(folder / PRIORS)[0],
+            "entries": len(list((folder / PRIORS).glob("*.npz")))
+            if (folder / PRIORS).is_dir()
+            else 0,
+        },
     }
 
 
 def clear_cache(folder: Path) -> None:
-    """Remove both caches (``xla/`` and ``operators/``) under ``folder``; nothing else."""
-    for name in (XLA, OPERATORS):
+    """Remove the caches (``xla/``, ``operators/``, ``priors/``) under ``folder``; nothing else."""
+    for name in (XLA, OPERATORS, PRIORS):
         if (folder / name).exists():
             shutil.rmtree(folder / name)
 

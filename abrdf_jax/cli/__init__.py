@@ -16,6 +16,8 @@ does not touch an existing one.
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 import traceback
 
 from .._errors import InputError
@@ -59,6 +61,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         say("interrupted")
         return 130
+    except BrokenPipeError:  # the reader of our output went away (``... | head``): not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        return 141
     except Exception as e:  # noqa: BLE001 - the boundary: every exception ends here, sorted below
         message = _user_error(e)
         if message is None:

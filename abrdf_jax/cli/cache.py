@@ -18,7 +18,11 @@ HELP = {
     "--cache-dir": "the cache folder to show or clear (default: as above)",
     "--clear": "remove both caches (xla/ and operators/; nothing else in the folder)",
 }
-WHAT = {"xla": "JAX compilation cache", "operators": "built reconstruction operators"}
+WHAT = {
+    "xla": "JAX compilation cache",
+    "operators": "built reconstruction operators",
+    "priors": "the default prior (built on first use)",
+}
 
 
 def register(sub) -> None:

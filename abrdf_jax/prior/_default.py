@@ -132,13 +132,13 @@ def default_prior(cache_dir=None):
     Returns:
         A :class:`~abrdf_jax.prior.Prior` (float32).
     """
-    from .._cache import cache_dir as where
+    from .._cache import PRIORS, cache_dir as where
     from ._file import load_prior, save_prior
 
     folder = where(cache_dir)
     if folder is None:
         return build_default_prior()
-    path = folder / "priors" / f"default-{recipe_key(DEFAULT_RECIPE)}.npz"
+    path = folder / PRIORS / f"default-{recipe_key(DEFAULT_RECIPE)}.npz"
     if path.exists():
         try:
             return load_prior(path)
