@@ -133,16 +133,16 @@ def _fake_runs(**package_seconds):
         "aniso1_aniso_cold": 2.0,
         "aniso1_aniso_warm": 0.6,
         "iso_large": 1.5,
+        "iso_large_warm": 1.0,
         "aniso_large": 3.0,
+        "aniso_large_warm": 2.0,
     } | package_seconds
     runs = {k: {"what": k, "files": 1, "package": _run(v), "peer": peer1} for k, v in s.items()}
     for key in ("iso_large", "aniso_large"):
-        runs[key] = {
-            "what": key,
-            "files": 1000,
-            "package": _run(s[key], 1000, rss=800.0),
-            "peer": _run(337.0, 1000),
-        }
+        peer = _run(337.0, 1000)  # one peer run: a cold and a warm row of the package
+        for k in (key, f"{key}_warm"):
+            runs[k] = {"what": k, "files": 1000, "package": _run(s[k], 1000, rss=800.0)}
+            runs[k]["peer"] = peer
     derive(runs)
     return runs
 
@@ -150,11 +150,11 @@ def _fake_runs(**package_seconds):
 def test_targets_pass_and_fail():
     runs = _fake_runs()
     targets = check_targets(runs)
-    assert len(targets) == 11
+    assert len(targets) == 13
     assert all(t["pass"] for t in targets), [t for t in targets if not t["pass"]]
     assert runs["iso_large"]["ratio"] == pytest.approx(337.0 / 1.5)
     assert runs["iso_large"]["package"]["files_per_s"] == pytest.approx(1000 / 1.5)
-    assert "1000 iso102 files" in targets[4]["target"]
+    assert "1000 iso102 files" in targets[4]["target"] and "cold" in targets[4]["target"]
 
     runs = _fake_runs(help=0.4, iso1_warm=0.8, iso_large=2.0, aniso1_auto_warm=1.3)
     runs["aniso_large"]["package"]["peak_rss_mib"] = 1500.0
@@ -166,7 +166,7 @@ def test_targets_pass_and_fail():
         [
             "`abrdf-jax --help` <= 0.3 s",
             "one iso102 file, warm cache: ratio to the peer >= 1",
-            "1000 iso102 files, one call: ratio per file >= 200",
+            "1000 iso102 files, one call, cold cache: ratio per file >= 200",
             "peak RSS of the 1000-file aniso204 run <= 1 GiB (MiB)",
             "one aniso204 file, warm: --model auto s / --model aniso s <= 2",
             "one aniso204 file, cold: --model auto s / --model aniso s <= 2",
@@ -197,8 +197,8 @@ def test_markdown_of_fake_results():
     md = markdown(payload)
     assert md.count("| package |") == len(runs)
     assert md.count("| peer |") == 3  # the one-file peer run is shared: one row
-    assert "FAIL" not in md and md.count("PASS") == 11
-    assert len(pass_fail_lines(payload["targets"])) == 11
+    assert "FAIL" not in md and md.count("PASS") == 13
+    assert len(pass_fail_lines(payload["targets"])) == 13
 
 
 def test_timed_child_reports_the_command(tmp_path):
