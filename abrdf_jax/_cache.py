@@ -34,7 +34,7 @@ from ._errors import InputError
 from ._compilation_cache import XLA, Warn, default_warn, os_reason, prune, touch
 from ._compilation_cache import disable_compilation_cache as disable_compilation_cache
 from ._compilation_cache import enable_compilation_cache as enable_compilation_cache
-from ._operator_entry import GRID, OperatorEntry, digest
+from ._operator_entry import OperatorEntry, digest
 from .io._atomic import atomic_write
 
 CACHE_ENV = "ABRDF_JAX_CACHE_DIR"
@@ -232,22 +232,25 @@ class OperatorStore:
             self._warned.add(token)
             (self.warn if warn is None else warn)(message)
 
-    def load(self, key: str, warn: Warn | None = None) -> OperatorEntry | None:
-        """The entry stored under ``key``, or ``None`` (a miss, or a bad entry: warned, removed)."""
+    def load(self, key: str, warn: Warn | None = None, kind=OperatorEntry):
+        """The entry stored under ``key``, or ``None`` (a miss, or a bad entry: warned, removed).
+
+        ``kind``: the entry class (:class:`OperatorEntry`, or ``_prior_entry.PriorEntry``): its
+        ``KIND``, ``ARRAYS``, ``check`` and ``from_stored``."""
         path = self.path(key)
         try:
             with np.load(path, allow_pickle=False) as f:
-                arrays = {n: f[n] for n in ("matrix", "index", "t", "count")}
                 meta = json.loads(str(f["meta"][()]))
+                arrays = {n: f[n] for n in kind.ARRAYS}
         except (FileNotFoundError, NotADirectoryError):  # a miss (a broken folder warns on save)
             return None
         except Exception as e:  # noqa: BLE001 - a truncated or corrupt file of any kind
             return self._reject(key, path, f"unreadable ({type(e).__name__}: {e})", warn)
-        problem = _check_entry(key, arrays, meta)
+        problem = _check_entry(key, arrays, meta, kind)
         if problem:
             return self._reject(key, path, problem, warn)
         touch(path)
-        return OperatorEntry(**arrays, log_samples=meta["log_samples"], log_eps=meta["log_eps"])
+        return kind.from_stored(arrays, meta)
 
     def _reject(self, key: str, path: Path, why: str, warn: Warn | None) -> None:
         removed = True
@@ -261,15 +264,16 @@ class OperatorStore:
         self._warn_once(key, f"operator cache entry {path} is {why}; {action} and rebuilding", warn)
         return None
 
-    def save(self, key: str, entry: OperatorEntry, warn: Warn | None = None) -> bool:
-        """Store ``entry`` under ``key`` atomically; ``False`` (and a warning) when it cannot."""
+    def save(self, key: str, entry, warn: Warn | None = None) -> bool:
+        """Store ``entry`` (of any kind) under ``key`` atomically; ``False`` (and a warning)
+        when it cannot."""
         arrays = entry.arrays()
         meta = {
             "key": key,
             "format": CACHE_FORMAT,
+            "kind": entry.KIND,
             "sha256": digest(arrays),
-            "log_samples": bool(entry.log_samples),
-            "log_eps": float(entry.log_eps),
+            **entry.meta(),
             "version": package_version(),
         }
         try:
@@ -301,7 +305,7 @@ class OperatorStore:
             shutil.rmtree(self.folder)
 
 
-def _check_entry(key: str, arrays: dict[str, np.ndarray], meta: dict) -> str | None:
+def _check_entry(key: str, arrays: dict[str, np.ndarray], meta: dict, kind) -> str | None:
     """What is wrong with a loaded entry (``None``: nothing)."""
     if not isinstance(meta, dict):
         return "malformed (no metadata)"
@@ -309,23 +313,11 @@ def _check_entry(key: str, arrays: dict[str, np.ndarray], meta: dict) -> str | N
         return f"of another format ({meta.get('format')!r}, this version reads {CACHE_FORMAT})"
     if meta.get("key") != key:
         return f"stored under another key ({str(meta.get('key'))[:12]}...)"
+    if meta.get("kind", OperatorEntry.KIND) != kind.KIND:
+        return f"of another kind ({meta.get('kind')!r}, expected {kind.KIND!r})"
     if meta.get("sha256") != digest(arrays):
         return "corrupt (its checksum does not match)"
-    m, index, t, count = (arrays[n] for n in ("matrix", "index", "t", "count"))
-    if not (
-        m.dtype == np.float32
-        and m.ndim == 2
-        and m.shape[0] == GRID[0] * GRID[1]
-        and index.shape == (m.shape[1],)
-        and t.ndim == 2
-        and count.shape == (t.shape[0],)
-        and int(count.sum()) == m.shape[1]
-        and (index.size == 0 or 0 <= int(index.min()) <= int(index.max()) < t.size)
-    ):
-        return "malformed (inconsistent array shapes)"
-    if not isinstance(meta.get("log_samples"), bool) or not isinstance(meta.get("log_eps"), float):
-        return "malformed (no value space)"
-    return None
+    return kind.check(arrays, meta)
 
 
 def folder_size(folder: Path) -> tuple[int, int]:
@@ -386,7 +378,7 @@ def build_entry(meas, config, params, *, build_dtype: str = BUILD_DTYPE) -> Oper
     from ._values import value_space
 
     meas, params = as_jax(meas, params)
-    with _x64_scope(build_dtype == "float64"):
+    with x64_scope(build_dtype == "float64"):
         op = compile_operator(config, params, meas, dtype=build_dtype, build_dtype=build_dtype)
         matrix = np.asarray(op.matrix)
     return OperatorEntry(
@@ -399,7 +391,7 @@ def build_entry(meas, config, params, *, build_dtype: str = BUILD_DTYPE) -> Oper
     )
 
 
-def _x64_scope(on: bool):
+def x64_scope(on: bool):
     """A context in which JAX computes in float64 (``on``), whatever the global switch."""
     import jax
 

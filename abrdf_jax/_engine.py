@@ -12,6 +12,8 @@ of its last member, whose tables are dropped).
   loaded from an operator store (``abrdf_jax._cache``) keyed by everything it depends on.
   The operator reproduces :func:`~abrdf_jax.reconstruct` to float32 rounding
   (``tests/test_operator.py``).
+- **Learned models** (the prior-only model, ``abrdf_jax._prior_operator.PriorModel``, passed
+  as ``config``; ``operator_only``): one operator per slice layout, whatever the group's size.
 - **Pipeline groups**: everything else (nonlinear rules, the log after interpolation, dense
   captures, whose RBF input is spike-capped) goes through :func:`~abrdf_jax.reconstruct_batch`
   in padded batches; the slices are padded to the group's longest.
@@ -129,18 +131,25 @@ def reconstruct_many(
         ``(indices, tables, path)``: positions in ``meas``, their ``(len(indices), 81, 81, 3)``
         float32 tables (numpy), and ``"operator"`` or ``"pipeline"``.
     """
-    if operator is None:
+    # a learned model (``_prior_operator.PriorModel``) is one operator per layout, always
+    only = getattr(config, "operator_only", False)
+    if operator is None and only:
+
+        def operator(config, params, template):
+            return config.operator(params, template)
+
+    elif operator is None:
         from ._operator import compile_operator
 
         def operator(config, params, template):
             template, params = as_jax(template, params)
             return compile_operator(config, params, template)
 
-    keys = [layout_key(m) if operator_applies(config, m) else None for m in meas]
+    keys = [layout_key(m) if only or operator_applies(config, m) else None for m in meas]
     sizes = Counter(keys)
     groups: dict[tuple, list[int]] = {}
     for k, (m, key) in enumerate(zip(meas, keys)):
-        fast = key is not None and sizes[key] >= min_group
+        fast = key is not None and (only or sizes[key] >= min_group)
         group = ("operator", key) if fast else ("pipeline", m.pairs, m.centre_azimuths)
         groups.setdefault(group, []).append(k)
     for key, members in groups.items():

@@ -35,6 +35,7 @@ MODELS = (
     "aniso-log",
     "aniso",
     "paper-aniso",
+    "prior",
 )
 #: Traits of some choices that code without JAX needs (the configuration's checks, the command
 #: line's choice of the compiled operator); the registries check at import that they agree

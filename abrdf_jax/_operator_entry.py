@@ -42,6 +42,11 @@ class OperatorEntry:
     log_samples: bool
     log_eps: float
 
+    #: The entry kind in the store's metadata (entries written before kinds existed are this).
+    KIND = "rbf"
+    #: The arrays an entry file holds.
+    ARRAYS = ("matrix", "index", "t", "count")
+
     @property
     def n_inputs(self) -> int:
         return int(self.index.shape[0])
@@ -85,6 +90,44 @@ class OperatorEntry:
     def arrays(self) -> dict[str, np.ndarray]:
         """The arrays by name (what the cache stores)."""
         return {"matrix": self.matrix, "index": self.index, "t": self.t, "count": self.count}
+
+    def meta(self) -> dict:
+        """The entry's scalars (stored in its metadata beside the arrays)."""
+        return {"log_samples": bool(self.log_samples), "log_eps": float(self.log_eps)}
+
+    @classmethod
+    def from_stored(cls, arrays: dict[str, np.ndarray], meta: dict) -> "OperatorEntry":
+        return cls(**arrays, log_samples=meta["log_samples"], log_eps=meta["log_eps"])
+
+    @staticmethod
+    def check(arrays: dict[str, np.ndarray], meta: dict) -> str | None:
+        """What is wrong with stored arrays and scalars (``None``: nothing)."""
+        m = arrays["matrix"]
+        if not (m.dtype == np.float32 and m.ndim == 2 and m.shape[0] == GRID[0] * GRID[1]):
+            return "malformed (inconsistent array shapes)"
+        problem = check_layout(arrays, m.shape[1])
+        if problem or int(arrays["count"].sum()) != m.shape[1]:  # every valid sample is read
+            return problem or "malformed (inconsistent array shapes)"
+        if not isinstance(meta.get("log_samples"), bool) or not isinstance(
+            meta.get("log_eps"), float
+        ):
+            return "malformed (no value space)"
+        return None
+
+
+def check_layout(arrays: dict[str, np.ndarray], n_in: int) -> str | None:
+    """The template's layout arrays (``index``, ``t``, ``count``) of an entry reading ``n_in``
+    valid samples: consistent shapes and an index inside the slices (``None``: fine)."""
+    index, t, count = (arrays[n] for n in ("index", "t", "count"))
+    if not (
+        index.shape == (n_in,)
+        and t.ndim == 2
+        and count.shape == (t.shape[0],)
+        and int(count.sum()) >= n_in
+        and (index.size == 0 or 0 <= int(index.min()) <= int(index.max()) < t.size)
+    ):
+        return "malformed (inconsistent array shapes)"
+    return None
 
 
 def digest(arrays: dict[str, np.ndarray]) -> str:

@@ -341,6 +341,8 @@ def measurements_for(item: Measured, config):
     from .._grouping import group_arrays
     from .._protocol import PROTOCOL_PAIRS
 
+    if getattr(config, "operator_only", False):  # a learned model reads the slices as grouped
+        return item.meas
     pairs = tuple(tuple(float(x) for x in p) for p in config.pairs)
     if pairs in (tuple(item.meas.pairs), tuple(PROTOCOL_PAIRS)):
         return item.meas
@@ -419,4 +421,12 @@ from ._record import (  # noqa: E402, F401
     model_choice,
     save_model_record,
     summary,
+)
+
+# The prior-only model (``--model prior``, ``--prior``): its own module, used through this one
+from ._learned import (  # noqa: E402, F401
+    PRIOR_MODEL,
+    check_prior_arguments,
+    prior_choice,
+    prior_source,
 )

@@ -8,6 +8,8 @@ import math
 from collections import Counter
 from pathlib import Path
 
+from ._learned import describe_prior
+
 MODEL_FORMAT = "abrdf_jax.model/1"
 
 
@@ -74,6 +76,7 @@ def describe(choice: dict) -> list[str]:
     rec = choice["record"]
     name = rec["model"] or "from parameter file"
     lines = [f"  model: {name} ({rec['how']}): {rec['reason']}"]
+    lines += describe_prior(rec)
     if "measurement" in rec:
         m = rec["measurement"]
         per = ", ".join(

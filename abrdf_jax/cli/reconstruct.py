@@ -52,6 +52,10 @@ HELP = {
     "--cache-dir": "cache folder of compiled code and built operators, or 'off' (default "
     "$ABRDF_JAX_CACHE_DIR, else ~/.cache/abrdf_jax; ABRDF_JAX_NO_CACHE=1 turns it off; "
     "see 'abrdf-jax cache')",
+    "--prior": "the prior of --model prior and of the automatic choice: a prior file ('abrdf-jax "
+    "prior train') or 'default' (the built-in prior, trained on the package's own analytic "
+    "materials; what --model prior uses without --prior). With --model auto, --prior adds the "
+    "prior-only model to the candidates (docs/model_selection.md)",
     "--noise": "relative noise of one sample for the isotropy test (default: estimated from the "
     "data)",
 }
@@ -71,6 +75,7 @@ def register(sub) -> None:
     add("--model", metavar="MODEL")
     add("--tol", type=float, metavar="FRAC")
     add("--noise", type=float, metavar="SIGMA")
+    add("--prior", metavar="FILE")
     add("--resume", action="store_true")
     add("--cache-dir", metavar="DIR")
 
@@ -97,7 +102,8 @@ def check_model_arguments(args) -> None:
     ):
         if v is not None and not (math.isfinite(v) and v >= 0):
             raise InputError(f"--{name} must be {what} >= 0, got {v}")
-    if fixed is not None and (args.isotropic or args.anisotropic):
+    common.check_prior_arguments(args)
+    if fixed not in (None, common.PRIOR_MODEL) and (args.isotropic or args.anisotropic):
         from ..select import candidate  # the candidate's budget (imports the numerics)
 
         iso = candidate(fixed).settings["budget"] == "iso102"
@@ -125,6 +131,9 @@ def choose(item: common.Measured, args, forced: str | None, caches: "_Caches") -
         return common.model_choice(where, None, config, params, "params", why)
     if _automatic(args):
         return _auto_choices([item], args, forced, caches)[0]
+    if args.model == common.PRIOR_MODEL:
+        why = f"--model prior: the prior alone, on the {budget} slices"
+        return common.prior_choice(where, caches.prior, budget, alpha, "fixed", why)
     if args.preset is not None:
         config, how, flag = preset(args.preset, budget), "preset", f"--preset {args.preset}"
         c = next((c for c in CANDIDATES.values() if c.config() == config), None)  # its name, if any
@@ -151,8 +160,10 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
     tol = {} if args.tol is None else {"tol": args.tol}
     sels = []
     for it in items:
-        try:
-            sels.append(quick_selection(it.meas, it.alpha, budget=forced, noise=args.noise, **tol))
+        try:  # with a prior, every material compares candidates (held-out errors: JAX)
+            quick = caches.prior is None
+            q = quick_selection(it.meas, it.alpha, budget=forced, noise=args.noise, **tol)
+            sels.append(q if quick else None)
         except InputError as e:
             raise InputError(f"{it.path}: {e}") from e
     rest = [k for k, s in enumerate(sels) if s is None]
@@ -161,6 +172,8 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
         from ..select import select_model, select_models
 
         kw = dict(budget=forced, noise=args.noise, **tol)
+        if caches.prior is not None:
+            kw["prior"] = caches.prior.load()
 
         def one(it):
             try:
@@ -180,21 +193,22 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
             sels[k] = s
     if on_done is not None:
         on_done(len(items))
-    return [_auto_choice(it.path, s) for it, s in zip(items, sels)]
+    return [_auto_choice(it, s, caches.prior) for it, s in zip(items, sels)]
 
 
 def _automatic(args) -> bool:
     return args.params is None and args.preset is None and args.model in (None, "auto")
 
 
-def _auto_choice(where, s) -> dict:
+def _auto_choice(item, s, prior) -> dict:
     """The model record of an automatic choice (a :class:`abrdf_jax.select.Selection`)."""
-    from ..select._candidates import CANDIDATES
-
     d = s.to_dict()
-    extra = {"rank": CANDIDATES[s.name].rank, "tol": s.tol, "folds": s.k}
+    extra = {"rank": s.ranks[s.name], "tol": s.tol, "folds": s.k}
     extra |= {"candidates": d["candidates"], "isotropy": d["isotropy"], "seconds": s.seconds}
-    return common.model_choice(where, s.name, s.config, s.params, "auto", s.reason, extra)
+    if s.name == common.PRIOR_MODEL:
+        budget = s.config.budget
+        return common.prior_choice(item.path, prior, budget, item.alpha, "auto", s.reason, extra)
+    return common.model_choice(item.path, s.name, s.config, s.params, "auto", s.reason, extra)
 
 
 def choose_all(
@@ -274,6 +288,7 @@ def run(args) -> int:
     out = Path(args.output)
     targets = _targets(files, out, folder_mode, args.format)
     check_model_arguments(args)
+    prior = common.prior_source(args)  # a bad prior file fails here, before any work
     args.resumed = []
     if args.resume:
         if not folder_mode:
@@ -288,6 +303,7 @@ def run(args) -> int:
     items = common.read_inputs(
         files, forced, args.alpha, before=lambda: caches.append(_Caches(args.cache_dir))
     )
+    caches[0].prior = prior
     choices = choose_all(items, args, forced, caches[0])
     if folder_mode:
         return _reconstruct_folder(items, choices, targets, out, args, caches[0])
@@ -309,6 +325,7 @@ class _Caches:
         if self.folder is not None:
             self.store = _cache.OperatorStore(self.folder, warn=common.warn)
         self._numerics = False
+        self.prior = None  # the run's prior (abrdf_jax._prior_operator.PriorSource), if any
 
     def numerics(self) -> None:
         """Before the first JAX work of the run: JAX's compilation cache on (once)."""
@@ -324,6 +341,8 @@ class _Caches:
         float64, stored as float32) and stored."""
         from .. import _cache
 
+        if getattr(config, "operator_only", False):  # the prior-only model's own entries
+            return config.operator(params, template, self.store, common.warn, self.numerics)
         entry, _ = _cache.cached_entry(
             self.store, template, config, params, common.warn, before_build=self.numerics
         )

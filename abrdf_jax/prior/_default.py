@@ -122,6 +122,15 @@ def build_default_prior(recipe: dict | None = None):
     )
 
 
+def default_prior_path(cache_dir=None):
+    """Where :func:`default_prior` keeps the default prior: ``<cache>/priors/default-KEY.npz``
+    (``None`` with the cache off). Numpy only: the command line finds the file without JAX."""
+    from .._cache import PRIORS, cache_dir as where
+
+    folder = where(cache_dir)
+    return None if folder is None else folder / PRIORS / f"default-{recipe_key(DEFAULT_RECIPE)}.npz"
+
+
 def default_prior(cache_dir=None):
     """The default prior, from the user cache or built (and cached) on first use.
 
@@ -132,13 +141,11 @@ def default_prior(cache_dir=None):
     Returns:
         A :class:`~abrdf_jax.prior.Prior` (float32).
     """
-    from .._cache import PRIORS, cache_dir as where
     from ._file import load_prior, save_prior
 
-    folder = where(cache_dir)
-    if folder is None:
+    path = default_prior_path(cache_dir)
+    if path is None:
         return build_default_prior()
-    path = folder / PRIORS / f"default-{recipe_key(DEFAULT_RECIPE)}.npz"
     if path.exists():
         try:
             return load_prior(path)

@@ -15,6 +15,7 @@ import numpy as np
 
 from .._params import Params
 from ._isotropy import LEVEL, MIN_EFFECT
+from ._choice import rbf_configs, with_prior
 from ._select import TOL, Selection, _finish, _plan, fold_data, group_configs, held_out_errors_batch
 
 #: Materials per held-out call (the last chunk of a group is padded: one compile per layout).
@@ -32,6 +33,7 @@ def select_models(
     min_effect: float = MIN_EFFECT,
     alpha_deg=None,
     on_done=None,
+    prior=None,
 ) -> list[Selection]:
     """:func:`select_model` (``candidates="auto"``) for many measurements, with the held-out
     errors of every group of one fold layout, α and candidate list computed in one compiled,
@@ -42,6 +44,8 @@ def select_models(
         measurements: :class:`Measurements` (or :class:`Samples`), one per material.
         alpha_deg: ``None``, one α for all, or one per measurement.
         on_done: called with the number of materials when a group is done (a progress bar).
+        prior: a :class:`abrdf_jax.prior.Prior` joining the candidates, as in
+            :func:`select_model` (its held-out errors batched the same way).
 
     Returns:
         One :class:`Selection` per measurement, in order (``seconds``: its share of the batch).
@@ -52,6 +56,8 @@ def select_models(
     plans = [
         _plan(m, "auto", budget, noise, level, min_effect, a, None) for m, a in zip(items, alphas)
     ]
+    if prior is not None:
+        plans = [with_prior(p) for p in plans]
     groups: dict[tuple, list[int]] = {}
     for i, p in enumerate(plans):
         if len(p.configs) > 1:
@@ -65,12 +71,14 @@ def select_models(
             data = [fold_data(plans[i].meas, np.deg2rad(alpha), k) for i in chunk]
             data += [data[-1]] * (BATCH - len(chunk))  # one shape: one compile per layout
             stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *data)
-            for names, cfgs in group_configs(plans[chunk[0]].configs):
+            for names, cfgs in group_configs(rbf_configs(plans[chunk[0]].configs)):
                 dtype = plans[chunk[0]].meas.y.dtype
                 params = Params.default(cfgs[0], alpha_deg=alpha, dtype=dtype)
                 errs = np.asarray(held_out_errors_batch(stacked, cfgs, params))
                 for row, i in zip(errs, chunk):
                     errors.setdefault(i, {}).update({n: float(e) for n, e in zip(names, row)})
+            if prior is not None:
+                _prior_errors(plans, chunk, alpha, k, prior, errors)
             if on_done is not None:
                 on_done(len(chunk))
     share = (time.perf_counter() - t0) / max(len(items), 1)
@@ -78,3 +86,16 @@ def select_models(
     if on_done is not None:
         on_done(len(items) - sum(len(m) for m in groups.values()))
     return out
+
+
+def _prior_errors(plans, chunk, alpha, k, prior, errors) -> None:
+    """The prior's held-out errors of one chunk, in one padded batch (one compile per layout)."""
+    from ._prior import prior_fold_data, prior_held_out_errors_batch
+
+    budget = plans[chunk[0]].configs["prior"].budget
+    data = [prior_fold_data(plans[i].meas, np.deg2rad(alpha), k, budget) for i in chunk]
+    data += [data[-1]] * (BATCH - len(chunk))
+    stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *data)
+    errs = np.asarray(prior_held_out_errors_batch(stacked, prior, prior.lam))
+    for e, i in zip(errs, chunk):
+        errors.setdefault(i, {})["prior"] = float(e)

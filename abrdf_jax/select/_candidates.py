@@ -69,6 +69,22 @@ DEFAULT_ANISO = ("iso", "aniso-average", "aniso-crossing", "aniso")
 #: Optional kernel-family candidates (each family is one more compilation).
 KERNEL_FAMILY = ("iso", "iso-linear", "iso-gaussian")
 TOL = MODEL_TOL
+#: The prior-only model (:mod:`abrdf_jax.prior`; ``reconstruct --model prior``): a candidate of
+#: the automatic choice when a prior is given. It ranks above every RBF model: it brings the
+#: most assumptions that the measurement does not hold (a database's materials), so it is chosen
+#: only where its held-out error beats every RBF model's by more than the tolerance ("no more
+#: than a scene needs"; docs/model_selection.md).
+PRIOR = "prior"
+PRIOR_RANK = len(CANDIDATES)
+PRIOR_DESCRIPTION = (
+    "a learned prior alone (Nielsen et al. 2015 PCA, ridge fit of the mapped samples); the "
+    "slices of the budget"
+)
+
+
+def description(name: str) -> str:
+    """What a model of the choice is (an RBF candidate or the prior)."""
+    return PRIOR_DESCRIPTION if name == PRIOR else CANDIDATES[name].description
 
 
 def candidate(name: str) -> Candidate:

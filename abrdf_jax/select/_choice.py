@@ -14,9 +14,19 @@ import math
 import time
 from typing import NamedTuple
 
-from .._config import default_values
+from .._config import Config, default_values
 from .._errors import InputError
-from ._candidates import CANDIDATES, DEFAULT_ANISO, DEFAULT_ISO, KERNEL_FAMILY, TOL, candidate
+from ._candidates import (
+    CANDIDATES,
+    DEFAULT_ANISO,
+    DEFAULT_ISO,
+    KERNEL_FAMILY,
+    PRIOR,
+    PRIOR_RANK,
+    TOL,
+    candidate,
+    description,
+)
 from ._isotropy import LEVEL, MIN_EFFECT, IsotropyReport, isotropy_test
 
 
@@ -102,7 +112,7 @@ class Selection:
                     "name": n,
                     "held_out_log_rms": _finite(self.errors[n]),
                     "rank": self.ranks[n],
-                    "description": CANDIDATES[n].description if n in CANDIDATES else "",
+                    "description": description(n) if n in CANDIDATES or n == PRIOR else "",
                 }
                 for n in sorted(self.errors, key=lambda n: self.ranks[n])
             ],
@@ -158,6 +168,20 @@ def plan(meas, alpha: float, candidates, budget, noise, level, min_effect) -> Pl
     configs = {n: CANDIDATES[n].config(pairs=meas.pairs) for n in names}
     ranks = {n: CANDIDATES[n].rank for n in names}
     return Plan(meas, alpha, budget, report, configs, ranks)
+
+
+def with_prior(p: Plan) -> Plan:
+    """The plan with the prior-only model among its candidates (rank :data:`PRIOR_RANK`), on the
+    slices of the plan's budget: all of them when an anisotropic candidate is left, else the
+    diagonal ones (``iso102``). Its configuration only says that budget."""
+    budget = "aniso204" if any(c.budget == "aniso204" for c in p.configs.values()) else "iso102"
+    configs = {**p.configs, PRIOR: Config(budget=budget, pairs=p.meas.pairs)}
+    return p._replace(configs=configs, ranks={**p.ranks, PRIOR: PRIOR_RANK})
+
+
+def rbf_configs(configs: dict) -> dict:
+    """The RBF candidates of a plan's configurations (all but the prior)."""
+    return {n: c for n, c in configs.items() if n != PRIOR}
 
 
 def finish(

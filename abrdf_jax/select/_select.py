@@ -39,7 +39,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from ._choice import Plan, Selection, check_budget, finish, plan, tolerance_choice  # noqa: F401
+from ._choice import (  # noqa: F401
+    Plan,
+    Selection,
+    check_budget,
+    finish,
+    plan,
+    rbf_configs,
+    tolerance_choice,
+    with_prior,
+)
 from ._candidates import (  # noqa: F401 - re-exported: the candidates' public home is select
     CANDIDATES,
     DEFAULT_ANISO,
@@ -218,6 +227,7 @@ def select_model(
     min_effect: float = MIN_EFFECT,
     alpha_deg: float | None = None,
     dtype=None,
+    prior=None,
 ) -> Selection:
     """Choose the simplest reconstruction model the measurements support.
 
@@ -234,15 +244,27 @@ def select_model(
         level, min_effect: thresholds of the isotropy test.
         alpha_deg: slice offset (default: estimated from :class:`Samples`, 15° for
             :class:`Measurements`).
+        prior: a :class:`abrdf_jax.prior.Prior`: the prior-only model joins the candidates
+            (rank above every RBF model; :func:`abrdf_jax.select._choice.with_prior`), scored
+            on the same folds (:mod:`abrdf_jax.select._prior`). Chosen, the selection's name is
+            ``"prior"`` and its ``config`` says the budget whose slices it reads.
 
     Returns:
         A :class:`Selection`.
     """
     t0 = time.perf_counter()
     plan = _plan(samples, candidates, budget, noise, level, min_effect, alpha_deg, dtype)
+    if prior is not None:
+        plan = with_prior(plan)
     errors = None
     if len(plan.configs) > 1:
-        errors = held_out_errors(plan.meas, plan.configs, alpha_deg=plan.alpha, k=k)
+        errors = held_out_errors(plan.meas, rbf_configs(plan.configs), alpha_deg=plan.alpha, k=k)
+        if prior is not None:
+            from ._prior import prior_held_out_error
+
+            b = plan.configs["prior"].budget
+            a = np.deg2rad(plan.alpha)
+            errors["prior"] = prior_held_out_error(plan.meas, prior, a, k, b)
     return _finish(plan, errors, tol, k, time.perf_counter() - t0)
 
 

@@ -1,0 +1,127 @@
+"""The prior-only reconstruction of one sample layout as numpy arrays: applied without JAX.
+
+For a fixed layout (slice positions, counts, α, the slices used) the prior-only model of
+:mod:`abrdf_jax.prior` (Nielsen et al. 2015; docs/prior.md) is linear in the *mapped* samples:
+
+1. map: ``z = ln(max(y, 0) cos θv + ε) − ln(x_ref,s cos θv + ε)`` (the log-relative map);
+2. matrix: ``m = μ + Q R (z − μ_s)`` with ``R = (Q_sᵀ Q_s + λI)⁻¹ Q_sᵀ`` (:func:`ridge_operator`
+   on the valid samples) and ``Q`` the components on the grid;
+3. inverse map: ``x = max((exp(m) (x_ref cos θv + ε) − ε) / cos θv, 0)``.
+
+:class:`PriorEntry` stores that map with the constants folded in (``R`` and ``Q`` as two
+factors: ``K`` is small, so ``(rows · Rᵀ) · Qᵀ`` costs less than the product matrix would);
+the operator store (``abrdf_jax._cache``) keeps it beside the RBF's :class:`OperatorEntry`.
+This module imports numpy only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ._errors import InputError
+from ._operator_entry import GRID, check_layout
+
+PAIRS = GRID[0] * GRID[1]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PriorEntry:
+    """A built prior-only operator (module docstring), float32 arrays.
+
+    Attributes:
+        right: ``(K, n_in·w)`` the ridge map ``R`` on the mapped valid samples.
+        shift: ``(K,)`` ``R · (ln(x_ref,s cos θv + ε) + μ_s)``: the map's reference and the
+            mean at the samples, folded in.
+        left: ``(6561·w, K)`` the components ``Q`` on the grid.
+        offset: ``(6561·w,)`` ``μ + ln(x_ref cos θv + ε)`` on the grid.
+        cos_in: ``(n_in·w,)`` ``cos θv`` at the valid samples.
+        inv_cos: ``(6561·w,)`` ``1 / cos θv`` on the grid.
+        index, t, count: the template's layout as :class:`OperatorEntry`'s (``count`` of the
+            template; ``index`` only the samples the model reads).
+        eps: ε of the prior's map; width: ``w``, 1 (``shared`` channels: one row per channel) or
+            3 (``joint``: one row per material, pair-major).
+    """
+
+    right: np.ndarray
+    shift: np.ndarray
+    left: np.ndarray
+    offset: np.ndarray
+    cos_in: np.ndarray
+    inv_cos: np.ndarray
+    index: np.ndarray
+    t: np.ndarray
+    count: np.ndarray
+    eps: float
+    width: int
+
+    KIND = "prior"
+    ARRAYS = ("right", "shift", "left", "offset", "cos_in", "inv_cos", "index", "t", "count")
+
+    @property
+    def n_inputs(self) -> int:
+        return int(self.index.shape[0])
+
+    def apply(self, y) -> np.ndarray:
+        """Tables ``(..., 81, 81, C)`` from stacked sample values ``(..., S, nmax, C)``."""
+        y = np.asarray(y, np.float32)
+        s, nmax = self.t.shape
+        if y.ndim < 3 or y.shape[-3:-1] != (s, nmax) or y.shape[-1] != 3:
+            raise InputError(f"values must have shape (..., {s}, {nmax}, 3), got {y.shape}")
+        lead = y.shape[:-3]
+        x = y.reshape(-1, s * nmax, 3)[:, self.index, :]
+        return self.apply_compact(x).reshape(*lead, *GRID, 3)
+
+    def apply_compact(self, x) -> np.ndarray:
+        """The same from the valid samples only, ``(B, n_in, 3)`` → ``(B, 81, 81, 3)``."""
+        x = np.asarray(x, np.float32)
+        b = x.shape[0]
+        if self.width == 1:  # one row per material and channel, as the prior's shared layout
+            rows = np.ascontiguousarray(np.transpose(x, (0, 2, 1))).reshape(b * 3, -1)
+        else:  # one row per material, (sample, channel) order
+            rows = x.reshape(b, -1)
+        eps = np.float32(self.eps)
+        z = np.log(np.maximum(rows, np.float32(0.0)) * self.cos_in + eps)
+        c = z @ self.right.T
+        c -= self.shift
+        m = c @ self.left.T
+        m += self.offset
+        np.exp(m, out=m)
+        m -= eps
+        m *= self.inv_cos
+        np.maximum(m, np.float32(0.0), out=m)
+        if self.width == 1:
+            return np.ascontiguousarray(np.transpose(m.reshape(b, 3, PAIRS), (0, 2, 1))).reshape(
+                b, *GRID, 3
+            )
+        return m.reshape(b, *GRID, 3)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {n: getattr(self, n) for n in self.ARRAYS}
+
+    def meta(self) -> dict:
+        return {"eps": float(self.eps), "width": int(self.width)}
+
+    @classmethod
+    def from_stored(cls, arrays: dict[str, np.ndarray], meta: dict) -> "PriorEntry":
+        return cls(**arrays, eps=meta["eps"], width=meta["width"])
+
+    @staticmethod
+    def check(arrays: dict[str, np.ndarray], meta: dict) -> str | None:
+        """What is wrong with stored arrays and scalars (``None``: nothing)."""
+        w, eps = meta.get("width"), meta.get("eps")
+        if w not in (1, 3) or not isinstance(eps, float) or not eps > 0:
+            return "malformed (no prior map)"
+        r, left = arrays["right"], arrays["left"]
+        floats = ("right", "shift", "left", "offset", "cos_in", "inv_cos")
+        if not all(arrays[n].dtype == np.float32 for n in floats) or r.ndim != 2:
+            return "malformed (inconsistent array shapes)"
+        k, n_w = r.shape
+        d = PAIRS * w
+        shapes = {"shift": (k,), "left": (d, k), "offset": (d,), "cos_in": (n_w,)}
+        if any(arrays[n].shape != s for n, s in shapes.items()) or arrays["inv_cos"].shape != (d,):
+            return "malformed (inconsistent array shapes)"
+        if n_w % w or left.size == 0:
+            return "malformed (inconsistent array shapes)"
+        return check_layout(arrays, n_w // w)

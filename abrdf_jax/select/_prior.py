@@ -1,0 +1,86 @@
+"""Held-out error of the prior-only model: the same folds, residual and ε as the RBF candidates.
+
+Fold ``j`` (:func:`abrdf_jax._folds.sample_folds`) fits the prior's weights to the training
+samples of the budget's slices (:func:`abrdf_jax.prior.ridge_operator` on the prior at those
+positions) and predicts every held-out sample (the prior at the held-out positions, through the
+inverse map); the error is the RMS log residual of :func:`abrdf_jax._folds.log_rms` with the
+measurement's ε, over folds, held-out samples and channels: the number
+:func:`abrdf_jax.select.held_out_errors` gives an RBF candidate, so the tolerance rule compares
+like with like. One compiled, vmapped call per layout for a batch of materials
+(:func:`prior_held_out_errors_batch`), as :func:`abrdf_jax.select.select_models` does.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._config import Config
+from .._folds import log_rms, sample_folds
+from .._measurements import Measurements
+from .._values import measurement_eps
+from ..prior._mapping import inverse_log_relative, log_relative
+from ..prior._reconstruct import _rows, prior_at_samples, ridge_operator
+
+
+def prior_fold_data(meas: Measurements, alpha, k: int = 4, budget: str = "aniso204") -> dict:
+    """The folds of one measurement for the prior: ``train`` and ``test`` :class:`Measurements`
+    with a leading fold axis (``iso102``: the axial slices are not trained on; every held-out
+    sample is predicted), ``res_eps`` ``(3,)`` and ``alpha`` (radians)."""
+    train, tt, ty, tm = sample_folds(meas, k)
+    if budget == "iso102":
+        count = np.asarray(train.count).copy()
+        count[:, 0::2] = 0
+        train = train.replace(count=jnp.asarray(count, train.count.dtype))
+    test = meas.replace(t=tt, y=ty, count=jnp.sum(tm, axis=-1).astype(meas.count.dtype))
+    return {
+        "train": train,
+        "test": test,
+        "res_eps": measurement_eps(meas, Config().log_eps),  # the RBF candidates' ε
+        "alpha": jnp.asarray(alpha, meas.y.dtype),
+    }
+
+
+def _predict(prior, train: Measurements, test: Measurements, lam, alpha):
+    """The prior fitted to ``train``'s samples, at ``test``'s positions: ``(P_test, 3)``."""
+    basis = prior_at_samples(prior, train, alpha)
+    joint = prior.channels == "joint"
+    y = train.y.reshape(-1, 3)
+    z = y.reshape(-1) if joint else y.T  # a row of P·3 values, or one row per channel
+    ref_s, cos_s, mean_s = _rows(z, basis.reference, basis.cos_v, basis.mean)
+    c = (log_relative(z, ref_s, cos_s, prior.eps) - mean_s) @ ridge_operator(basis, lam).T
+    out = prior_at_samples(prior, test, alpha)
+    m = c @ out.components.T
+    ref_t, cos_t, mean_t = _rows(m, out.reference, out.cos_v, out.mean)
+    pred = inverse_log_relative(m + mean_t, ref_t, cos_t, prior.eps)
+    return pred.reshape(-1, 3) if joint else pred.T
+
+
+def _held_out(data: dict, prior, lam):
+    train, test = data["train"], data["test"]
+    alpha = data["alpha"]
+    pred = jax.vmap(lambda a, b: _predict(prior, a, b, lam, alpha))(train, test)
+    k = pred.shape[0]
+    y = test.y.reshape(k, -1, 3)
+    mask = test.mask.reshape(k, -1, 1)
+    return log_rms(pred, y, data["res_eps"], mask)
+
+
+_held_out_jit = eqx.filter_jit(_held_out)
+
+
+@eqx.filter_jit
+def prior_held_out_errors_batch(data: dict, prior, lam):
+    """Held-out RMS log errors ``(B,)`` of the prior for a batch of materials (``data``:
+    :func:`prior_fold_data` of each, stacked along a leading axis; one layout)."""
+    return jax.vmap(lambda d: _held_out(d, prior, lam))(data)
+
+
+def prior_held_out_error(
+    meas: Measurements, prior, alpha, k: int = 4, budget: str = "aniso204", lam=None
+) -> float:
+    """The held-out RMS log error of the prior-only model on one measurement (module docstring)."""
+    lam = prior.lam if lam is None else lam
+    return float(_held_out_jit(prior_fold_data(meas, alpha, k, budget), prior, lam))
