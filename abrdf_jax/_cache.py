@@ -241,7 +241,8 @@ class OperatorStore:
         try:
             with np.load(path, allow_pickle=False) as f:
                 meta = json.loads(str(f["meta"][()]))
-                arrays = {n: f[n] for n in kind.ARRAYS}
+                same = isinstance(meta, dict) and meta.get("kind", OperatorEntry.KIND) == kind.KIND
+                arrays = {n: f[n] for n in kind.ARRAYS} if same else {}  # else: rejected below
         except (FileNotFoundError, NotADirectoryError):  # a miss (a broken folder warns on save)
             return None
         except Exception as e:  # noqa: BLE001 - a truncated or corrupt file of any kind

@@ -62,6 +62,8 @@ NO_JAX_CASES = [
     (["prior", "info", "missing.npz"], 2),
     (["prior", "info", "bad.csv"], 2),  # not a prior file
     (["prior", "train", "shape.npz", "-o", "p.txt"], 2),  # a bad output extension
+    (["reconstruct", "bad.csv", "-o", "rec.npz", "--model", "prior", "--prior", "bad.csv"], 2),
+    (["reconstruct", "bad.csv", "-o", "rec.npz", "--model", "iso", "--prior", "default"], 2),
 ]
 
 _SCRIPT = r"""
@@ -130,7 +132,8 @@ def test_materials_listing_imports_no_jax(tmp_path):
 
 
 def test_subcommands_import_only_the_shared_module():
-    """Arrows point into cli/_common only (which holds cli/_record, the model record): no
+    """Arrows point into cli/_common only (which holds cli/_record, the model record, and
+    cli/_learned, the prior-only model): no
     subcommand imports another, nor the package's __init__ (checked on the source: relative
     imports inside abrdf_jax/cli)."""
     import ast
@@ -144,9 +147,11 @@ def test_subcommands_import_only_the_shared_module():
                 isinstance(node, ast.ImportFrom) and node.level == 1
             ):  # "from . import x", "from .x import y"
                 targets = [node.module] if node.module else [a.name for a in node.names]
-                allowed = {"_common.py": {"_record"}, "_record.py": set()}.get(
-                    path.name, {"_common"}
-                )
+                allowed = {
+                    "_common.py": {"_record", "_learned"},
+                    "_record.py": set(),
+                    "_learned.py": set(),
+                }.get(path.name, {"_common"})
                 assert set(targets) <= allowed, (path.name, targets)
 
 
@@ -241,3 +246,41 @@ def test_warm_reconstruct_imports_no_jax(tmp_path):
         np.testing.assert_array_equal(io.read_table(tmp_path / a), io.read_table(tmp_path / b))
     record = json.loads((tmp_path / "out-warm.model.json").read_text())
     assert [e["engine"] for e in record["inputs"]] == ["operator"] * 33
+
+
+def test_warm_prior_reconstruct_imports_no_jax(tmp_path):
+    """``--model prior`` with its entry in the operator store runs in numpy: a prior file and the
+    default prior (found in the cache folder without JAX), one file and a folder; the tables
+    are bit-identical to the cold call's."""
+    import abrdf_jax as aj
+    from abrdf_jax import io, materials
+    from abrdf_jax import prior as P
+    from abrdf_jax.prior._default import DEFAULT_RECIPE
+
+    tables, names = P.default_training_tables({**DEFAULT_RECIPE, "n": 12})
+    P.save_prior(P.train_prior(tables, names, k=6, lam=0.03), tmp_path / "p.npz")
+    iso = materials.get_material("ggx-plastic")
+    io.write_samples_csv(tmp_path / "iso.csv", aj.sample(iso, aj.Config(budget="iso102")))
+    (tmp_path / "dir").mkdir()
+    for k in range(3):
+        s = aj.simulate_capture(iso, budget="iso102", noise=0.01, seed=k)
+        io.write_samples_csv(tmp_path / "dir" / f"m{k}.csv", s)
+    common = ["--model", "prior", "--cache-dir", "cache"]
+
+    def cases(tag):
+        return [
+            (["reconstruct", "iso.csv", "-o", f"f-{tag}.npz", "--prior", "p.npz", *common], 0),
+            (["reconstruct", "iso.csv", "-o", f"d-{tag}.npz", *common], 0),  # the default prior
+            (["reconstruct", "dir", "-o", f"out-{tag}", "-q", "--prior", "p.npz", *common], 0),
+        ]
+
+    cold, err = _run(cases("cold"), tmp_path)
+    assert [c[1] for c in cold] == [0, 0, 0], err
+    for case in cases("warm"):  # each in a fresh interpreter
+        ((argv, code, jax_loaded),), err = _run([case], tmp_path)
+        assert code == 0, (argv, err)
+        assert not jax_loaded, f"warm {argv} imported jax"
+    pairs = [("f-cold.npz", "f-warm.npz"), ("d-cold.npz", "d-warm.npz")]
+    pairs += [(f"out-cold/m{k}.npz", f"out-warm/m{k}.npz") for k in range(3)]
+    for a, b in pairs:
+        np.testing.assert_array_equal(io.read_table(tmp_path / a), io.read_table(tmp_path / b))

@@ -60,15 +60,3 @@ def prior_choice(where: Path, source, budget: str, alpha: float, how: str, reaso
         "params": params,
         "record": rec,
     }
-
-
-def describe_prior(rec: dict) -> list[str]:
-    """The printed line of a record's prior (none for other models)."""
-    p = rec.get("prior")
-    if not p:
-        return []
-    where = p["file"] or "default prior, built in memory (cache off)"
-    return [
-        f"  prior: {where} (sha256 {p['sha256'][:12]}..., K {p['n_components']}, lambda "
-        f"{p['lam']:g}, {p['n_materials']} training tables): {p['provenance']}"
-    ]

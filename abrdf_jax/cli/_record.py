@@ -8,8 +8,6 @@ import math
 from collections import Counter
 from pathlib import Path
 
-from ._learned import describe_prior
-
 MODEL_FORMAT = "abrdf_jax.model/1"
 
 
@@ -108,3 +106,15 @@ def summary(choices: list[dict]) -> str:
     """``"iso x2, aniso-crossing x1"``: how often each model was used."""
     counts = Counter(c["record"]["model"] or "parameter file" for c in choices)
     return ", ".join(f"{n} x{k}" for n, k in counts.items())
+
+
+def describe_prior(rec: dict) -> list[str]:
+    """The printed line of a record's prior (none for other models)."""
+    p = rec.get("prior")
+    if not p:
+        return []
+    where = p["file"] or "default prior, built in memory (cache off)"
+    return [
+        f"  prior: {where} (sha256 {p['sha256'][:12]}..., K {p['n_components']}, lambda "
+        f"{p['lam']:g}, {p['n_materials']} training tables): {p['provenance']}"
+    ]
