@@ -158,17 +158,21 @@ class PriorModel:
     name = "prior"
 
     def slice_counts(self, meas) -> np.ndarray:
-        """The counts of the slices the model reads: ``iso102`` leaves the axial ones out."""
-        count = np.asarray(meas.count).astype(np.int64)
-        if self.budget == "iso102":
-            count = count.copy()
-            count[0::2] = 0
-        return count
+        return slice_counts(meas, self.budget)
 
     def operator(self, params, template, store=None, warn=None, before_build=None):
         """The apply function of ``template``'s layout: from ``store``, else built (and stored)."""
         entry, _ = cached_prior_entry(store, template, self, params, warn, before_build)
         return entry.apply
+
+
+def slice_counts(meas, budget: str | None) -> np.ndarray:
+    """The counts of the slices the prior reads: ``iso102`` leaves the axial ones out."""
+    count = np.asarray(meas.count).astype(np.int64)
+    if budget == "iso102":
+        count = count.copy()
+        count[0::2] = 0
+    return count
 
 
 def _code_digest() -> str:

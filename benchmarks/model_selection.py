@@ -20,6 +20,8 @@ Run: ``python -m benchmarks.model_selection [--quick]``. Writes
    of each candidate against its complexity rank, MERL test and the analytic set (the chart).
 4. **Cost**: ``select_model`` per material beside ``reconstruct`` per material (after
    compilation; both compile times apart), float32 on CPU.
+5. **The prior-only model among the candidates** (``benchmarks/_selection_prior.py``): the
+   choice with the default prior, MERL test and the built-in materials.
 
 Nothing here is tuned on the test split: the candidates, thresholds (level 1e-3, minimum effect
 0.02) and the tolerance (5 %) are the package defaults.
@@ -39,6 +41,7 @@ from abrdf_jax import select
 from abrdf_jax.select import CANDIDATES, DEFAULT_ANISO, KERNEL_FAMILY
 from abrdf_jax.materials import GGX, Ward, dense_table, get_material, is_anisotropic, material_names
 
+from . import _selection_prior
 from ._common import RESULTS, machine, merl_split, metrics_of, sample_batch, write_json
 
 NOISE = (0.0, 0.02, 0.05, 0.1)
@@ -302,7 +305,10 @@ def main(argv=None):
         f"{timing['select_first_s']:.1f} s / {timing['reconstruct_first_s']:.1f} s"
     )
 
+    log("the prior in the automatic choice (default prior):")
+    prior_part = _selection_prior.run(names, meas_all, ref, log)
     out = {
+        "prior": prior_part,
         "machine": machine(),
         "quick": quick,
         "noise_levels": list(noise),
@@ -325,7 +331,7 @@ def main(argv=None):
     out["confusion"] = confusion(out)
     suffix = "_quick" if quick else ""
     path = write_json(f"model_selection{suffix}.json", out)
-    md = markdown(out)
+    md = markdown(out) + _selection_prior.markdown(prior_part)
     (RESULTS / f"model_selection{suffix}.md").write_text(md)
     chart(out, RESULTS / f"model_selection{suffix}.png")
     log(md)

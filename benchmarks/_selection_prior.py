@@ -1,0 +1,149 @@
+"""The prior-only model in the automatic choice (part of ``python -m benchmarks.model_selection``).
+
+``select_models(..., prior=default_prior())`` (``abrdf-jax reconstruct --model auto --prior``):
+the RBF candidates and the default prior by held-out error with the 5 % rule, the prior ranked
+above every RBF model. Reported on the MERL test split (aniso204 samples, noise-free) and on the
+package's built-in analytic materials (``abrdf-jax materials``; the anisotropic and procedural
+ones: ggx-aniso-metal, ward-brushed-steel, rough-fabric, rough-grooves among them): each
+material's choice with and without the prior, and the mean dense ΔE76 of the choice beside every
+fixed model (the RBF candidates and the prior alone) and the best of them.
+"""
+
+from __future__ import annotations
+
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import abrdf_jax as aj
+from abrdf_jax import prior as P
+from abrdf_jax import select
+from abrdf_jax.materials import dense_table, get_material, is_anisotropic, material_names
+from abrdf_jax.select import CANDIDATES, DEFAULT_ANISO
+
+from ._common import metrics_of
+
+PRIOR = "prior"
+
+
+def _dense(stack, ref, prior) -> dict:
+    """Dense ΔE76 ``{model: (B,)}`` of every default candidate and of the prior alone."""
+    out = {}
+    for n in DEFAULT_ANISO:
+        cfg = CANDIDATES[n].config()
+        rec = aj.reconstruct_batch(stack, cfg, aj.Params.default(cfg, dtype=jnp.float32))
+        out[n] = metrics_of(rec, ref)["de76"]
+    # the prior on the slices its choice reads: all (aniso204) or the diagonal ones (iso102)
+    out[PRIOR + "/aniso204"] = metrics_of(P.reconstruct_prior(stack, prior), ref)["de76"]
+    diag = np.asarray(stack.count).copy()
+    diag[:, 0::2] = 0
+    iso = stack.replace(count=jnp.asarray(diag, stack.count.dtype))
+    out[PRIOR + "/iso102"] = metrics_of(P.reconstruct_prior(iso, prior), ref)["de76"]
+    return out
+
+
+def _rows(names, meas, dense, with_prior, without) -> list[dict]:
+    rows = []
+    for i, n in enumerate(names):
+        s, s0 = with_prior[i], without[i]
+        key = s.name if s.name != PRIOR else f"{PRIOR}/{s.config.budget}"
+        rows.append(
+            {
+                "material": n,
+                "choice": s.name,
+                "choice_budget": s.config.budget,
+                "choice_without_prior": s0.name,
+                "held_out": s.errors,
+                "de76_choice": float(dense[key][i]),
+                "de76_choice_without_prior": float(dense[s0.name][i]),
+                "de76": {m: float(v[i]) for m, v in dense.items()},
+            }
+        )
+    return rows
+
+
+def _summary(rows) -> dict:
+    models = list(rows[0]["de76"])
+    fixed = {m: float(np.mean([r["de76"][m] for r in rows])) for m in models}
+    best = min(fixed, key=fixed.get)
+    return {
+        "n": len(rows),
+        "auto_with_prior": float(np.mean([r["de76_choice"] for r in rows])),
+        "auto_without_prior": float(np.mean([r["de76_choice_without_prior"] for r in rows])),
+        "fixed": fixed,
+        "best_fixed": best,
+        "prior_chosen": sum(r["choice"] == PRIOR for r in rows),
+        # per material: the choice against the better of the RBF models' choice and the best RBF
+        "worse_than_rbf_choice_3pct": [
+            r["material"] for r in rows if r["de76_choice"] > 1.03 * r["de76_choice_without_prior"]
+        ],
+    }
+
+
+def run(merl_names, merl_stack, merl_ref, log=print) -> dict:
+    """The section's results: ``{"merl": ..., "builtin": ..., "seconds": ...}``."""
+    t0 = time.time()
+    prior = P.default_prior()
+    cfg = aj.Config.recommended("aniso204")
+    p = aj.Params.default(cfg, dtype=jnp.float32)
+    b_names = list(material_names())
+    b_meas = [aj.sample(get_material(n), cfg, p, as_measurements=True) for n in b_names]
+    b_stack = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *b_meas)
+    b_ref = jnp.stack([jnp.asarray(dense_table(get_material(n))) for n in b_names])
+    out = {"prior": {"n_components": prior.n_components, "lam": float(prior.lam)}}
+    for key, names, stack, ref in (
+        ("merl", merl_names, merl_stack, merl_ref),
+        ("builtin", b_names, b_stack, b_ref),
+    ):
+        meas = [jax.tree_util.tree_map(lambda x, i=i: x[i], stack) for i in range(len(names))]
+        with_prior = select.select_models(meas, prior=prior)
+        without = select.select_models(meas)
+        rows = _rows(names, meas, _dense(stack, ref, prior), with_prior, without)
+        if key == "builtin":
+            for r in rows:
+                r["anisotropic_or_procedural"] = bool(is_anisotropic(r["material"]))
+        out[key] = {"rows": rows, **_summary(rows)}
+        s = out[key]
+        log(
+            f"  auto with the prior, {key}: ΔE76 {s['auto_with_prior']:.3f} (without "
+            f"{s['auto_without_prior']:.3f}; best fixed {s['best_fixed']} "
+            f"{s['fixed'][s['best_fixed']]:.3f}); prior chosen for {s['prior_chosen']}/{s['n']}"
+        )
+        for r in rows if key == "builtin" else ():
+            log(
+                f"    {r['material']:20s} -> {r['choice']:15s} ΔE76 {r['de76_choice']:.2f} "
+                f"(without the prior: {r['choice_without_prior']} {r['de76_choice_without_prior']:.2f})"
+            )
+    out["seconds"] = time.time() - t0
+    return out
+
+
+def markdown(sec: dict) -> str:
+    lines = [
+        "",
+        "Automatic choice with the default prior among the candidates (`--model auto --prior "
+        f"default`; K = {sec['prior']['n_components']}, λ = {sec['prior']['lam']:g}), mean dense "
+        "ΔE76:",
+        "",
+        "| set | auto + prior | auto (RBF only) | best fixed model | prior alone (all slices) "
+        "| prior chosen |",
+        "|---|---|---|---|---|---|",
+    ]
+    for key, label in (("merl", "MERL test"), ("builtin", "built-in analytic")):
+        s = sec[key]
+        lines.append(
+            f"| {label} ({s['n']}) | {s['auto_with_prior']:.3f} | {s['auto_without_prior']:.3f} | "
+            f"{s['best_fixed']} {s['fixed'][s['best_fixed']]:.3f} | "
+            f"{s['fixed'][PRIOR + '/aniso204']:.3f} | {s['prior_chosen']} |"
+        )
+    lines += ["", "| built-in material | choice (+ prior) | ΔE76 | choice (RBF only) | ΔE76 |"]
+    lines.append("|---|---|---|---|---|")
+    for r in sec["builtin"]["rows"]:
+        mark = " (aniso/procedural)" if r["anisotropic_or_procedural"] else ""
+        lines.append(
+            f"| {r['material']}{mark} | {r['choice']} | {r['de76_choice']:.2f} | "
+            f"{r['choice_without_prior']} | {r['de76_choice_without_prior']:.2f} |"
+        )
+    return "\n".join(lines) + "\n"

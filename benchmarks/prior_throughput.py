@@ -1,0 +1,196 @@
+"""Throughput of the prior-only operator beside today's RBF operator, in the same run (issue 14).
+
+Run: ``python -m benchmarks.prior_throughput [--quick]``; writes
+``benchmarks/results/prior_throughput{_quick}.json`` and prints a table.
+
+What is measured (float32, one sample layout, the CPU threads the machine gives numpy/XLA):
+ABRDFs per second against batch size ``B`` of
+
+- **the command line's operator path** (:func:`abrdf_jax.compile_numpy_operator`, numpy, what
+  ``abrdf-jax reconstruct`` applies to a folder of one layout; timed in a child interpreter that
+  never imports JAX, as a warm run): the RBF operator of the recommended
+  settings (``preset("operator")``: one ``(6561, n)`` matrix on the log of the samples) and the prior-only
+  model of the default prior (map → ``K``-rank matrix → inverse map);
+- **today's RBF operator in JAX** (:func:`abrdf_jax.compile_operator`, as ``benchmarks.throughput``
+  measures it), for reference.
+
+The issue's target: the prior's operator at iso102, B = 100, at least 80 % of the RBF operator's
+rate. Time = median of repeated calls after a warm-up; inputs: the layout's samples of a built-in
+material, each batch member scaled at random.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pickle
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import abrdf_jax as aj
+from abrdf_jax import materials
+from abrdf_jax import prior as P
+
+from ._common import machine, write_json
+
+REPO = Path(__file__).resolve().parents[1]
+
+BATCHES = {"full": (1, 10, 100, 1000), "quick": (1, 100, 1000)}
+MIN_TIME = {"full": 2.0, "quick": 0.5}
+TARGET = 0.8  # prior / RBF at iso102, B = 100
+
+
+def _time(fn, min_time: float, max_repeats: int = 50) -> float:
+    ts = []
+    while not ts or (sum(ts) < min_time and len(ts) < max_repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(fn())
+        ts.append(time.perf_counter() - t)
+    return statistics.median(ts)
+
+
+_CHILD = r"""
+import json, pickle, statistics, sys, time
+import numpy as np
+ops, batches, min_time = pickle.load(open(sys.argv[1], "rb"))
+rng = np.random.default_rng(0)
+out = {}
+for budget, (entries, y0) in ops.items():
+    for b in batches:
+        y = (y0[None] * rng.uniform(0.5, 2.0, (b, 1, 1, 3))).astype(np.float32)
+        ts = {name: [] for name in entries}
+        for op in entries.values():
+            op.apply(y)
+        # the operators in turn, call by call: a change of the machine's load hits both alike
+        while sum(map(sum, ts.values())) < min_time * len(ts) or len(ts["rbf"]) < 5:
+            for name, op in entries.items():
+                t = time.perf_counter()
+                op.apply(y)
+                ts[name].append(time.perf_counter() - t)
+            if len(ts["rbf"]) >= 200:
+                break
+        for name, t in ts.items():
+            out[f"{budget}/{b}/{name}"] = b / statistics.median(t)
+out["jax_imported"] = "jax" in sys.modules
+print(json.dumps(out))
+"""
+
+
+def _numpy_rates(ops: dict, batches, min_time: float) -> dict:
+    """The numpy operators' rates, timed in a fresh interpreter that never imports JAX (as a warm
+    ``abrdf-jax reconstruct`` runs them: in this process, after JAX's import, numpy's GEMM ran
+    several times slower on the machine of 2026-12-02)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "ops.pkl"
+        path.write_bytes(pickle.dumps((ops, list(batches), min_time)))
+        env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        proc = subprocess.run(
+            [sys.executable, "-c", _CHILD, str(path)], capture_output=True, text=True, env=env
+        )
+    if proc.returncode:
+        raise RuntimeError(proc.stderr)
+    rates = json.loads(proc.stdout.strip().splitlines()[-1])
+    if rates.pop("jax_imported"):
+        raise RuntimeError("the numpy timing child imported JAX")
+    return rates
+
+
+def measure(mode: str = "quick", log=print) -> dict:
+    prior = P.default_prior()
+    rng = np.random.default_rng(0)
+    out: dict = {"batches": list(BATCHES[mode]), "budgets": {}}
+    ops, jax_rates = {}, {}
+    for budget in ("iso102", "aniso204"):
+        cfg = aj.preset("operator", budget)  # recommended; aniso204 with the linear "average" rule
+        params = aj.Params.default(cfg)
+        meas = aj.sample(materials.get_material("ggx-plastic"), cfg, params, as_measurements=True)
+        build = {}
+        entries = {}
+        for name, model in (("rbf", cfg), ("prior", prior)):
+            t = time.perf_counter()
+            entries[name] = aj.compile_numpy_operator(model, meas, params)
+            build[name] = time.perf_counter() - t
+        ops[budget] = (entries, np.asarray(meas.y, np.float32))
+        jop = aj.compile_operator(cfg, params, meas, dtype=jnp.float32)
+        for b in BATCHES[mode]:
+            y = np.asarray(meas.y, np.float32)[None] * rng.uniform(0.5, 2.0, (b, 1, 1, 3))
+            yj = jnp.asarray(y, jnp.float32)
+            jax.block_until_ready(jop(yj))
+            jax_rates[budget, b] = b / _time(lambda: jop(yj), MIN_TIME[mode])
+        out["budgets"][budget] = {
+            "n_inputs": entries["rbf"].n_inputs,
+            "prior_components": prior.n_components,
+            "build_seconds": build,
+        }
+    rates = _numpy_rates(ops, BATCHES[mode], MIN_TIME[mode])
+    for budget, b in ops.items():
+        rows = []
+        for n in BATCHES[mode]:
+            row = {
+                "batch": n,
+                "rbf": rates[f"{budget}/{n}/rbf"],
+                "prior": rates[f"{budget}/{n}/prior"],
+            }
+            row["rbf_jax"] = jax_rates[budget, n]
+            row["prior_over_rbf"] = row["prior"] / row["rbf"]
+            rows.append(row)
+            log(
+                f"  {budget} B={n:5d}: RBF {row['rbf']:9.0f}/s  prior {row['prior']:9.0f}/s "
+                f"({row['prior_over_rbf']:.0%})  RBF in JAX {row['rbf_jax']:9.0f}/s"
+            )
+        out["budgets"][budget]["rows"] = rows
+    at100 = next(r for r in out["budgets"]["iso102"]["rows"] if r["batch"] == 100)
+    out["target"] = {
+        "iso102_B100_prior_over_rbf": at100["prior_over_rbf"],
+        "needed": TARGET,
+        "pass": bool(at100["prior_over_rbf"] >= TARGET),
+    }
+    return out
+
+
+def table(res: dict) -> str:
+    lines = [
+        "| budget | batch | RBF operator (numpy) ABRDF/s | prior operator ABRDF/s | prior / RBF "
+        "| RBF operator (JAX) ABRDF/s |",
+        "|---|---|---|---|---|---|",
+    ]
+    for budget, b in res["budgets"].items():
+        for r in b["rows"]:
+            lines.append(
+                f"| {budget} | {r['batch']} | {r['rbf']:,.0f} | {r['prior']:,.0f} | "
+                f"{r['prior_over_rbf']:.0%} | {r['rbf_jax']:,.0f} |"
+            )
+    t = res["target"]
+    verdict = "PASS" if t["pass"] else "FAIL"
+    lines.append("")
+    lines.append(
+        f"Target (iso102, B = 100): prior ≥ {t['needed']:.0%} of the RBF operator: "
+        f"{t['iso102_B100_prior_over_rbf']:.0%} ({verdict})."
+    )
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer batch sizes and repeats")
+    args = ap.parse_args(argv)
+    mode = "quick" if args.quick else "full"
+    t0 = time.time()
+    res = measure(mode, log=lambda s: print(s, flush=True))
+    res |= {"mode": mode, "seconds": time.time() - t0, "load": os.getloadavg()}
+    write_json(f"prior_throughput{'_quick' if args.quick else ''}.json", machine() | res)
+    print(table(res))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
