@@ -6,10 +6,13 @@ For a fixed layout (slice positions, counts, α, the slices used) the prior-only
 1. map: ``z = ln(max(y, 0) cos θv + ε) − ln(x_ref,s cos θv + ε)`` (the log-relative map);
 2. matrix: ``m = μ + Q R (z − μ_s)`` with ``R = (Q_sᵀ Q_s + λI)⁻¹ Q_sᵀ`` (:func:`ridge_operator`
    on the valid samples) and ``Q`` the components on the grid;
-3. inverse map: ``x = max((exp(m) (x_ref cos θv + ε) − ε) / cos θv, 0)``.
+3. inverse map: ``x = max((exp(m) (x_ref cos θv + ε) − ε) / cos θv, 0)``
+   ``= max(exp(m + ln((x_ref cos θv + ε) / cos θv)) − ε / cos θv, 0)``.
 
 :class:`PriorEntry` stores that map with the constants folded in (``R`` and ``Q`` as two
-factors: ``K`` is small, so ``(rows · Rᵀ) · Qᵀ`` costs less than the product matrix would);
+factors: ``K`` is small, so ``(rows · Rᵀ) · Qᵀ`` costs less than the product matrix would; the
+grid offset rides in the second product as one more column), so that its element-wise work is
+the RBF operator's: one ``exp``, one subtraction, the clamp;
 the operator store (``abrdf_jax._cache``) keeps it beside the RBF's :class:`OperatorEntry`.
 This module imports numpy only.
 """
@@ -17,6 +20,7 @@ This module imports numpy only.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -35,9 +39,9 @@ class PriorEntry:
         shift: ``(K,)`` ``R · (ln(x_ref,s cos θv + ε) + μ_s)``: the map's reference and the
             mean at the samples, folded in.
         left: ``(6561·w, K)`` the components ``Q`` on the grid.
-        offset: ``(6561·w,)`` ``μ + ln(x_ref cos θv + ε)`` on the grid.
+        offset: ``(6561·w,)`` ``μ + ln((x_ref cos θv + ε) / cos θv)`` on the grid.
         cos_in: ``(n_in·w,)`` ``cos θv`` at the valid samples.
-        inv_cos: ``(6561·w,)`` ``1 / cos θv`` on the grid.
+        floor: ``(6561·w,)`` ``ε / cos θv`` on the grid.
         index, t, count: the template's layout as :class:`OperatorEntry`'s (``count`` of the
             template; ``index`` only the samples the model reads).
         eps: ε of the prior's map; width: ``w``, 1 (``shared`` channels: one row per channel) or
@@ -49,7 +53,7 @@ class PriorEntry:
     left: np.ndarray
     offset: np.ndarray
     cos_in: np.ndarray
-    inv_cos: np.ndarray
+    floor: np.ndarray
     index: np.ndarray
     t: np.ndarray
     count: np.ndarray
@@ -57,11 +61,16 @@ class PriorEntry:
     width: int
 
     KIND = "prior"
-    ARRAYS = ("right", "shift", "left", "offset", "cos_in", "inv_cos", "index", "t", "count")
+    ARRAYS = ("right", "shift", "left", "offset", "cos_in", "floor", "index", "t", "count")
 
     @property
     def n_inputs(self) -> int:
         return int(self.index.shape[0])
+
+    @functools.cached_property
+    def _grid_map(self) -> np.ndarray:
+        """``[Q | offset]ᵀ`` ``(K + 1, 6561·w)``: the second product adds the offset."""
+        return np.ascontiguousarray(np.concatenate([self.left, self.offset[:, None]], 1).T)
 
     def apply(self, y) -> np.ndarray:
         """Tables ``(..., 81, 81, C)`` from stacked sample values ``(..., S, nmax, C)``."""
@@ -83,13 +92,13 @@ class PriorEntry:
             rows = x.reshape(b, -1)
         eps = np.float32(self.eps)
         z = np.log(np.maximum(rows, np.float32(0.0)) * self.cos_in + eps)
-        c = z @ self.right.T
-        c -= self.shift
-        m = c @ self.left.T
-        m += self.offset
+        c = np.empty((rows.shape[0], self.shift.shape[0] + 1), np.float32)
+        np.matmul(z, self.right.T, out=c[:, :-1])
+        c[:, :-1] -= self.shift
+        c[:, -1] = 1.0
+        m = c @ self._grid_map
         np.exp(m, out=m)
-        m -= eps
-        m *= self.inv_cos
+        m -= self.floor
         np.maximum(m, np.float32(0.0), out=m)
         if self.width == 1:
             return np.ascontiguousarray(np.transpose(m.reshape(b, 3, PAIRS), (0, 2, 1))).reshape(
@@ -114,13 +123,13 @@ class PriorEntry:
         if w not in (1, 3) or not isinstance(eps, float) or not eps > 0:
             return "malformed (no prior map)"
         r, left = arrays["right"], arrays["left"]
-        floats = ("right", "shift", "left", "offset", "cos_in", "inv_cos")
+        floats = ("right", "shift", "left", "offset", "cos_in", "floor")
         if not all(arrays[n].dtype == np.float32 for n in floats) or r.ndim != 2:
             return "malformed (inconsistent array shapes)"
         k, n_w = r.shape
         d = PAIRS * w
         shapes = {"shift": (k,), "left": (d, k), "offset": (d,), "cos_in": (n_w,)}
-        if any(arrays[n].shape != s for n, s in shapes.items()) or arrays["inv_cos"].shape != (d,):
+        if any(arrays[n].shape != s for n, s in shapes.items()) or arrays["floor"].shape != (d,):
             return "malformed (inconsistent array shapes)"
         if n_w % w or left.size == 0:
             return "malformed (inconsistent array shapes)"

@@ -34,7 +34,7 @@ from ._prior_entry import PriorEntry
 #: ``--prior default``: the package's default prior (docs/prior.md), built on first use.
 DEFAULT = "default"
 #: Version of the prior entry key; bump it when the entry changes meaning.
-ENTRY_FORMAT = 1
+ENTRY_FORMAT = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -238,9 +238,9 @@ def build_prior_entry(prior, meas, alpha, lam, counts) -> PriorEntry:
         right=f32(r),
         shift=f32(r @ (np.log(ref_s * cos_s + eps) + mean_s)),
         left=f32(comps),
-        offset=f32(mean + np.log(ref_g * cos_g + eps)),
+        offset=f32(mean + np.log((ref_g * cos_g + eps) / cos_g)),
         cos_in=f32(cos_s),
-        inv_cos=f32(1.0 / cos_g),
+        floor=f32(eps / cos_g),
         index=index.astype(np.int64),
         t=f32(t),
         count=np.asarray(meas.count, np.int32),

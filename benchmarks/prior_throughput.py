@@ -15,7 +15,9 @@ ABRDFs per second against batch size ``B`` of
   measures it), for reference.
 
 The issue's target: the prior's operator at iso102, B = 100, at least 80 % of the RBF operator's
-rate. Time = median of repeated calls after a warm-up; inputs: the layout's samples of a built-in
+rate. Time = the fastest of repeated calls after a warm-up (the operators called in turn; on a
+CPU shared with other jobs the fastest call is the stable figure, the median follows the load),
+for the JAX operator the median; inputs: the layout's samples of a built-in
 material, each batch member scaled at random.
 """
 
@@ -45,7 +47,7 @@ from ._common import machine, write_json
 REPO = Path(__file__).resolve().parents[1]
 
 BATCHES = {"full": (1, 10, 100, 1000), "quick": (1, 100, 1000)}
-MIN_TIME = {"full": 2.0, "quick": 0.5}
+MIN_TIME = {"full": 1.0, "quick": 0.3}
 TARGET = 0.8  # prior / RBF at iso102, B = 100
 
 
@@ -76,10 +78,10 @@ for budget, (entries, y0) in ops.items():
                 t = time.perf_counter()
                 op.apply(y)
                 ts[name].append(time.perf_counter() - t)
-            if len(ts["rbf"]) >= 200:
+            if len(ts["rbf"]) >= 30:
                 break
-        for name, t in ts.items():
-            out[f"{budget}/{b}/{name}"] = b / statistics.median(t)
+        for name, t in ts.items():  # the fastest call: what the code costs when the CPU is free
+            out[f"{budget}/{b}/{name}"] = b / min(t)
 out["jax_imported"] = "jax" in sys.modules
 print(json.dumps(out))
 """
