@@ -158,12 +158,10 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
     from ..select import quick_selection
 
     tol = {} if args.tol is None else {"tol": args.tol}
-    sels = []
-    for it in items:
-        try:  # with a prior, every material compares candidates (held-out errors: JAX)
-            quick = caches.prior is None
-            q = quick_selection(it.meas, it.alpha, budget=forced, noise=args.noise, **tol)
-            sels.append(q if quick else None)
+    sels = [None] * len(items)  # with a prior every material compares candidates (JAX)
+    for k, it in enumerate(items if caches.prior is None else ()):
+        try:
+            sels[k] = quick_selection(it.meas, it.alpha, budget=forced, noise=args.noise, **tol)
         except InputError as e:
             raise InputError(f"{it.path}: {e}") from e
     rest = [k for k, s in enumerate(sels) if s is None]
