@@ -19,8 +19,9 @@ What is measured (float32, the package default; CPU threads as the machine gives
   product. The 1-minute load average is stored beside each row.
 - **roofline**: the rate of ``jnp.matmul`` on the same machine in the same run, for the same
   GEMM shape without the element-wise work (``gemm_same_shape``) and for a square 2048³ product
-  (``gemm_square``, the machine's practical peak); the operator's *fraction* is its flop rate
-  ``2 · 6561 · 102 · 3B / t`` over ``gemm_square``.
+  (``gemm_square``, the machine's practical peak; measured again after the operator rows,
+  ``gemm_square_end``, to show how steady the machine was); the operator's *fraction* is its
+  flop rate ``2 · 6561 · 102 · 3B / t`` over ``gemm_square``.
 - **single-material latency** (B = 1) after compilation, and **compile time** apart (building the
   matrix: one RBF factorisation; compiling the apply function per batch shape).
 - **cost against centres and targets**: building and applying (B = 100) the operator for sample
@@ -223,6 +224,10 @@ def measure(mode: str = "quick", log=print) -> dict:
             best_batch=best["batch"],
             best_fraction_of_roofline=best["fraction_of_roofline"],
         )
+    # The square GEMM again after the presets (the machine may be shared): compare the two
+    # before trusting the fractions, which are taken against the first.
+    out["gemm_square_end"] = gemm_rate(sq, sq, sq, dtype, min_time=mt)
+    log(f"  square GEMM at the end: {out['gemm_square_end']['gflops']:.1f} GFLOP/s")
     # cost against the number of centres (sample budget) and of target directions; recommended preset
     cfg = PRESETS["recommended"]()
     params = _params(cfg, dtype)
@@ -306,9 +311,11 @@ def table(tp: dict, scipy_seconds: float | None = None) -> str:
             else f"| {b} | " + " | ".join(cells) + " | – |"
         )
     g, s = tp["gemm_square"], tp["gemm_same_shape"]
+    end = tp.get("gemm_square_end")
     notes = [
-        f"Roofline (same run): square {g['shape'][0]}³ GEMM {g['gflops']:.1f} GFLOP/s; the operator's GEMM shape "
-        f"{s['shape']} alone {s['gflops']:.1f} GFLOP/s."
+        f"Roofline (same run): square {g['shape'][0]}³ GEMM {g['gflops']:.1f} GFLOP/s"
+        + (f" at the start, {end['gflops']:.1f} at the end" if end else "")
+        + f"; the operator's GEMM shape {s['shape']} alone {s['gflops']:.1f} GFLOP/s."
     ]
     for n in names:
         p = pre[n]
