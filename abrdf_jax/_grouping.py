@@ -39,11 +39,12 @@ averaged), so the BTF path reads the same grouping off as one matrix
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import hashlib
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from ._arrays import SliceArrays
+from ._arrays import SampleColumns, SliceArrays
 from ._errors import InputError
 from ._protocol import PROTOCOL_PAIRS, UBO_THETAS_DEG
 
@@ -144,7 +145,10 @@ def estimate_alpha(samples: "Samples") -> float:
 def estimate_alpha_spread(samples: "Samples") -> tuple[float, float, float]:
     """``(α, standard error of α, robust σ of the across-slice offsets)``, degrees."""
     s = samples.to_numpy()
-    pi_, pv = np.asarray(s.phi_i, float), np.asarray(s.phi_v, float)
+    return _alpha_spread(np.asarray(s.phi_i, float), np.asarray(s.phi_v, float))
+
+
+def _alpha_spread(pi_, pv) -> tuple[float, float, float]:
     cand = np.concatenate([(pi_ - pv) % 360.0, (pi_ + pv) % 360.0])
     hist = np.bincount(np.round(cand).astype(int) % 360, minlength=360)
     smooth = hist + 0.5 * (np.roll(hist, 1) + np.roll(hist, -1))
@@ -175,21 +179,20 @@ def _tolerance(sigma: float) -> float:
     return float(min(max(0.5, 4.0 * sigma), MAX_TOL_DEG))
 
 
-def _reduce(angle, values, max_knots):
-    """Sort a slice, average repeated angles and, past ``max_knots`` samples, bin means."""
+def _reduce(angle, src, max_knots):
+    """Sort a slice, average repeated angles and, past ``max_knots`` samples, bin means:
+    ``(knot angles, samples in sorted order, the knot of each, samples per knot)``."""
     order = np.argsort(angle, kind="stable")
-    angle, values = angle[order], values[order]
+    angle, src = angle[order], src[order]
     if len(angle) == 0:
-        return angle, values
+        return angle, src, np.zeros(0, np.int64), np.zeros(0)
     if len(angle) > max_knots:
         keys = np.minimum((angle / 360.0 * max_knots).astype(np.int64), max_knots - 1)
     else:
         keys = np.round(angle / 1e-6).astype(np.int64)
     uniq, inv = np.unique(keys, return_inverse=True)
     cnt = np.bincount(inv, minlength=len(uniq)).astype(float)
-    out_a = np.bincount(inv, angle, len(uniq)) / cnt
-    out_v = np.stack([np.bincount(inv, values[:, c], len(uniq)) for c in range(3)], 1)
-    return out_a, out_v / cnt[:, None]
+    return np.bincount(inv, angle, len(uniq)) / cnt, src, inv, cnt
 
 
 def _gaps(angle_deg) -> list[tuple[float, float]]:
@@ -263,11 +266,96 @@ def group_arrays(
     """
     _check_arguments(samples, alpha_deg, pairs, tol_deg, max_knots, centre_azimuths)
     s = samples.to_numpy()
-    ti, pi_, tv, pv, rgb = (
-        np.asarray(x, float) for x in (s.theta_i, s.phi_i, s.theta_v, s.phi_v, s.rgb)
+    angles = tuple(np.asarray(x, float) for x in (s.theta_i, s.phi_i, s.theta_v, s.phi_v))
+    pairs = None if pairs is None else tuple(tuple(float(x) for x in p) for p in pairs)
+    layout = _cached_layout(
+        angles, alpha_deg, pairs, tol_deg, nmax, min_axial, max_knots, centre_azimuths
     )
+    meas = SliceArrays(
+        np.asarray(layout.t, dtype),
+        np.asarray(layout.values(np.asarray(s.rgb, float)), dtype),
+        np.asarray(layout.report["counts"], np.int32),
+        layout.pairs,
+        layout.has_axial,
+        layout.centre_azimuths,
+    )
+    report = {k: list(v) if isinstance(v, list) else v for k, v in layout.report.items()}
+    return meas, report
+
+
+def grouping_matrix(angles, alpha_deg: float | None, pairs=None, dtype=np.float32):
+    """The grouping of samples at ``angles`` (``theta_i, phi_i, theta_v, phi_v``, degrees) as a
+    matrix: ``(slices, G)`` with ``slices`` the :func:`group_arrays` result of zero values and
+    ``G`` ``(S · nmax, n)``, ``y_slices = G @ y_flat`` (the grouping is linear in the values)."""
+    angles = tuple(np.asarray(a, float) for a in angles)
+    n = len(angles[0])
+    slices, _ = group_arrays(
+        SampleColumns(*angles, np.zeros((n, 3))), alpha_deg, pairs, dtype=dtype
+    )
+    pairs = None if pairs is None else tuple(tuple(float(x) for x in p) for p in pairs)
+    layout = _cached_layout(angles, alpha_deg, pairs, None, None, 3, MAX_KNOTS, "auto")
+    g = np.zeros((layout.per_slot.shape[0], n), dtype)
+    g[layout.dst, layout.src] = 1.0 / layout.per_slot[layout.dst]
+    return slices, g
+
+
+def _cached_layout(angles, *args) -> "_Layout":
+    key = (_digest(angles), *args)
+    layout = _LAYOUTS.get(key)
+    if layout is None:
+        layout = _layout(angles, *args)
+        _LAYOUTS[key] = layout
+        while len(_LAYOUTS) > _LAYOUT_CACHE:
+            del _LAYOUTS[next(iter(_LAYOUTS))]  # the oldest first
+    return layout
+
+
+#: Slice layouts by the digest of their angles and the grouping's arguments: a folder of
+#: captures made with one angle program (a device's nominal angles, or simulated ones) groups
+#: its angles once; only the values are placed per file. Oldest out past this many.
+_LAYOUT_CACHE = 64
+_LAYOUTS: dict = {}
+
+
+def _digest(angles) -> bytes:
+    h = hashlib.blake2b(digest_size=16)
+    for a in angles:
+        h.update(str(a.shape).encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.digest()
+
+
+class _Layout(NamedTuple):
+    """Where every sample goes: the slices' parameters and report (from the angles alone) and
+    the linear map of the values, ``y[dst] = mean of rgb[src]`` over each slot's samples."""
+
+    t: np.ndarray
+    pairs: tuple
+    has_axial: bool
+    centre_azimuths: int | None
+    report: dict
+    dst: np.ndarray
+    src: np.ndarray
+    per_slot: np.ndarray  # samples averaged into each slot (0: padding)
+
+    def values(self, rgb: np.ndarray) -> np.ndarray:
+        """``(S, nmax, 3)`` slice values (float64) of the samples' ``rgb``."""
+        size = self.per_slot.shape[0]
+        total = np.stack([np.bincount(self.dst, rgb[self.src, c], size) for c in range(3)], 1)
+        out = np.divide(
+            total,
+            self.per_slot[:, None],
+            out=np.zeros_like(total),
+            where=self.per_slot[:, None] > 0,
+        )
+        return out.reshape(*self.t.shape, 3)
+
+
+def _layout(angles, alpha_deg, pairs, tol_deg, nmax, min_axial, max_knots, centre_azimuths):
+    """The :class:`_Layout` of a capture's angles (steps 1–7 of the module docstring)."""
+    ti, pi_, tv, pv = angles
     if alpha_deg is None:
-        alpha_deg, alpha_se, sigma = estimate_alpha_spread(s)
+        alpha_deg, alpha_se, sigma = _alpha_spread(pi_, pv)
     else:  # given: only the spread of the offsets around it is measured
         sigma = _spread(_near_offsets(pi_, pv, alpha_deg, MAX_TOL_DEG))
         alpha_se = 0.0
@@ -276,7 +364,6 @@ def group_arrays(
         pairs, index = infer_pairs(ti, tv)
         expected = _expected_pairs(pairs)
     else:
-        pairs = tuple(tuple(float(x) for x in p) for p in pairs)
         index, expected = _pair_index(ti, tv, pairs), pairs
     off_ax, off_dg = _offsets(pi_, pv, alpha_deg)
     groups, raw = [], []
@@ -290,12 +377,12 @@ def group_arrays(
         if np.count_nonzero(ax & ~dg) < min_axial:
             ax = np.zeros_like(ax)
         # true positions: the orthogonal projection onto the slice (see the module docstring)
-        groups.append(((pi_[ax] - off_ax[ax] / 2) % 360.0, rgb[ax]))
-        groups.append(((pv[dg] - off_dg[dg] / 2) % 360.0, rgb[dg]))
+        groups.append(((pi_[ax] - off_ax[ax] / 2) % 360.0, np.nonzero(ax)[0]))
+        groups.append(((pv[dg] - off_dg[dg] / 2) % 360.0, np.nonzero(dg)[0]))
         raw += [int(ax.sum()), int(dg.sum())]
         used |= ax | dg
-    merged = [_reduce(a, v, max_knots) for a, v in groups]
-    counts = [len(a) for a, _ in merged]
+    merged = [_reduce(a, idx, max_knots) for a, idx in groups]
+    counts = [len(m[0]) for m in merged]
     if sum(counts[1::2]) == 0:
         raise InputError(
             f"no sample lies on a diagonal slice (phi_i + phi_v = alpha = {alpha_deg:g} deg mod 360, "
@@ -308,14 +395,16 @@ def group_arrays(
     pairs = tuple(pairs[k] for k in keep)
     merged = [merged[r] for k in keep for r in (2 * k, 2 * k + 1)]
     raw = [raw[r] for k in keep for r in (2 * k, 2 * k + 1)]
-    counts = [len(a) for a, _ in merged]
+    counts = [len(m[0]) for m in merged]
     nmax = nmax or int(8 * np.ceil(max(counts) / 8))
     t = np.zeros((len(merged), nmax))
-    y = np.zeros((len(merged), nmax, 3))
-    gaps = []
-    for k, (a, v) in enumerate(merged):
+    per_slot = np.zeros(len(merged) * nmax)
+    dst, src, gaps = [], [], []
+    for k, (a, idx, inv, cnt) in enumerate(merged):
         t[k, : len(a)] = np.deg2rad(a)
-        y[k, : len(a)] = v
+        per_slot[k * nmax : k * nmax + len(a)] = cnt
+        dst.append(k * nmax + inv)
+        src.append(idx)
         kind = ("axial", "diagonal")[k % 2]
         gaps += [
             dict(pair=pairs[k // 2], slice=kind, start_deg=g0, end_deg=g1) for g0, g1 in _gaps(a)
@@ -323,14 +412,6 @@ def group_arrays(
     if centre_azimuths == "auto":
         dense = min(counts[1::2]) >= DENSE_KNOTS
         centre_azimuths = DENSE_AZIMUTHS if dense else None
-    meas = SliceArrays(
-        np.asarray(t, dtype),
-        np.asarray(y, dtype),
-        np.asarray(counts, np.int32),
-        pairs,
-        any(c > 0 for c in counts[0::2]),
-        centre_azimuths,
-    )
     report = dict(
         alpha_deg=float(alpha_deg),
         alpha_se_deg=float(alpha_se),
@@ -344,7 +425,17 @@ def group_arrays(
         gaps=gaps,
         dropped_pairs=[p for p in expected if p not in pairs],
     )
-    return meas, report
+    has_axial = any(c > 0 for c in counts[0::2])
+    return _Layout(
+        t,
+        pairs,
+        has_axial,
+        centre_azimuths,
+        report,
+        np.concatenate(dst),
+        np.concatenate(src),
+        per_slot,
+    )
 
 
 _SAMPLE_FIELDS = ("theta_i", "phi_i", "theta_v", "phi_v", "rgb", "to_numpy")

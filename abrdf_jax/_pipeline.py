@@ -25,8 +25,13 @@ from ._subspace import subspace
 from ._values import value_space
 
 
-def subspace_values(meas: Measurements, config: Config, params: Params) -> Float[Array, "n 3"]:
-    """Values of the reconstructed toroidal subspaces at the RBF centres (eq. 2–5)."""
+def subspace_values(
+    meas: Measurements, config: Config, params: Params, rules: tuple[str, ...] | None = None
+) -> Float[Array, "n 3"]:
+    """Values of the reconstructed toroidal subspaces at the RBF centres (eq. 2–5).
+
+    ``rules``: several subspace rules at once, ``(R, n, 3)``, from one set of slice
+    interpolations (default: ``config``'s rule alone, ``(n, 3)``)."""
     vals = []
     alpha = params.alpha.astype(meas.y.dtype)
     for p, (pi_, pv) in enumerate(centre_layout(meas.pairs, meas.centre_azimuths)):
@@ -41,11 +46,11 @@ def subspace_values(meas: Measurements, config: Config, params: Params) -> Float
                 jnp.asarray(np.deg2rad(pi_), meas.y.dtype),
                 jnp.asarray(np.deg2rad(pv), meas.y.dtype),
                 alpha,
-                rule=config.subspace_rule,
+                rule=config.subspace_rule if rules is None else tuple(rules),
                 interp=config.interp,
             )
         )
-    return jnp.concatenate(vals)
+    return jnp.concatenate(vals, axis=-2)
 
 
 def _fit_centres(vals, pairs, config: Config, params: Params, guard: bool = True, azimuths=None):

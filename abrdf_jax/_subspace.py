@@ -207,7 +207,7 @@ def subspace(
     phi_i: Float[Array, " Q"],
     phi_v: Float[Array, " Q"],
     alpha: Float[Array, ""],
-    rule: str = "filip2012",
+    rule: str | tuple[str, ...] = "filip2012",
     interp: str = "linear",
     log_eps: float = 1e-3,
 ) -> Float[Array, "Q C"]:
@@ -218,14 +218,16 @@ def subspace(
         t_diag, y_diag, n_diag: the diagonal slice (parameter φv), padded, and its count.
         phi_i, phi_v: query azimuths (radians).
         alpha: slice offset α (radians).
-        rule: one of :data:`RULES` (see the module docstring).
+        rule: one of :data:`RULES` (see the module docstring), or a tuple of them: then every
+            rule reads the same slice interpolations and the result is ``(R, Q, C)``.
         interp: 1D slice interpolation, ``"linear"`` or ``"cubic"``.
         log_eps: ε of the ``"log"`` rule, relative to the mean absolute sample value.
 
     Returns:
         Reconstructed values, shape ``(Q, C)``.
     """
-    r = get_rule(rule)
+    rules = (rule,) if isinstance(rule, str) else tuple(rule)
+    rs = [get_rule(name) for name in rules]
     # A slice that was not measured (count 0, e.g. an axial slice with too few samples of its
     # own): the rules would read padding. The pair then falls back to the slice it has, eq. (5)
     # when only the diagonal one is there (docs/stability.md). Counts of at least 1 keep every
@@ -244,7 +246,10 @@ def subspace(
         interp,
         log_eps,
     )
-    out = r.fn(sl)
-    if not r.needs_axial:
-        return out
-    return jnp.where(has_axial, jnp.where(has_diag, out, sl.a), sl.b)
+    outs = []
+    for r in rs:
+        out = r.fn(sl)
+        if r.needs_axial:
+            out = jnp.where(has_axial, jnp.where(has_diag, out, sl.a), sl.b)
+        outs.append(out)
+    return outs[0] if isinstance(rule, str) else jnp.stack(outs)

@@ -69,6 +69,19 @@ def markdown(out: dict, suffix: str) -> str:
         "",
         f"Target: {h['target']}.",
         "",
+    ]
+    if h.get("split"):
+        lines += [
+            "| where the time goes (busy seconds; read, compute and write overlap) | build | read "
+            "| compute | write (summed over the writer threads) | wall |",
+            "|---|---|---|---|---|---|",
+        ]
+        for run in ("cold", "warm"):
+            sp, wall = h["split"][run], h[f"seconds_{run}"]
+            cells = " | ".join("–" if sp.get(k) is None else f"{sp[k]:.1f} s" for k in sp)
+            lines.append(f"| {run} | {cells} | {wall:.1f} s |")
+        lines.append("")
+    lines += [
         "| beside it (same run) | figure |",
         "|---|---|",
         f"| single material, `abrdf_jax.reconstruct` (recommended, aniso204), after compilation | "

@@ -233,10 +233,11 @@ def folder_runs(
     py = sys.executable
     out = r.work / f"{key}.out"
     cmd = [py, *PACKAGE, "reconstruct", str(folder), "-o", str(out), "-q"]
-    package = r.timed(cmd, files=files, env=r.cache(key), outputs=_count(out))
+    env = r.cache(key)
+    package = r.timed(cmd, files=files, env=env, outputs=_count(out))
     wout = r.work / f"{key}.warm.out"  # the same folder again, the cache the cold run filled
     wcmd = [py, *PACKAGE, "reconstruct", str(folder), "-o", str(wout), "-q"]
-    warm = r.timed(wcmd, files=files, env=r.cache(key), outputs=_count(wout))
+    warm = r.timed(wcmd, files=files, env=env, outputs=_count(wout))
     n = min(files, peer_limit)
     pout = r.work / f"{key}.peer"
     pcmd = [py, *PEER, str(folder), "-o", str(pout)] + (["--limit", str(n)] if n < files else [])

@@ -348,7 +348,7 @@ def test_sharded_over_8_devices_equals_one_device(generated, reconstructed, tmp_
     (a real crash: no cleanup runs), and this process resumes what it left."""
     _, paths = generated
     script = textwrap.dedent(f"""
-        import os, signal
+        import os, signal, time
         import jax, numpy as np
         from abrdf_jax import btf
         from abrdf_jax.btf import _store
@@ -362,8 +362,8 @@ def test_sharded_over_8_devices_equals_one_device(generated, reconstructed, tmp_
         real = _store.atomic_write
 
         class Dying:
-            def __init__(self, cm):
-                self.cm = cm
+            def __init__(self, cm, path):
+                self.cm, self.path = cm, path
 
             def __enter__(self):
                 self.f = self.cm.__enter__()
@@ -372,6 +372,13 @@ def test_sharded_over_8_devices_equals_one_device(generated, reconstructed, tmp_
             def write(self, data):
                 self.f.write(bytes(data)[: len(data) // 2])
                 self.f.flush()
+                # chunks are written by parallel threads: die once chunk 0 has finished
+                # (a kill earlier loses it too; it is then just missing, as chunk 1)
+                marker = os.path.join(os.path.dirname(self.path), "c000000.json")
+                for _ in range(600):
+                    if os.path.exists(marker):
+                        break
+                    time.sleep(0.05)
                 os.kill(os.getpid(), signal.SIGKILL)
 
             def __exit__(self, *exc):
@@ -379,7 +386,7 @@ def test_sharded_over_8_devices_equals_one_device(generated, reconstructed, tmp_
 
         def killing(path, mode="wb", **kw):
             cm = real(path, mode, **kw)
-            return Dying(cm) if str(path).endswith("c000001.npy") else cm
+            return Dying(cm, str(path)) if str(path).endswith("c000001.npy") else cm
 
         _store.atomic_write = killing
         btf.reconstruct_btf(m, {str(tmp_path)!r} + "/crash", devices=1, **kw)

@@ -96,3 +96,40 @@ def test_new_values_do_not_recompile_and_bad_shapes_are_refused():
     )  # log space with relative ε scales exactly
     with pytest.raises(aj.InputError):
         op(jnp.ones((2, 7, 3)))
+
+
+def test_large_batches_are_tiled_and_the_output_can_be_reused():
+    """A batch above ``TILE`` runs tile by tile (and a last partial tile): the same tables as the
+    batches of at most ``TILE`` it is made of (float32 rounding at most), the same again when it
+    writes into an earlier result (``out=``, donated), and still differentiable."""
+    from abrdf_jax._operator import TILE
+
+    config = aj.Config(budget="iso102", kernel="thin_plate_spline", value_space="logsamples")
+    params = aj.Params.default(config, dtype=jnp.float32)
+    meas, _ = _batch(config, params)
+    op = aj.compile_operator(config, params, meas[0].astype(jnp.float32))
+    base = jnp.stack([op.compact(m.astype(jnp.float32)) for m in meas])  # (3, n_in, 3)
+    b = 2 * TILE + 5
+    scale = jax.random.uniform(jax.random.PRNGKey(0), (b, 1, 3), jnp.float32, 0.5, 2.0)
+    x = base[jnp.arange(b) % 3] * scale
+    big = op(x)
+    pieces = jnp.concatenate([op(x[a : a + TILE]) for a in range(0, b, TILE)])
+    # float32 rounding: a product of another row count may round differently, exp amplifies it
+    np.testing.assert_allclose(big, pieces, rtol=1e-5, atol=1e-30)
+    np.testing.assert_array_equal(op(x[TILE + 1 : TILE + 2])[0], op(x[TILE + 1])[None][0])
+    earlier = op(x * 3.0)
+    again = op(x, out=earlier)
+    np.testing.assert_array_equal(again, big)
+    assert earlier.is_deleted()  # consumed
+    with pytest.raises(aj.InputError, match="out must have shape"):
+        op(x, out=jnp.zeros((b, 81, 81, 2), jnp.float32))
+
+    def loss(v, n):
+        return jnp.sum(jnp.log1p(op(v[:n])))
+
+    g_big = jax.grad(loss)(x, b)
+    g_pieces = jnp.concatenate(
+        [jax.grad(loss)(x[a : a + TILE], min(TILE, b - a)) for a in range(0, b, TILE)]
+    )
+    assert np.all(np.isfinite(g_big))
+    np.testing.assert_allclose(g_big, g_pieces, rtol=1e-4, atol=1e-6 * np.abs(g_pieces).max())

@@ -17,6 +17,8 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor, wait
 
 import jax
 import jax.numpy as jnp
@@ -33,6 +35,10 @@ from ._store import ABRDF_GEOMETRY, ChunkedStore, open_store, pad_rows, progress
 
 #: Texels per chunk when none is given (about 40 MB of float16 output per chunk).
 DEFAULT_CHUNK = 1024
+#: Threads that write finished chunks (the file system's copy and fsync run beside the compute),
+#: and how many computed chunks may wait for them.
+WRITERS = 2
+IN_FLIGHT = 3
 
 
 def default_config(budget: str = "aniso204") -> Config:
@@ -121,8 +127,11 @@ def reconstruct_btf(
             test of :mod:`abrdf_jax.select` on its axial slices picks the diagonal-only model
             (``default_config("iso102")``, default parameters) or ``config`` (which must be
             ``aniso204``); see :func:`isotropy_map` for the decisions.
-        stats: if given, filled with ``chunks_done``, ``chunks_skipped``, ``seconds``,
-            ``first_chunk_seconds`` (compilation included), ``backend``, ``devices``, ``batch``.
+        stats: if given, filled with ``chunks_done``, ``chunks_skipped``, ``seconds`` (the
+            whole call), ``first_chunk_seconds`` (compilation included), ``backend``,
+            ``devices``, ``batch``, ``build_seconds`` (the chunk map: operator or pipeline
+            setup, 0 when reused), and the busy seconds of the three overlapping stages
+            ``read_seconds``, ``compute_seconds``, ``write_seconds`` (see :func:`_stream`).
 
     Returns:
         The output :class:`ChunkedStore` (complete for the chunks this process owns).
@@ -163,37 +172,78 @@ def reconstruct_btf(
     devices = resolve_devices(devices)
     info = dict(chunks_done=0, chunks_skipped=len(mine) - len(todo), devices=len(devices))
     info.update(backend=None, batch=None, first_chunk_seconds=0.0)
+    info.update(build_seconds=0.0, read_seconds=0.0, compute_seconds=0.0, write_seconds=0.0)
     if todo:  # build (or reuse) the chunk map only when there is work
+        t = time.perf_counter()
         chunk_fn = _chunk_fn(config, params, geometry, backend, work, model)
+        info["build_seconds"] = time.perf_counter() - t
         runner = ShardedRunner(chunk_fn, devices, np.dtype(dtype), block)
         info.update(backend=chunk_fn.backend, batch=runner.batch_size(chunk))
 
-    def finish(k, pending):
-        a, b = out.chunk_range(k)
-        out.write_chunk(k, np.asarray(pending)[: b - a])
-        info["chunks_done"] += 1
-        bar.update(b - a)
-
     total = out.texels(mine)
     with progress_bar("btf reconstruct", total, progress, initial=total - out.texels(todo)) as bar:
-        previous = None
-        for n, k in enumerate(todo):
-            t0 = time.perf_counter()
-            # repeat the last texel up to the batch (one shape, one compilation); asynchronous:
-            # computes while the last one is written
-            result = runner(pad_rows(meas.read(*out.chunk_range(k)).astype(work), info["batch"]))
-            if n == 0:
-                result.block_until_ready()
-                info["first_chunk_seconds"] = time.perf_counter() - t0  # compilation included
-            if previous is not None:
-                finish(*previous)
-            previous = (k, result)
-        if previous is not None:
-            finish(*previous)
+        if todo:
+            _stream(meas, out, todo, runner, work, info, bar)
     info["seconds"] = time.perf_counter() - t_start
     if stats is not None:
         stats.update(info)
     return out
+
+
+def _stream(meas, out, todo, runner, work, info, bar) -> None:
+    """Read, compute and write the chunks ``todo``, the three overlapping.
+
+    One thread reads (and checks) the next input chunk while the current one is computed;
+    :data:`WRITERS` threads copy finished chunks to the host, check and write them. At most
+    :data:`IN_FLIGHT` results wait for a writer (memory stays a few chunks). ``info`` gets the
+    busy seconds of each stage (``read_seconds``, ``compute_seconds``: dispatch to result,
+    compilation of the first chunk included; ``write_seconds``: summed over the writers), which
+    overlap, so they add up to more than the wall time. A failed write stops the run after the
+    writes already started have finished (their chunks stay valid).
+    """
+
+    def read(k):
+        t = time.perf_counter()
+        y = pad_rows(meas.read(*out.chunk_range(k)).astype(work), info["batch"])
+        return y, time.perf_counter() - t
+
+    def write(k, result):
+        t = time.perf_counter()
+        a, b = out.chunk_range(k)
+        out.write_chunk(k, np.asarray(result)[: b - a])
+        return b - a, time.perf_counter() - t
+
+    def settle(job):
+        n, seconds = job.result()
+        info["write_seconds"] += seconds
+        info["chunks_done"] += 1
+        bar.update(n)
+
+    with ThreadPoolExecutor(1) as reader, ThreadPoolExecutor(WRITERS) as writers:
+        jobs: deque = deque()
+        try:
+            nxt = reader.submit(read, todo[0])
+            for n, k in enumerate(todo):
+                y, seconds = nxt.result()
+                info["read_seconds"] += seconds
+                if n + 1 < len(todo):
+                    nxt = reader.submit(read, todo[n + 1])
+                t0 = time.perf_counter()
+                # the last texel repeated up to the batch: one shape, one compilation
+                result = runner(y).block_until_ready()
+                info["compute_seconds"] += time.perf_counter() - t0
+                if n == 0:
+                    info["first_chunk_seconds"] = time.perf_counter() - t0  # compilation included
+                jobs.append(writers.submit(write, k, result))
+                del result
+                while len(jobs) > IN_FLIGHT or (jobs and jobs[0].done()):
+                    settle(jobs.popleft())
+            while jobs:
+                settle(jobs.popleft())
+        finally:
+            for job in jobs:
+                job.cancel()
+            wait(jobs)
 
 
 def _inputs(meas_store, config, compute_dtype):

@@ -26,8 +26,8 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import InputError
-from .._grouping import group_slices
-from .._measurements import Measurements, Samples
+from .._grouping import grouping_matrix
+from .._measurements import Measurements
 from .._names import BTF_BACKENDS as BACKENDS
 from .._operator import compile_operator
 from .._params import Config, Params, preset
@@ -54,14 +54,8 @@ def grouping(geometry: dict, pairs, alpha_deg: float) -> tuple[Measurements, np.
         raise InputError(
             "measurement geometry: theta_i, phi_i, theta_v, phi_v must have one equal, non-zero length"
         )
-    cols = []
-    for j0 in range(0, n, 3):  # three unit samples at a time, one per channel: entries 0 or 1
-        width = min(3, n - j0)
-        rgb = np.zeros((n, 3))
-        rgb[j0 + np.arange(width), np.arange(width)] = 1.0
-        meas, _ = group_slices(Samples(*angles, rgb), alpha_deg, pairs=pairs, dtype=np.float32)
-        cols.extend(np.asarray(meas.y)[..., c].reshape(-1) for c in range(width))
-    return meas.replace(y=jnp.zeros_like(meas.y)), np.stack(cols, axis=1)
+    slices, g = grouping_matrix(angles, alpha_deg, pairs)
+    return slices.to_measurements(), g
 
 
 def _alpha_deg(geometry: dict, params: Params) -> float:

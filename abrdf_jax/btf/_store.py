@@ -86,6 +86,33 @@ def pad_rows(x, n: int) -> np.ndarray:
     return x if len(x) >= n else np.concatenate([x, np.repeat(x[-1:], n - len(x), axis=0)])
 
 
+#: Unsigned view, magnitude mask and exponent bits (all set: infinite or NaN) of a store's floats.
+_FLOAT_BITS = {
+    np.dtype(np.float16): (np.uint16, 0x7FFF, 0x7C00),
+    np.dtype(np.float32): (np.uint32, 0x7FFFFFFF, 0x7F800000),
+}
+
+_FINITE_BLOCK = 1 << 18
+
+
+def all_finite(arr: np.ndarray) -> bool:
+    """Whether every value of ``arr`` is finite; for float16/float32 one integer pass over the
+    bits (the magnitude is below the all-ones exponent), several times faster than numpy's
+    float16 ``isfinite``."""
+    bits = _FLOAT_BITS.get(arr.dtype)
+    if bits is None or not arr.flags.c_contiguous or arr.size == 0:
+        return bool(np.isfinite(arr).all())
+    kind, magnitude, exponent = bits
+    flat, mask = arr.reshape(-1).view(kind), kind(magnitude)
+    tmp = np.empty(min(flat.size, _FINITE_BLOCK), kind)  # stays in cache
+    for a in range(0, flat.size, _FINITE_BLOCK):
+        part = tmp[: min(_FINITE_BLOCK, flat.size - a)]
+        np.bitwise_and(flat[a : a + _FINITE_BLOCK], mask, out=part)
+        if part.max() >= exponent:
+            return False
+    return True
+
+
 def progress_bar(desc: str, total: int, enabled: bool, **kw):
     """The tqdm bar of a streamed job (on stderr; ``kw``: ``unit`` (default texel), ``initial``)."""
     from tqdm import tqdm
@@ -329,23 +356,24 @@ class ChunkedStore:
             raise ValueError(f"{self.path}: chunk {k} has shape {arr.shape}, expected {want}")
         with np.errstate(over="ignore", invalid="ignore"):  # reported below, with the texel
             arr = np.ascontiguousarray(arr, dtype=self.dtype)
-        finite = np.isfinite(arr)
-        if not finite.all():
-            bad = int(np.argwhere(~finite)[0][0]) + start
+        if not all_finite(arr):
+            bad = int(np.argwhere(~np.isfinite(arr))[0][0]) + start
             raise ValueError(
                 f"{self.path}: chunk {k} holds NaN or infinite values (first at texel {bad}); "
                 + ("float16 overflows above 65504, use float32" if self.dtype == np.float16 else "")
             )
-        buf = io.BytesIO()
-        np.lib.format.write_array(buf, arr, allow_pickle=False)
-        payload = buf.getbuffer()
+        # The .npy header, then the array's own memory: no serialised copy of the chunk.
+        head = io.BytesIO()
+        np.lib.format.write_array_header_1_0(head, np.lib.format.header_data_from_array_1_0(arr))
+        header, body = head.getvalue(), memoryview(arr).cast("B")
         data, marker = self._files(k)
         with contextlib.suppress(FileNotFoundError):
             marker.unlink()  # the chunk is invalid from now until the new marker lands
         with atomic_write(data, "wb") as f:
-            f.write(payload)
+            f.write(header)
+            f.write(body)
         meta = self._expected_marker(k)
-        meta.update(bytes=len(payload), crc32=zlib.crc32(payload))
+        meta.update(bytes=len(header) + len(body), crc32=zlib.crc32(body, zlib.crc32(header)))
         with atomic_write(marker, "w") as f:
             json.dump(meta, f)
 

@@ -158,6 +158,23 @@ def _noise(logl, t: np.ndarray, count: np.ndarray, rows, xp=None):
     rows = [s for s in rows if count[s] >= 3]
     if not rows:
         return xp.full((logl.shape[0],), np.nan, logl.dtype)
+    ss, ks, lefts, rights, wl, wr = _neighbours(t, count, tuple(rows))
+    wl, wr = xp.asarray(wl, logl.dtype), xp.asarray(wr, logl.dtype)
+    r = (logl[:, ss, ks] - (wl * logl[:, ss, lefts] + wr * logl[:, ss, rights])) / xp.sqrt(
+        1.0 + wl**2 + wr**2
+    )
+    return _MAD_TO_SIGMA * xp.median(xp.abs(r), axis=1)
+
+
+def _neighbours(t: np.ndarray, count: np.ndarray, rows: tuple):
+    """Indices ``(slice, sample, left, right)`` and weights ``(wl, wr)`` of every sample of the
+    slices ``rows`` and its two neighbours: from the layout alone, so cached by it (a folder of
+    one layout tests every file with the same ones)."""
+    t = np.asarray(t, np.float64)
+    key = (t.shape, t.tobytes(), np.asarray(count).tobytes(), rows)
+    hit = _NEIGHBOURS.get(key)
+    if hit is not None:
+        return hit
     ss, ks, lefts, rights, wls, wrs = [], [], [], [], [], []
     for s in rows:
         n = int(count[s])
@@ -165,12 +182,14 @@ def _noise(logl, t: np.ndarray, count: np.ndarray, rows, xp=None):
         ss.append(np.full(n, s)), ks.append(np.arange(n))
         lefts.append((np.arange(n) - 1) % n), rights.append((np.arange(n) + 1) % n)
         wls.append(1.0 - wr), wrs.append(wr)
-    ss, ks, lefts, rights = (np.concatenate(a) for a in (ss, ks, lefts, rights))
-    wl, wr = (xp.asarray(np.concatenate(a), logl.dtype) for a in (wls, wrs))
-    r = (logl[:, ss, ks] - (wl * logl[:, ss, lefts] + wr * logl[:, ss, rights])) / xp.sqrt(
-        1.0 + wl**2 + wr**2
-    )
-    return _MAD_TO_SIGMA * xp.median(xp.abs(r), axis=1)
+    out = tuple(np.concatenate(a) for a in (ss, ks, lefts, rights, wls, wrs))
+    if len(_NEIGHBOURS) >= 64:
+        _NEIGHBOURS.pop(next(iter(_NEIGHBOURS)))
+    _NEIGHBOURS[key] = out
+    return out
+
+
+_NEIGHBOURS: dict = {}
 
 
 def _axial_sums(logl, count: np.ndarray, xp=None):

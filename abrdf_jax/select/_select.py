@@ -124,12 +124,18 @@ def _cv_core(data: dict, configs: tuple, params: Params):
     # (k, 3): each fold's own ε
     eps = jax.vmap(lambda m: vs.eps(m, cfg0.log_eps))(train) if vs.is_log else None
 
-    def fold_values(m, e, c):
-        return vs.encode_subspace(subspace_values(vs.encode_samples(m, e), c, params), e)
+    # every configuration of the group from one set of slice interpolations per fold (they
+    # differ in the subspace rule only, or else each reads its own)
+    shared = len({c.interp for c in configs}) == 1
+    rules = tuple(c.subspace_rule for c in configs)
 
-    fit_vals = jnp.stack(
-        [jax.vmap(lambda m, e, c=c: fold_values(m, e, c))(train, eps) for c in configs]
-    )
+    def fold_values(m, e):
+        m = vs.encode_samples(m, e)
+        if shared:
+            return vs.encode_subspace(subspace_values(m, cfg0, params, rules=rules), e)
+        return jnp.stack([vs.encode_subspace(subspace_values(m, c, params), e) for c in configs])
+
+    fit_vals = jnp.moveaxis(jax.vmap(fold_values)(train, eps), 1, 0)  # (G, k, n, C)
     G, k, n, C = fit_vals.shape
     # Every fold and configuration as right-hand sides of one system (it ignores the values).
     rhs = jnp.moveaxis(fit_vals, 2, 0).reshape(n, G * k * C)
