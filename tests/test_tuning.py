@@ -317,3 +317,17 @@ def test_cli_fit_then_reconstruct_with_params(tmp_path, capsys):
         == 2
     )
     assert "no-such-material" in capsys.readouterr().err and not (tmp_path / "q.json").exists()
+
+
+def test_cli_fit_self_writes_params(tmp_path, capsys):
+    """``fit self`` on a measurement file: the CLI's planned slices reach the fit (a regression:
+    the numpy slices of the command line were passed on where the fit takes the pytree)."""
+    from abrdf_jax.cli import main
+
+    meas, out = tmp_path / "m.csv", tmp_path / "own.json"
+    assert main(["sample", "ggx-plastic", "-o", str(meas), "--budget", "iso102"]) == 0
+    argv = ["fit", "self", str(meas), "-o", str(out), "--steps", "2", "--widths", "shared"]
+    assert main([*argv, "--fixed-reg", "--solver", "bfgs"]) == 0, capsys.readouterr().err
+    d = json.loads(out.read_text())
+    assert d["fit"]["mode"] == "self" and d["config"]["budget"] == "iso102"
+    assert d["fit"]["loss_final"] <= d["fit"]["loss_initial"]

@@ -91,7 +91,8 @@ def cmd_fit_self(args) -> int:
     space = tuning.ParamSpace(widths=args.widths, reg=not args.fixed_reg)
     try:
         calibration = tuning.SelfCalibration.from_samples
-        prob, data, params = calibration(item.meas, config, params, space=space, folds=args.folds)
+        meas = item.meas.to_measurements()  # the planned numpy slices, as the pytree
+        prob, data, params = calibration(meas, config, params, space=space, folds=args.folds)
     except InputError as e:
         raise InputError(f"{src}: {e}") from e
     meta = {"mode": "self", "input": str(src), "folds": args.folds, "preset": args.preset}
