@@ -170,6 +170,31 @@ def test_evidence_fit_raises_the_evidence(setup):
     np.testing.assert_allclose(rec[1], P.reconstruct_fused(meas, prior, h1), rtol=1e-6)
 
 
+def test_rescaling_keeps_the_mean_and_fits_the_amplitude(setup):
+    prior, meas, _ = setup
+    h = _hyper()
+    h2 = P.fused_rescaled(meas, prior, h)
+    t1, v1 = P.reconstruct_fused(meas, prior, h, return_variance=True)
+    t2, v2 = P.reconstruct_fused(meas, prior, h2, return_variance=True)
+    np.testing.assert_allclose(t1, t2, rtol=1e-8)
+    scale = float(np.exp(2 * (h2.log_sigma_p - h.log_sigma_p)))
+    np.testing.assert_allclose(v2, scale * np.asarray(v1), rtol=1e-8, atol=1e-14)
+    # the amplitude is the evidence's maximum along the common scale
+    lml = [
+        F.evidence(
+            meas,
+            prior,
+            eqx.tree_at(
+                lambda x: (x.log_sigma_p, x.log_sigma_k, x.log_sigma_n),
+                h2,
+                (h2.log_sigma_p + d, h2.log_sigma_k + d, h2.log_sigma_n + d),
+            ),
+        )[0]
+        for d in (-0.01, 0, 0.01)
+    ]
+    assert lml[1] > lml[0] and lml[1] > lml[2]
+
+
 def test_bad_hyper_parameters_are_refused():
     with pytest.raises(aj.InputError, match="coords"):
         P.FusedHyper.create(coords="polar")

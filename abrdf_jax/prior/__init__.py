@@ -40,7 +40,13 @@ _EXPORTS = {
     "_select": ("cross_validate_prior", "select_prior", "table_samples"),
     "_default": ("DEFAULT_RECIPE", "default_prior", "default_training_tables"),
     "_covariance": ("COORDINATES", "COVARIANCES", "FusedHyper", "covariance"),
-    "_fused": ("reconstruct_fused", "fused_evidence", "fused_band", "fused_coverage"),
+    "_fused": (
+        "reconstruct_fused",
+        "fused_evidence",
+        "fused_band",
+        "fused_coverage",
+        "fused_rescaled",
+    ),
     "_evidence": ("fit_evidence", "fit_population"),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS)

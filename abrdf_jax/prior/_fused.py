@@ -170,16 +170,35 @@ def fused_mapped(
     return mean, var, lml
 
 
-def evidence(
-    meas: Measurements, prior: Prior, hyper: FusedHyper, alpha=None, *, reference: str = "log"
-):
-    """``(log marginal likelihood, number of mapped values)`` of one measurement (no grid)."""
+def _sample_solve(meas, prior, hyper, alpha, reference):
     alpha = _alpha(alpha, prior.dtype)
     basis = fused_basis(prior, meas, alpha, reference)
     fs = factor(hyper, basis, sample_features(hyper, meas, alpha).astype(prior.dtype))
     s, n = meas.t.shape
     r = residuals(prior, basis, jnp.reshape(meas.y, (s * n, 3)).astype(prior.dtype))
+    return fs, r
+
+
+def evidence(meas: Measurements, prior: Prior, hyper: FusedHyper, alpha=None, *, reference="log"):
+    """``(log marginal likelihood, number of mapped values)`` of one measurement (no grid)."""
+    fs, r = _sample_solve(meas, prior, hyper, alpha, reference)
     return log_marginal_likelihood(fs, r), jnp.sum(fs.weight) * r.shape[1]
+
+
+def rescaled(meas: Measurements, prior: Prior, hyper: FusedHyper, alpha=None, *, reference="log"):
+    """``hyper`` with ``σ_p, σ_k, σ_n`` times the maximum-evidence amplitude ``s`` of this
+    measurement, ``s² = rᵀC⁻¹r / n``: the posterior mean does not change (it depends on the
+    ratios only), the variance is scaled to the samples (for hyper-parameters fitted on the
+    mean alone, e.g. :func:`~abrdf_jax.prior.fit_population`). A stack gives stacked leaves."""
+    if meas.t.ndim > 2:
+        return jax.vmap(lambda m: rescaled(m, prior, hyper, alpha, reference=reference))(meas)
+    fs, r = _sample_solve(meas, prior, hyper, alpha, reference)
+    log_s = 0.5 * jnp.log(jnp.sum(r * fs.solve(r)) / (jnp.sum(fs.weight) * r.shape[1]))
+    return eqx.tree_at(
+        lambda h: (h.log_sigma_p, h.log_sigma_k, h.log_sigma_n),
+        hyper,
+        (hyper.log_sigma_p + log_s, hyper.log_sigma_k + log_s, hyper.log_sigma_n + log_s),
+    )
 
 
 def to_linear(prior: Prior, m):
@@ -263,3 +282,4 @@ def reconstruct_fused(
 fused_evidence = evidence
 fused_band = band
 fused_coverage = coverage
+fused_rescaled = rescaled
