@@ -6,7 +6,7 @@ held-out error.
   scales, with a weak Gaussian hyper-prior ``N(log θ₀, τ²)`` around the start ``θ₀`` (type-II
   maximum a posteriori; it keeps a scale that the samples cannot see, e.g. ``σ_k`` of a material
   the prior explains exactly, from running off). A fixed number of Adam steps (Kingma & Ba
-  2015) in one ``lax.scan``: the same cost for every material, vmapped over a stack.
+  2015) in one ``lax.scan``: the same cost for every material, one material after the other over a stack.
 - :func:`fit_population`: one set of hyper-parameters for a population of materials, by gradient
   descent on the mean held-out ΔE76 (PROTOCOL.md) of a ``folds``-fold split *within* the training
   tables: each fold's materials are reconstructed by the fused model with a prior trained on the
@@ -23,7 +23,7 @@ import numpy as np
 from .._errors import InputError
 from .._measurements import Measurements
 from ._covariance import FusedHyper
-from ._fused import evidence, reconstruct_fused
+from ._fused import each, evidence, reconstruct_fused
 from ._model import Prior, train_prior
 
 
@@ -79,7 +79,7 @@ def fit_evidence(
     """Per-material hyper-parameters by maximum evidence (module docstring).
 
     Args:
-        meas: one measurement, or a stack ``(B, S, nmax)`` (each fitted on its own, vmapped).
+        meas: one measurement, or a stack ``(B, S, nmax)`` (each fitted on its own).
         prior: the prior.
         init: the start and centre of the hyper-prior (e.g. :func:`fit_population`'s result).
         alpha: slice offset α in radians (default 15°; scalar or ``(B,)``).
@@ -91,11 +91,14 @@ def fit_evidence(
     """
     _check_steps(steps, lr)
     if meas.t.ndim > 2:
-        return jax.vmap(
+        return each(
             lambda m, a: fit_evidence(
                 m, prior, init, a, steps=steps, lr=lr, tau=tau, reference=reference
-            )
-        )(meas, jnp.broadcast_to(jnp.asarray(_alpha_default(alpha), prior.dtype), meas.t.shape[:1]))
+            ),
+            meas,
+            alpha,
+            prior.dtype,
+        )
     params, static = eqx.partition(init, eqx.is_array)
 
     def loss(p):
@@ -106,10 +109,6 @@ def fit_evidence(
 
     p, _ = adam(loss, params, steps, lr)
     return eqx.combine(p, static)
-
-
-def _alpha_default(alpha):
-    return np.deg2rad(15.0) if alpha is None else alpha
 
 
 def fit_population(

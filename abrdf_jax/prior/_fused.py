@@ -40,6 +40,18 @@ from ._model import Prior, SampleBasis
 from ._reconstruct import _alpha, _rows, prior_at_samples
 
 
+def each(fn, meas: Measurements, alpha, dtype, *batched):
+    """``fn(measurement, α, *members)`` for every member of a stack, one after the other.
+
+    ``lax.map``, not ``vmap``: a batched Cholesky solve runs LAPACK's triangular solves on the
+    CPU thread pool (``ParallelBatchMap``), which deadlocks in jaxlib 0.10.2 when the pool is
+    already busy (docs/prior.md, "Fused model"). ``batched`` are pytrees with a leading member
+    axis (e.g. one :class:`FusedHyper` per material).
+    """
+    alphas = jnp.broadcast_to(_alpha(alpha, dtype), meas.t.shape[:1])
+    return jax.lax.map(lambda args: fn(*args), (meas, alphas, *batched))
+
+
 class FusedSolve(eqx.Module):
     """The factored sample covariance of one layout (everything but the sample values).
 
@@ -191,7 +203,9 @@ def rescaled(meas: Measurements, prior: Prior, hyper: FusedHyper, alpha=None, *,
     ratios only), the variance is scaled to the samples (for hyper-parameters fitted on the
     mean alone, e.g. :func:`~abrdf_jax.prior.fit_population`). A stack gives stacked leaves."""
     if meas.t.ndim > 2:
-        return jax.vmap(lambda m: rescaled(m, prior, hyper, alpha, reference=reference))(meas)
+        return each(
+            lambda m, a: rescaled(m, prior, hyper, a, reference=reference), meas, alpha, prior.dtype
+        )
     fs, r = _sample_solve(meas, prior, hyper, alpha, reference)
     log_s = 0.5 * jnp.log(jnp.sum(r * fs.solve(r)) / (jnp.sum(fs.weight) * r.shape[1]))
     return eqx.tree_at(
@@ -262,15 +276,18 @@ def reconstruct_fused(
         the multiplicative band in linear space).
     """
     if meas.t.ndim > 2:
-        alphas = jnp.broadcast_to(_alpha(alpha, prior.dtype), meas.t.shape[:1])
-        batched = jnp.ndim(hyper.log_sigma_p) > 0  # one hyper per member, or one for all
-        hyp_axes = 0 if batched else None
-        return jax.vmap(
-            lambda m, a, h: reconstruct_fused(
+
+        def one(m, a, h=hyper):
+            return reconstruct_fused(
                 m, prior, h, a, reference=reference, return_variance=return_variance
-            ),
-            in_axes=(0, 0, hyp_axes),
-        )(meas, alphas, hyper)
+            )
+
+        if jnp.ndim(hyper.log_sigma_p) > 0:  # one hyper per member
+            params, static = eqx.partition(hyper, eqx.is_array)
+            return each(
+                lambda m, a, p: one(m, a, eqx.combine(p, static)), meas, alpha, prior.dtype, params
+            )
+        return each(one, meas, alpha, prior.dtype)
     mean, var, _ = fused_mapped(
         meas, prior, hyper, alpha, reference=reference, return_variance=return_variance
     )
