@@ -20,9 +20,11 @@ Run: ``python -m benchmarks.fused [--quick]`` → ``results/fused.json`` and ``r
    sees the mean only, which depends on the ratios of the scales; its variance is scaled to each
    material's own samples (``fused_rescaled``, the maximum-evidence amplitude).
 
-jaxlib 0.10.2's CPU runtime deadlocks on some of these programs (every worker idle, the main thread
-waiting for a buffer; not the YNN-fusion bug); the concurrency-optimised scheduler off avoids it,
-so this module sets ``--xla_cpu_enable_concurrency_optimized_scheduler=false`` before JAX starts.
+jaxlib 0.10.2's CPU runtime deadlocked on these programs while the fused model vmapped its
+Cholesky solves (LAPACK's batched triangular solve waiting on a busy thread pool; the package now
+maps over a stack with ``lax.map``). Turning the concurrency-optimised scheduler off had avoided
+it; this module still sets ``--xla_cpu_enable_concurrency_optimized_scheduler=false`` before JAX
+starts as a guard (not re-measured without it).
 """
 
 from __future__ import annotations
