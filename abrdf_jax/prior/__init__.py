@@ -7,6 +7,11 @@ samples (docs/prior.md). :func:`default_prior` is trained on the package's own a
 materials (no measured data ships, nothing is downloaded).
 
 The names are loaded on first use (PEP 562), so ``from abrdf_jax import prior`` imports no JAX;
+The fused model (:func:`reconstruct_fused`: the prior as the mean and low-rank covariance of a
+Gaussian process, plus a stationary kernel on the residual and noise; its predictive variance;
+hyper-parameters by evidence, :func:`fit_evidence`, or on a population, :func:`fit_population`)
+is in docs/prior.md "Fused model".
+
 reading a prior file's summary (:func:`prior_info`) needs numpy only.
 """
 
@@ -34,5 +39,14 @@ _EXPORTS = {
     "_reconstruct": ("prior_at_samples", "project", "reconstruct_prior", "ridge_operator"),
     "_select": ("cross_validate_prior", "select_prior", "table_samples"),
     "_default": ("DEFAULT_RECIPE", "default_prior", "default_training_tables"),
+    "_covariance": ("COORDINATES", "COVARIANCES", "FusedHyper", "covariance"),
+    "_fused": (
+        "reconstruct_fused",
+        "fused_evidence",
+        "fused_band",
+        "fused_coverage",
+        "fused_rescaled",
+    ),
+    "_evidence": ("fit_evidence", "fit_population"),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS)

@@ -19,7 +19,7 @@ import numpy as np
 from .._measurements import Measurements
 from .._sampling import interpolate_table, table_corners
 from .._slices import PROTOCOL_ALPHA_DEG
-from ._mapping import inverse_log_relative, log_relative
+from ._mapping import grid_cos_view, inverse_log_relative, log_relative
 from ._model import Prior, SampleBasis
 
 
@@ -28,25 +28,44 @@ def _alpha(alpha, dtype):
     return jnp.asarray(a, dtype)
 
 
-def prior_at_samples(prior: Prior, meas: Measurements, alpha=None) -> SampleBasis:
+#: How :func:`prior_at_samples` interpolates the reference: linearly in value, or in the log of
+#: ``x_ref cos θv + ε`` (consistent with the mapped mean and components, which are logs).
+REFERENCE_INTERP = ("linear", "log")
+
+
+def prior_at_samples(
+    prior: Prior, meas: Measurements, alpha=None, reference: str = "linear"
+) -> SampleBasis:
     """The prior at the sample positions of one measurement, interpolated from its grid tables.
 
-    Reference, mean and components are interpolated bilinearly over both azimuths on the UBO
-    rings of each slice (:func:`abrdf_jax.sample_table`'s interpolation), at the positions
-    ``meas.t`` for slice offset ``alpha`` (radians; default the protocol's 15°). Positions are
-    the ``S·nmax`` padded entries; padding gets weight 0.
+    Mean and components are interpolated bilinearly over both azimuths on the UBO rings of each
+    slice (:func:`abrdf_jax.sample_table`'s interpolation), at the positions ``meas.t`` for
+    slice offset ``alpha`` (radians; default the protocol's 15°); the reference likewise
+    (``reference="linear"``) or in the log domain (``"log"``: ``exp`` of the interpolated
+    ``ln(x_ref cos θv + ε)``, so that a mapped training material at a sample is the difference
+    of two interpolated logs, as its mean and components are; better on MERL, docs/prior.md
+    "Fused model"). Positions are the ``S·nmax`` padded entries; padding gets weight 0.
     """
+    if reference not in REFERENCE_INTERP:
+        raise ValueError(f"reference must be one of {REFERENCE_INTERP}, got {reference!r}")
     dt = prior.dtype
     corners = table_corners(jnp.asarray(meas.t, dt), _alpha(alpha, dt), meas.pairs)
     c = 3 if prior.channels == "joint" else 1
     k = prior.n_components
-    ref = interpolate_table(prior.reference.reshape(81, 81, 3), corners)
+    ref_g = prior.reference.reshape(81, 81, 3)
+    if reference == "log":
+        cos_g = jnp.asarray(grid_cos_view(), dt).reshape(81, 81, 1)
+        log_ref = interpolate_table(jnp.log(ref_g * cos_g + prior.eps), corners)
+    else:
+        ref = interpolate_table(ref_g, corners)
     mean = interpolate_table(prior.mean.reshape(81, 81, c), corners)
     comps = interpolate_table(prior.components.reshape(81, 81, c, k), corners)
     s, n = meas.t.shape
     tv = np.asarray([meas.pairs[i // 2][1] for i in range(s)], np.float64)
     cos = jnp.broadcast_to(jnp.asarray(np.cos(np.deg2rad(tv)), dt)[:, None, None], (s, n, c))
     weight = jnp.broadcast_to(meas.mask[..., None], (s, n, c)).astype(dt)
+    if reference == "log":  # the slice's θv is one ring: cos θv is the same at every corner
+        ref = (jnp.exp(log_ref) - prior.eps) / cos[..., :1]
     ref = ref.reshape(s * n, 3)
     ref = ref.reshape(-1) if c == 3 else ref[:, 0]
     return SampleBasis(
