@@ -30,6 +30,7 @@ import numpy as np
 
 from ._errors import InputError
 from ._prior_entry import PriorEntry
+from .io._atomic import file_sha256 as _file_sha256
 
 #: ``--prior default``: the package's default prior (docs/prior.md), built on first use.
 DEFAULT = "default"
@@ -90,14 +91,6 @@ def _summary(path, sha, arrays, meta, default: bool) -> PriorSource:
         **({"licence": meta["licence"]} if "licence" in meta else {}),
     }
     return PriorSource(None if path is None else str(path), sha, lam, json.dumps(info))
-
-
-def _file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def read_source(path, default: bool = False) -> PriorSource:

@@ -8,6 +8,7 @@ destination as it was: the data go to a temporary file in the same folder, which
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import tempfile
 from collections.abc import Iterator
@@ -116,3 +117,12 @@ def _check_readable(path: Path) -> None:
             pass
     except OSError as e:
         raise located(f"cannot read: {e.strerror or e}", path) from e
+
+
+def file_sha256(path) -> str:
+    """sha256 (hex) of a file's bytes, read in 1 MiB blocks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()

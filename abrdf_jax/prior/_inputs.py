@@ -14,16 +14,9 @@ import numpy as np
 from .._errors import InputError, located
 from .._names import PRIOR_INPUT_SUFFIXES
 from ..io._atomic import _check_readable
+from ..io._atomic import file_sha256 as _file_sha256
 
 SUFFIXES = PRIOR_INPUT_SUFFIXES
-
-
-def _file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _table_sha256(table: np.ndarray) -> str:
