@@ -112,6 +112,30 @@ def test_demo_writes_figure(tmp_path):
     assert listing(tmp_path) == ["demo.png"]
 
 
+def test_reference_writes_the_dense_table_that_evaluate_reads(tmp_path):
+    """The README's ``evaluate rec.exr ref.npz`` example needs a reference: ``reference`` writes
+    a built-in material's dense table, bit-identical to ``materials.dense_table``."""
+    import numpy as np
+
+    from abrdf_jax import io, materials
+
+    proc = run_cli("reference", "ward-brushed-steel", "-o", "ref.npz", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "ref.npz" in proc.stdout
+    expected = materials.dense_table("ward-brushed-steel")
+    np.testing.assert_array_equal(io.read_table(tmp_path / "ref.npz"), expected)
+    proc = run_cli("reference", "ggx-plastic", "-o", "ref.exr", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    np.testing.assert_allclose(
+        io.read_table(tmp_path / "ref.exr"), materials.dense_table("ggx-plastic"), rtol=1e-6
+    )
+    proc = run_cli("evaluate", "ref.npz", "ref.npz", "--json", cwd=tmp_path)
+    assert proc.returncode == 0 and '"de76": 0.0' in proc.stdout, proc.stdout + proc.stderr
+    proc = run_cli("reference", "no-such", "-o", "x.npz", cwd=tmp_path)
+    assert proc.returncode == 2 and "unknown material 'no-such'" in proc.stderr
+    assert listing(tmp_path) == ["ref.exr", "ref.npz"]
+
+
 # ---------------------------------------------------------------------------------------------
 # Bad input: a message, no traceback, no output file, existing outputs kept
 # ---------------------------------------------------------------------------------------------

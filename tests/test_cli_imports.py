@@ -52,6 +52,8 @@ NO_JAX_CASES = [
     (["fit", "self", "bad.csv", "-o", "p.txt"], 2),
     (["btf", "generate", "-o", "g", "--size", "0"], 2),
     (["demo", "--materials", "0"], 2),
+    (["reference", "nope", "-o", "ref.npz"], 2),
+    (["reference", "ggx-plastic", "-o", "ref.tif"], 2),
     (["cache", "--help"], 0),
     (["cache", "--cache-dir", "cachedir"], 0),  # shows an empty cache; creates nothing
     (["cache", "--cache-dir", "cachedir", "--clear"], 0),

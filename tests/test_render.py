@@ -140,7 +140,7 @@ def test_interpolation_is_continuous_bounded_and_zero_below_horizon(rng):
     wi = _vec(rng.uniform(0, 89.9, 500), rng.uniform(0, 360, 500))
     wv = _vec(rng.uniform(0, 89.9, 500), rng.uniform(0, 360, 500))
     out = interpolate_table(table, wi, wv)
-    assert np.all(out >= table.min() - 1e-12) and np.all(out <= table.max() + 1e-12)
+    assert np.all(out >= 0.0) and np.all(out <= table.max() + 1e-12)
     # A tiny rotation of both directions changes the value only a little.
     rot = np.radians(1e-4)
     c, s = np.cos(rot), np.sin(rot)
@@ -150,13 +150,21 @@ def test_interpolation_is_continuous_bounded_and_zero_below_horizon(rng):
     below = _vec(np.full(4, 100.0), np.arange(4) * 90.0)
     assert np.all(interpolate_table(table, below, wv[:4]) == 0.0)
     assert np.all(interpolate_table(table, wi[:4], below) == 0.0)
-    # Horizon directions take the 75-degree ring's values (nearest-ring extrapolation).
+    # A view at the horizon takes the 75-degree ring's values (nearest-ring extrapolation) ...
     ring75 = np.nonzero(ubo_grid()[0] == 75.0)[0]
     horizon = _vec(np.full(24, 89.999999), ubo_grid()[1][ring75])
     np.testing.assert_allclose(
-        interpolate_table(table, horizon, _grid_vectors()[:24]),
-        table[ring75, np.arange(24)],
+        interpolate_table(table, _grid_vectors()[:24], horizon),
+        table[np.arange(24), ring75],
         atol=1e-6,
+    )
+    # ... while a light there falls towards 0 (an ABRDF holds cos θi): linearly from the 75°
+    # ring, to 1 - (89.2 - 75) / 15 of it at the clamp radius (90° cos(pi / 24) = 89.2°).
+    at_horizon = interpolate_table(table, horizon, _grid_vectors()[:24])
+    assert np.all(at_horizon <= 0.06 * table[ring75, np.arange(24)] + 1e-12)
+    half = _vec(np.full(24, 82.5), ubo_grid()[1][ring75])
+    np.testing.assert_allclose(
+        interpolate_table(table, half, _grid_vectors()[:24]), 0.5 * table[ring75, np.arange(24)]
     )
 
 
@@ -179,7 +187,7 @@ def test_sphere_shape_range_background():
     assert img.min() >= 0.0 and img.max() <= 1.0
     corner = img[0, 0]
     np.testing.assert_allclose(corner, corner[0])  # grey
-    assert 0.05 < corner[0] < 0.3  # dark
+    assert 0.3 < corner[0] < 0.6  # mid grey: the unlit (black) part of a sphere stands out
     assert render_sphere(_lambert(), size=10, supersample=1).shape == (10, 10, 3)
     with pytest.raises(InputError):
         render_sphere(_lambert(), size=0)
@@ -269,3 +277,57 @@ def test_comparison_figure_bad_paths_leave_nothing(tmp_path):
     with pytest.raises(InputError):
         comparison_figure([("bad", ref, np.full((81, 81, 3), np.inf), None)], keep)
     assert keep.read_bytes() == b"old"
+
+
+def test_sphere_of_a_material_is_exact_and_matches_its_table_at_grid_directions():
+    """A material draws the sphere from the model itself; where the table interpolation is
+    exact (a Lambertian table is linear in cos θi only up to interpolation) both agree, and for
+    a sharp specular lobe the exact sphere has a brighter, narrower highlight than the table."""
+    from abrdf_jax import materials
+
+    clay = materials.get_material("lambert-clay")
+    table = materials.dense_table(clay)
+    e = exposure_of(table)
+    exact = render_sphere(clay, size=48, exposure=e)
+    interp = render_sphere(table, size=48, exposure=e)
+    assert np.percentile(np.abs(exact - interp), 99) < 0.03  # cos θi linear between rings
+    steel = materials.get_material("ward-brushed-steel")
+    t = materials.dense_table(steel)
+    e = exposure_of(t)
+    peak_exact = (render_sphere(steel, size=64, exposure=e) @ LUMA).max()
+    peak_table = (render_sphere(t, size=64, exposure=e) @ LUMA).max()
+    assert peak_exact > peak_table
+    # the exposure defaults to the material's dense table's
+    np.testing.assert_array_equal(
+        render_sphere(clay, size=16), render_sphere(clay, size=16, exposure=exposure_of(table))
+    )
+
+
+def test_sphere_of_a_bad_material_is_refused():
+    with pytest.raises(InputError, match="shape"):
+        render_sphere(lambda wi, wv: np.ones(wi.shape[:-1]), size=8, exposure=1.0)
+    with pytest.raises(InputError, match="non-finite"):
+        render_sphere(lambda wi, wv: np.full(wi.shape, np.nan), size=8, exposure=1.0)
+
+
+def test_delta_e76_pairs_is_the_map_of_the_metric(rng):
+    ref = rng.gamma(0.5, 0.2, size=(81, 81, 3))
+    rec = ref * rng.uniform(0.7, 1.3, size=ref.shape)
+    rec[3, 4] = ref[3, 4]  # an exact pair counts 0
+    de = np.asarray(metrics.delta_e76_pairs(rec, ref))
+    assert de.shape == (81, 81) and de[3, 4] == 0.0 and np.all(de[de != 0] > 0)
+    np.testing.assert_allclose(de.mean(), float(metrics.delta_e76(rec, ref)), rtol=1e-6)
+
+
+def test_comparison_figure_with_a_material_row(tmp_path):
+    from abrdf_jax import materials
+
+    clay = materials.get_material("lambert-clay")
+    ref = materials.dense_table(clay)
+    comparison_figure([("clay", ref, ref * 1.1, None, clay)], tmp_path / "f.png", sphere_size=32)
+    assert (tmp_path / "f.png").read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(InputError, match="callable"):
+        comparison_figure([("clay", ref, ref, None, "clay")], tmp_path / "g.png")
+    with pytest.raises(InputError, match="items"):
+        comparison_figure([("clay", ref, ref)], tmp_path / "g.png")
+    assert not (tmp_path / "g.png").exists()

@@ -90,7 +90,7 @@ def run_demo(
     import abrdf_jax as aj
 
     from .. import materials, metrics
-    from ..render._figures import check_figure_path, comparison_figure
+    from ..render._comparison import check_figure_path, comparison_figure
 
     stream = sys.stdout if stream is None else stream
     output = check_figure_path(output)
@@ -117,7 +117,7 @@ def run_demo(
         compiled.add(budget)
         m = {k: float(v) for k, v in metrics.evaluate(rec, reference).items()}
         results.append(m)
-        rows.append((name, reference, rec, m))
+        rows.append((name, reference, rec, m, model))  # the model draws the exact sphere
         cells = "".join(" " + fmt.format(m[key]) for key, fmt in _FORMATS.items())
         print(f"{name:<22} {budget:<9}{cells} {seconds:7.2f}{mark}", file=stream, flush=True)
     mean = {k: float(v) for k, v in metrics.summarize(results).items()}

@@ -37,6 +37,7 @@ _EXPORTS = {
     "_catalogue": (
         "CATALOGUE",
         "NBRDF_PREFIX",
+        "check_name",
         "is_anisotropic",
         "material_info",
         "material_names",

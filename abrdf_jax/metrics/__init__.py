@@ -6,6 +6,7 @@ from ._color import METRIC_KEYS as METRIC_KEYS
 from ._color import SRGB_PRIMARIES_XY as SRGB_PRIMARIES_XY
 from ._color import SRGB_TO_XYZ as SRGB_TO_XYZ
 from ._metrics import delta_e76 as delta_e76
+from ._metrics import delta_e76_pairs as delta_e76_pairs
 from ._metrics import delta_e2000 as delta_e2000
 from ._metrics import evaluate as evaluate
 from ._metrics import evaluate_batch as evaluate_batch

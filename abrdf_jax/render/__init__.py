@@ -1,7 +1,7 @@
 """Figures: ABRDF images, lit spheres and reference/reconstruction comparisons (public API)."""
 
 from ._figures import abrdf_image as abrdf_image
-from ._figures import comparison_figure as comparison_figure
+from ._comparison import comparison_figure as comparison_figure
 from ._figures import exposure_of as exposure_of
 from ._figures import grid_weights as grid_weights
 from ._figures import interpolate_table as interpolate_table

@@ -13,19 +13,19 @@ Pass the reference's exposure when drawing a reconstruction so that both share o
 from __future__ import annotations
 
 import functools
-import io as _io
-from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
-from ..io._atomic import atomic_write
 from ..io._tables import check_table
 from ..metrics import expose, srgb_encode, tonemap
 from .._grid import UBO_THETAS_DEG, ubo_grid
 
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
-_BACKGROUND = 0.12  # display value (sRGB-encoded) of the area around a sphere
+_BACKGROUND = 0.45  # display value (sRGB-encoded) around a sphere: mid grey, so the unlit
+# (black) part of the sphere stands out from it
+#: The default light of the spheres: upper left, near the camera, so little of the disc is unlit.
+DEFAULT_LIGHT = (35.0, 135.0)
 _N = 81
 _FIG_FORMATS = (".png", ".pdf", ".svg")
 
@@ -126,6 +126,12 @@ def grid_weights(w) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         direction), and ``above`` bool ``(...,)``, false for directions at or below the horizon
         (their weights are those of the nearest direction above it and should not be used).
     """
+    index, bary, above, _ = _weights(w)
+    return index, bary, above
+
+
+def _weights(w):
+    """:func:`grid_weights` and, per weight, whether it falls on the virtual 90° ring."""
     tri, finder, source, r_max = _triangulation()
     w = np.asarray(w, dtype=np.float64)
     shape = w.shape[:-1]
@@ -151,8 +157,13 @@ def grid_weights(w) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     bary = np.stack([b0, b1, 1.0 - b0 - b1], axis=-1)
     bary = np.clip(bary, 0.0, None)
     bary /= bary.sum(axis=-1, keepdims=True)
-    index = source[verts]
-    return index.reshape(*shape, 3), bary.reshape(*shape, 3), above.reshape(shape)
+    index, virtual = source[verts], verts >= _N  # vertices past the 81 directions are virtual
+    return (
+        index.reshape(*shape, 3),
+        bary.reshape(*shape, 3),
+        above.reshape(shape),
+        virtual.reshape(*shape, 3),
+    )
 
 
 def interpolate_table(table, wi, wv) -> np.ndarray:
@@ -160,7 +171,9 @@ def interpolate_table(table, wi, wv) -> np.ndarray:
 
     Each direction is interpolated barycentrically over a triangulation of the UBO grid (see
     :func:`grid_weights`); the pair's value is the product-weighted sum over the 3 × 3 grid
-    pairs. At grid directions the table value is reproduced exactly (up to rounding).
+    pairs. At grid directions the table value is reproduced exactly (up to rounding). Beyond
+    the 75° ring the view direction takes the nearest ring's values, while the illumination
+    direction falls linearly to 0 at the horizon (an ABRDF value contains ``cos θi``).
 
     Args:
         table: ``(81, 81, 3)`` ABRDF.
@@ -170,8 +183,11 @@ def interpolate_table(table, wi, wv) -> np.ndarray:
         float64 array ``(..., 3)``; pairs with either direction at or below the horizon are 0.
     """
     t = _check_table(table)
-    ii, wgt_i, up_i = grid_weights(wi)
-    iv, wgt_v, up_v = grid_weights(wv)
+    ii, wgt_i, up_i, virtual = _weights(wi)
+    # An ABRDF holds cos θi, so it vanishes as the light reaches the horizon: the light's
+    # virtual 90° ring carries 0 (the view's repeats the 75° ring).
+    wgt_i = np.where(virtual, 0.0, wgt_i)
+    iv, wgt_v, up_v, _ = _weights(wv)
     ii, wgt_i, up_i = np.broadcast_arrays(ii, wgt_i, up_i[..., None])
     iv, wgt_v, up_v = np.broadcast_arrays(iv, wgt_v, up_v[..., None])
     vals = t[ii[..., :, None], iv[..., None, :]]  # (..., 3, 3, 3)
@@ -193,7 +209,7 @@ def _direction(theta_deg: float, phi_deg: float) -> np.ndarray:
 
 def render_sphere(
     table,
-    light: tuple[float, float] = (50.0, 135.0),
+    light: tuple[float, float] = DEFAULT_LIGHT,
     view: tuple[float, float] = (0.0, 0.0),
     size: int = 128,
     exposure: float | None = None,
@@ -209,24 +225,33 @@ def render_sphere(
     The radiance is the ABRDF value itself (it already includes ``cos θi``, unit irradiance).
 
     Args:
-        table: ``(81, 81, 3)`` ABRDF.
+        table: ``(81, 81, 3)`` ABRDF, interpolated between the 81 directions; or a material
+            (any callable ``material(wi, wv) -> (..., 3)`` such as :mod:`abrdf_jax.materials`'
+            models), evaluated exactly at every pixel's directions (a reference without the
+            table's 15° sampling).
         light: light direction ``(θ, φ)`` in degrees, world frame.
         view: camera direction ``(θ, φ)`` in degrees, world frame; ``(0, 0)`` looks straight
             down the ``z`` axis.
         size: image side in pixels.
-        exposure: tone-mapping exposure; ``None`` uses :func:`exposure_of` of ``table``.
+        exposure: tone-mapping exposure; ``None`` uses :func:`exposure_of` of ``table`` (of
+            the material's dense table when ``table`` is a material).
         supersample: samples per pixel side; display values are box-averaged (anti-aliasing).
 
     Returns:
         float32 array ``(size, size, 3)`` of display values in ``[0, 1]``; points lit from
-        below their horizon (or seen below it) are black, the background is dark grey.
+        below their horizon (or seen below it) are black, the background is mid grey.
 
     Raises:
         InputError: wrong table shape, non-finite values, or ``size < 1``.
     """
-    t = _check_table(table)
+    material = table if callable(table) else None
+    t = None if material is not None else _check_table(table)
     size, ss = _check_positive_int("size", size), _check_positive_int("supersample", supersample)
-    e = exposure_of(t) if exposure is None else float(exposure)
+    if exposure is None:
+        from ..materials import dense_table
+
+        exposure = exposure_of(t if material is None else dense_table(material))
+    e = float(exposure)
     l_w = _direction(*light)
     c = _direction(*view)
     # Camera frame: c points to the camera; 'right' is world x made orthogonal to c.
@@ -256,7 +281,10 @@ def render_sphere(
     def local(d):
         return np.stack([tan @ d, bit @ d, n @ d], axis=-1)
 
-    radiance = interpolate_table(t, local(l_w), local(c))
+    if material is None:
+        radiance = interpolate_table(t, local(l_w), local(c))
+    else:
+        radiance = _evaluate_material(material, local(l_w), local(c))
     img = np.full((m, m, 3), _BACKGROUND, dtype=np.float32)
     img[inside] = _display(radiance, e)
     if ss > 1:
@@ -264,107 +292,18 @@ def render_sphere(
     return img
 
 
-# --------------------------------------------------------------------------------------------
-# Comparison figure
-# --------------------------------------------------------------------------------------------
-
-
-def check_figure_path(path) -> Path:
-    """Validate a figure output path (extension, existing folder) before any work is done.
+def _evaluate_material(material, wi, wv) -> np.ndarray:
+    """A material's ABRDF at direction pairs ``(P, 3)``, as float64 numpy, 0 below the horizons.
 
     Raises:
-        InputError: unknown extension or missing folder.
+        InputError: the material returns the wrong shape or non-finite values.
     """
-    path = Path(path)
-    if path.suffix.lower() not in _FIG_FORMATS:
-        raise InputError(
-            f"{path}: unknown figure format {path.suffix or '(none)'!r}; use one of {', '.join(_FIG_FORMATS)}"
-        )
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(f"{path}: folder {parent} does not exist")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, expected a file name")
-    return path
-
-
-def _caption(metrics: dict | None) -> str:
-    fields = (("de76", "ΔE76 {:.2f}"), ("rmse8", "RMSE8 {:.2f}"), ("psnr", "PSNR {:.1f} dB"))
-    m = metrics or {}
-    return " / ".join(f.format(float(m[k])) for k, f in fields if m.get(k) is not None)
-
-
-def comparison_figure(
-    rows, path, *, light=(50.0, 135.0), sphere_size: int = 160, dpi: int = 100
-) -> Path:
-    """Save a figure comparing references with reconstructions, one material per row.
-
-    Each row shows the reference ABRDF image, the reconstructed one, and the two lit spheres,
-    all tone-mapped with the reference's exposure, with ``ΔE76 / RMSE8 / PSNR`` as a caption.
-
-    Args:
-        rows: sequence of ``(name, ref_table, rec_table, metrics)``; ``metrics`` is a dict with
-            keys ``"de76"``, ``"rmse8"``, ``"psnr"`` (as :func:`abrdf_jax.metrics.evaluate`
-            returns) or ``None``.
-        path: output file, ``.png`` (also ``.pdf``/``.svg``); written atomically.
-        light: light direction ``(θ, φ)`` in degrees for the spheres.
-        sphere_size: sphere image side in pixels.
-        dpi: resolution of the saved figure.
-
-    Returns:
-        The path written.
-
-    Raises:
-        InputError: no rows, a malformed table, unknown extension or missing folder.
-    """
-    # A bare Figure (no pyplot) renders through Agg without touching any GUI backend.
-    from matplotlib.figure import Figure
-
-    path = check_figure_path(path)
-    rows = list(rows)
-    if not rows:
-        raise InputError("comparison_figure: no rows to draw")
-
-    n = len(rows)
-    cell, caption_h, top, bottom = 1.9, 0.35, 0.35, 0.3  # inches
-    height = n * (cell + caption_h) + top + bottom
-    width = 4 * cell + 0.5
-    fig = Figure(figsize=(width, height), dpi=dpi)
-    axes = fig.subplots(n, 4, squeeze=False)
-    margins = dict(left=0.5 / width, right=0.99, top=1 - top / height, bottom=bottom / height)
-    fig.subplots_adjust(wspace=0.06, hspace=caption_h / cell, **margins)
-    heads = ("ABRDF reference", "ABRDF reconstruction", "sphere reference", "sphere reconstruction")
-    for r, row in enumerate(rows):
-        if len(row) != 4:
-            raise InputError(
-                f"comparison_figure: row {r} has {len(row)} items, expected (name, ref, rec, metrics)"
-            )
-        name, ref, rec, metrics = row
-        ref = _check_table(ref, f"{name}: reference")
-        rec = _check_table(rec, f"{name}: reconstruction")
-        e = exposure_of(ref)  # one exposure per material, set by the reference (PROTOCOL.md)
-        images = (
-            abrdf_image(ref, e),
-            abrdf_image(rec, e),
-            render_sphere(ref, light=light, size=sphere_size, exposure=e),
-            render_sphere(rec, light=light, size=sphere_size, exposure=e),
-        )
-        for c, (ax, img) in enumerate(zip(axes[r], images)):
-            ax.imshow(img, interpolation="nearest", vmin=0.0, vmax=1.0)
-            ax.set_xticks([])
-            ax.set_yticks([])
-            if r == 0:
-                ax.set_title(heads[c], fontsize=8)
-            if c == 0:
-                ax.set_ylabel(str(name), fontsize=9)
-        caption = _caption(metrics)
-        if caption:
-            box = axes[r][0].get_position()
-            fig.text(0.5, box.y0 - 0.06 / height, caption, ha="center", va="top", fontsize=8.5)
-    note = "ABRDF images: rows = illumination, columns = view (UBO order)"
-    fig.text(0.5, 0.04 / height, note, ha="center", va="bottom", fontsize=7, color="0.35")
-    buf = _io.BytesIO()
-    fig.savefig(buf, format=path.suffix.lower().lstrip("."), dpi=dpi)
-    with atomic_write(path, "wb") as f:
-        f.write(buf.getvalue())
-    return path
+    wi = np.broadcast_to(wi, np.broadcast_shapes(np.shape(wi), np.shape(wv)))
+    wv = np.broadcast_to(wv, wi.shape)
+    value = np.asarray(material(wi.astype(np.float32), wv.astype(np.float32)), dtype=np.float64)
+    if value.shape != wi.shape:
+        raise InputError(f"material returned shape {value.shape}, expected {wi.shape} (RGB last)")
+    if not np.all(np.isfinite(value)):
+        raise InputError("material returned non-finite values")
+    above = (wi[:, 2] > 0) & (wv[:, 2] > 0)
+    return np.where(above[:, None], value, 0.0)
