@@ -46,6 +46,7 @@ import numpy as np
 
 from ._arrays import SampleColumns, SliceArrays
 from ._errors import InputError
+from ._memo import BoundedMemo
 from ._protocol import PROTOCOL_PAIRS, UBO_THETAS_DEG
 
 if TYPE_CHECKING:  # JAX pytrees: built from the numpy result only by group_slices
@@ -300,21 +301,13 @@ def grouping_matrix(angles, alpha_deg: float | None, pairs=None, dtype=np.float3
 
 
 def _cached_layout(angles, *args) -> "_Layout":
-    key = (_digest(angles), *args)
-    layout = _LAYOUTS.get(key)
-    if layout is None:
-        layout = _layout(angles, *args)
-        _LAYOUTS[key] = layout
-        while len(_LAYOUTS) > _LAYOUT_CACHE:
-            del _LAYOUTS[next(iter(_LAYOUTS))]  # the oldest first
-    return layout
+    return _LAYOUTS.get((_digest(angles), *args), lambda: _layout(angles, *args))
 
 
 #: Slice layouts by the digest of their angles and the grouping's arguments: a folder of
 #: captures made with one angle program (a device's nominal angles, or simulated ones) groups
-#: its angles once; only the values are placed per file. Oldest out past this many.
-_LAYOUT_CACHE = 64
-_LAYOUTS: dict = {}
+#: its angles once; only the values are placed per file. Oldest out past 64.
+_LAYOUTS = BoundedMemo(64)
 
 
 def _digest(angles) -> bytes:

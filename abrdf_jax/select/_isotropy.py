@@ -45,6 +45,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._grouping import group_arrays
+from .._memo import BoundedMemo
 from .._protocol import LUMA
 
 if TYPE_CHECKING:  # JAX pytrees; one material's test runs in numpy on their fields
@@ -172,9 +173,10 @@ def _neighbours(t: np.ndarray, count: np.ndarray, rows: tuple):
     one layout tests every file with the same ones)."""
     t = np.asarray(t, np.float64)
     key = (t.shape, t.tobytes(), np.asarray(count).tobytes(), rows)
-    hit = _NEIGHBOURS.get(key)
-    if hit is not None:
-        return hit
+    return _NEIGHBOURS.get(key, lambda: _build_neighbours(t, count, rows))
+
+
+def _build_neighbours(t: np.ndarray, count: np.ndarray, rows: tuple):
     ss, ks, lefts, rights, wls, wrs = [], [], [], [], [], []
     for s in rows:
         n = int(count[s])
@@ -182,14 +184,10 @@ def _neighbours(t: np.ndarray, count: np.ndarray, rows: tuple):
         ss.append(np.full(n, s)), ks.append(np.arange(n))
         lefts.append((np.arange(n) - 1) % n), rights.append((np.arange(n) + 1) % n)
         wls.append(1.0 - wr), wrs.append(wr)
-    out = tuple(np.concatenate(a) for a in (ss, ks, lefts, rights, wls, wrs))
-    if len(_NEIGHBOURS) >= 64:
-        _NEIGHBOURS.pop(next(iter(_NEIGHBOURS)))
-    _NEIGHBOURS[key] = out
-    return out
+    return tuple(np.concatenate(a) for a in (ss, ks, lefts, rights, wls, wrs))
 
 
-_NEIGHBOURS: dict = {}
+_NEIGHBOURS = BoundedMemo(64)
 
 
 def _axial_sums(logl, count: np.ndarray, xp=None):
