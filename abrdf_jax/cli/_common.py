@@ -106,6 +106,44 @@ def positive(name: str):
     return parse
 
 
+#: The slice offset α a command accepts, degrees, open at both ends. α and α + 360 are the same
+#: slices; at α = 0 the axial slice (φv = φi − α) has light and view at one azimuth, so at the
+#: equal-elevation pairs they coincide along the whole slice (the camera shadows the light) and
+#: both slice crossings lie there; at α = 180 the axial slice lies in the mirror plane and both
+#: crossings on the specular peak; α in (180, 360) is −α, the same slices with light and view
+#: swapped. Hence 0 < α < 180 (the protocol's 15 inside).
+ALPHA_RANGE = (0.0, 180.0)
+
+
+def finite(name: str, low: float | None = None, high: float | None = None, open_low=True):
+    """An argparse ``type=`` for a finite number, optionally in ``(low, high)`` (``[low, ...``
+    with ``open_low=False``), named ``name`` in its message with the allowed range."""
+    lo = "" if low is None else ("(" if open_low else "[") + f"{low:g}"
+    hi = "" if high is None else f"{high:g})"
+    allowed = f"in {lo or '(-inf'}, {hi or 'inf)'}" if low is not None or high is not None else ""
+
+    def parse(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{name} must be a number{' ' + allowed if allowed else ''}, got {text!r}"
+            ) from None
+        bad_low = low is not None and (v <= low if open_low else v < low)
+        if not math.isfinite(v) or bad_low or (high is not None and v >= high):
+            raise argparse.ArgumentTypeError(
+                f"{name} must be a finite number{' ' + allowed if allowed else ''}, got {text!r}"
+            )
+        return v
+
+    return parse
+
+
+def alpha_deg(text):
+    """The ``--alpha`` ``type=``: a slice offset in degrees inside :data:`ALPHA_RANGE`."""
+    return finite("--alpha (slice offset, degrees)", *ALPHA_RANGE)(text)
+
+
 def say(message: str) -> None:
     """``abrdf-jax: MESSAGE`` on stderr."""
     print(f"{PROG}: {message}", file=sys.stderr)

@@ -328,7 +328,10 @@ def register(sub) -> None:
     add("-o", "--output", required=True, metavar="STORE")
     add("--chunk", **chunk)
     add(
-        "--alpha", type=float, metavar="DEG", help="slice offset (default: pairs.json or estimated)"
+        "--alpha",
+        type=common.alpha_deg,
+        metavar="DEG",
+        help="slice offset (default: pairs.json or estimated)",
     )
     add("--azimuth", choices=AZIMUTHS, default=AZIMUTHS[0])
     add("--light-offset", type=_degrees("--light-offset"), default=0.0, metavar="DEG")

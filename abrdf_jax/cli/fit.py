@@ -187,7 +187,12 @@ def register(sub) -> None:
     s.add_argument("input", metavar="MEAS.csv")
     add = shared(s)
     common.budget_flags(s)
-    add("--alpha", type=float, metavar="DEG", help="slice offset (default: read off the data)")
+    add(
+        "--alpha",
+        type=common.alpha_deg,
+        metavar="DEG",
+        help="slice offset (default: read off the data)",
+    )
     add("--folds", choices=FOLD_KINDS, default=FOLD_KINDS[0])
 
     p = common.command(fsub, "population", cmd_fit_population, HELP["population"])
@@ -195,7 +200,7 @@ def register(sub) -> None:
     add("--materials", default="merl-train")
     add("--limit", type=int)
     add("--budget", choices=BUDGETS, default="iso102")
-    add("--alpha", type=float, metavar="DEG", help="starting slice offset (default 15)")
+    add("--alpha", type=common.alpha_deg, metavar="DEG", help="starting slice offset (default 15)")
     add("--fixed-alpha", action="store_true")
     add("--loss", choices=LOSSES, default=LOSSES[0])
     add("--data", metavar="DIR")

@@ -42,7 +42,7 @@ HELP = {
     "source": "TABLE.npz, TABLE.exr, a MERL FILE.binary or a material name",
     "--budget": "iso102 (4 diagonal slices) or aniso204 (8 slices); default: iso102 for a "
     "material known to be isotropic, else aniso204",
-    "--alpha": f"slice offset in degrees (default {DEFAULT_ALPHA:g})",
+    "--alpha": f"slice offset in degrees, 0 < DEG < 180 (default {DEFAULT_ALPHA:g})",
     "--per-slice": "samples per slice, evenly spaced: one count for every slice, or one per "
     "elevation pair as a comma list (default: the protocol's 25,25,26,26 at its pairs, 24 "
     "elsewhere)",
@@ -63,7 +63,7 @@ def register(sub) -> None:
     add("source", metavar="SOURCE")
     add("-o", "--output", required=True, metavar="MEAS.csv")
     add("--budget", choices=BUDGETS)
-    add("--alpha", type=float, metavar="DEG")
+    add("--alpha", type=common.alpha_deg, metavar="DEG")
     add("--per-slice", metavar="N[,N...]")
     add("--pairs", metavar="TI/TV[,...]")
     add("--jitter", metavar="DEG")
