@@ -166,7 +166,10 @@ def _alpha_spread(pi_, pv) -> tuple[float, float, float]:
     near = _near_offsets(pi_, pv, alpha, window)
     sigma = _spread(near)
     se = 1.2533 * sigma / np.sqrt(max(near.size, 1))
-    return round(alpha, 6) % 360.0, float(se), float(sigma)
+    alpha = round(alpha, 6) % 360.0
+    if 360.0 - alpha < 1e-4:  # an offset of 0 read through float32 angles: not "360 deg"
+        alpha = 0.0
+    return alpha, float(se), float(sigma)
 
 
 def _spread(offsets) -> float:

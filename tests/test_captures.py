@@ -114,6 +114,17 @@ def test_other_alpha_is_estimated_with_its_uncertainty():
     assert 0 < rep["alpha_se_deg"] < 0.1
 
 
+def test_an_offset_of_zero_is_reported_as_zero_not_360():
+    """Slices at α = 0 read through float32 angles land just under 360°: the estimate says 0."""
+    from abrdf_jax._grouping import _alpha_spread
+
+    phi_i = np.array([10.0, 50.0, 90.0, 130.0, 200.0])
+    for offset in (8e-6, -8e-6, 0.0):
+        alpha, _, _ = _alpha_spread(phi_i, phi_i + offset)
+        assert abs(alpha) < 1e-4, (offset, alpha)
+    assert _alpha_spread(phi_i, phi_i - 15.0)[0] == 15.0
+
+
 def test_noise_is_estimated(iso):
     m, _ = iso
     dense = aj.simulate_capture(m, budget="iso102", per_slice=300, noise=0.05, seed=2)
