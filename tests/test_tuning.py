@@ -149,6 +149,48 @@ def test_divergence_is_a_status_not_a_nan():
     np.testing.assert_array_equal(res.params.widths, p0.widths)  # the starting point, never NaN
 
 
+def test_a_fit_stopped_by_a_bound_says_so():
+    """The optimum (widths 50) lies beyond the box (widths <= 20): the fit ends at the bound
+    and its warnings name each width there, and only those."""
+    space = tuning.ParamSpace(widths="per_dim", reg=True)
+    prob = _Quadratic(config=aj.Config(), space=space, target=(0.5, 50.0, 1.2, 50.0, 1e-3, 15.0))
+    p0 = aj.Params(jnp.deg2rad(15.0), jnp.full(4, 1.0), jnp.asarray(1e-2))
+    res = tuning.fit(prob, {"scale": jnp.asarray(3.0)}, p0, solver="lbfgsb", max_steps=200)
+    assert res.ok, res.message
+    assert res.warnings == [
+        "widths[1] = 20 at its upper bound",
+        "widths[3] = 20 at its upper bound",
+    ]
+    assert res.summary()["warnings"] == res.warnings
+    inside = tuning.fit(
+        _Quadratic(config=aj.Config(), space=space), {"scale": jnp.asarray(3.0)}, p0, max_steps=200
+    )
+    assert inside.ok and inside.warnings == []
+    low = aj.Params(jnp.deg2rad(2.0), jnp.full(4, 0.02), jnp.asarray(1e-9))
+    assert tuning.ParamSpace(alpha=True).at_bounds(low) == [
+        *(f"widths[{i}] = 0.02 at its lower bound" for i in range(4)),
+        "reg = 1e-09 at its lower bound",
+        "alpha = 2 deg at its lower bound",
+    ]
+
+
+class _Rising(AbstractProblem):
+    """``atan(x)`` from ``x = 2``: Gauss-Newton's step ``-atan(x)(1 + x²)`` overshoots to
+    ``x = -3.5``, where the loss is higher (Newton on atan diverges for ``|x| > 1.39``)."""
+
+    def residuals(self, theta, data):
+        return jnp.arctan(theta["log_widths"] + 2.0)
+
+
+def test_a_fit_whose_loss_rose_keeps_the_start_and_says_so():
+    prob = _Rising(config=aj.Config(), space=tuning.ParamSpace(widths="shared", reg=False))
+    p0 = aj.Params(jnp.deg2rad(15.0), jnp.full(4, 1.0), jnp.asarray(1e-2))
+    res = tuning.fit(prob, {}, p0, solver="gn", max_steps=2)  # step 1 evaluates the start
+    assert res.warnings and res.warnings[0].startswith("the loss rose from"), res
+    np.testing.assert_allclose(res.params.widths, p0.widths, rtol=1e-6)
+    assert res.loss_final == res.loss_initial
+
+
 def test_fit_rejects_unknown_solver():
     prob = _Quadratic(config=aj.Config(), space=tuning.ParamSpace())
     with pytest.raises(aj.InputError, match="solver"):
@@ -290,6 +332,7 @@ def test_cli_fit_then_reconstruct_with_params(tmp_path, capsys):
     assert d["fit"]["mode"] == "population" and d["config"]["budget"] == "iso102"
     assert d["fit"]["materials"] == ["ggx-plastic", "ward-brushed-steel"]
     assert d["fit"]["loss_final"] <= d["fit"]["loss_initial"]
+    assert isinstance(d["fit"]["warnings"], list)  # what made the result doubtful, if anything
     meas = tmp_path / "m.csv"
     assert main(["sample", "ggx-plastic", "-o", str(meas), "--budget", "iso102"]) == 0
     out = tmp_path / "r.npz"

@@ -33,7 +33,10 @@ DEFAULT_PRESET = "recommended"
 HELP = {
     "fit": "tune widths, regularisation and alpha; write PARAMS.json",
     "description": "Tune the continuous parameters by gradient-based fitting and save them for "
-    "'abrdf-jax reconstruct --params'.",
+    "'abrdf-jax reconstruct --params'. A fit that does not converge writes nothing (exit 2); a "
+    "doubtful one (parameters at a bound, a loss that rose: then the starting parameters are "
+    "kept, a singular system at the result) is written with its warnings printed and kept in "
+    "the file ('fit' -> 'warnings').",
     "self": "self-calibration from one measurement CSV",
     "population": "population tuning on training materials",
     "--solver": ", ".join(f"{k} ({v})" for k, v in SOLVER_HELP.items()) + f"; default {SOLVERS[0]}",
@@ -54,8 +57,15 @@ HELP = {
 }
 
 
-def _fit_and_save(args, out: Path, config, problem, data, params, meta: dict, extra="") -> int:
-    """Run the solver; when it converged, save the parameter file (with ``meta``) and say so."""
+def _fit_and_save(
+    args, out: Path, config, problem, data, params, meta: dict, extra="", meas=None
+) -> int:
+    """Run the solver; when it converged, save the parameter file (with ``meta``) and say so.
+
+    A doubtful result (parameters at a bound, a loss that rose, and with ``meas`` a singular
+    RBF system at the result) is still written, with the warnings inside the file (``fit``,
+    ``warnings``) and on the console: the policy ``abrdf-jax fit --help`` states.
+    """
     import abrdf_jax as aj
     from .. import tuning
 
@@ -63,6 +73,15 @@ def _fit_and_save(args, out: Path, config, problem, data, params, meta: dict, ex
     res = tuning.fit(problem, data, params, **opts)
     if not res.ok:
         raise InputError(f"fit {res.status}: {res.message}; nothing written to {out}")
+    if meas is not None:
+        info = aj.solve_info(meas, config, res.params)
+        if int(info.retries) or not bool(info.ok):
+            res.warnings.append(
+                "the RBF system at the fitted parameters is singular to working precision: "
+                f"reconstructing raises the regularisation to {float(info.reg):.3g}"
+            )
+    for w in res.warnings:
+        common.warn(f"{out}: {w}")
     meta |= {"date": time.strftime("%Y-%m-%d %H:%M:%S"), "version": aj.__version__}
     tuning.save_params(out, config, res.params, fit=meta | res.summary())
     p = res.params
@@ -97,7 +116,7 @@ def cmd_fit_self(args) -> int:
         raise InputError(f"{src}: {e}") from e
     meta = {"mode": "self", "input": str(src), "folds": args.folds, "preset": args.preset}
     return _fit_and_save(
-        args, out, config, prob, data, params, meta, f" (held-out log error of {src.name})"
+        args, out, config, prob, data, params, meta, f" (held-out log error of {src.name})", meas
     )
 
 

@@ -18,7 +18,9 @@ ahead of time once per (problem, solver, step budget, data shapes): new data or 
 never recompile, and the compile time is reported apart from the solve time. Progress comes from
 a host callback in the objective (one line per evaluation batch, or a user callback). A fit that
 produces non-finite parameters or loss ends with ``status="diverged"`` and returns the starting
-parameters, never NaN.
+parameters, never NaN. A fit that ends above its starting loss keeps the starting parameters,
+and that and any free parameter left at a bound of its space are listed in
+``FitResult.warnings``.
 """
 
 from __future__ import annotations
@@ -58,6 +60,8 @@ class FitResult:
         seconds: wall time of the solve; compile_seconds: of its compilation.
         history: the objective at every evaluation, in order.
         solver: the solver's name; message: the solver's own result text.
+        warnings: what makes the result doubtful, one phrase each: parameters at a bound of
+            the parameter space, or a loss that rose (then the starting parameters are kept).
     """
 
     params: Params
@@ -72,6 +76,7 @@ class FitResult:
     solver: str
     message: str = ""
     history: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -93,6 +98,7 @@ class FitResult:
             "alpha_deg": p.alpha_deg,
             "widths": [float(w) for w in np.asarray(p.widths)],
             "reg": float(p.reg),
+            "warnings": list(self.warnings),
         }
 
 
@@ -200,8 +206,16 @@ def fit(
         1: f"stopped after max_steps={max_steps}",
         2: "the solver reported a failure",
     }[code]
+    warnings = []
     if status == "diverged":
         message = "non-finite loss or parameters; returned the starting parameters"
+    elif final > loss0:  # a solver may end above its start (a failed line search, a bound)
+        warnings.append(
+            f"the loss rose from {loss0:.5g} to {final:.5g}; kept the starting parameters"
+        )
+        theta, final = theta0, loss0
+        fitted = problem.space.to_params(theta, params)
+    warnings += problem.space.at_bounds(fitted)
     return FitResult(
         params=fitted,
         theta=theta,
@@ -215,6 +229,7 @@ def fit(
         solver=solver,
         message=message,
         history=history,
+        warnings=warnings,
     )
 
 

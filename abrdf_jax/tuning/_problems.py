@@ -111,6 +111,36 @@ class ParamSpace(eqx.Module):
             alpha = (lo + (hi - lo) * jax.nn.sigmoid(theta["alpha"])).astype(base.alpha.dtype)
         return Params(alpha, widths, reg)
 
+    def at_bounds(self, params: Params, margin: float = 0.01) -> list[str]:
+        """The free parameters of ``params`` that lie at a bound of this space (within
+        ``margin`` of its log range for widths and λ, or of α's range), one phrase each: a fit
+        that ends there was stopped by the box, not by the data."""
+        out = []
+
+        def check(name, value, lo, hi):
+            span = hi - lo
+            if value <= lo + margin * span:
+                out.append(f"{name} at its lower bound")
+            elif value >= hi - margin * span:
+                out.append(f"{name} at its upper bound")
+
+        if self.widths != "fixed":
+            lw = np.log(np.asarray(params.widths, np.float64))
+            lw = lw if self.widths == "per_dim" else lw[:1]
+            for i, v in enumerate(lw):
+                label = (
+                    f"widths[{i}] = {np.exp(v):.3g}"
+                    if self.widths == "per_dim"
+                    else (f"widths = {np.exp(v):.3g}")
+                )
+                check(label, v, *self.log_width_bounds)
+        if self.reg:
+            reg = float(np.asarray(params.reg))
+            check(f"reg = {reg:.3g}", np.log(reg), *self.log_reg_bounds)
+        if self.alpha:
+            check(f"alpha = {params.alpha_deg:.3g} deg", params.alpha_deg, *self.alpha_bounds_deg)
+        return out
+
     def bounds(self, theta: dict[str, Array]) -> tuple[dict[str, Array], dict[str, Array]]:
         """Box bounds on ``theta`` (for ``jaxopt.LBFGSB``); α's logit gets ±12 (0.0006% of the range)."""
         box = dict(
