@@ -64,7 +64,8 @@ def _fit_and_save(args, out: Path, config, problem, data, params, meta: dict, ex
     if not res.ok:
         raise InputError(f"fit {res.status}: {res.message}; nothing written to {out}")
     meta |= {"date": time.strftime("%Y-%m-%d %H:%M:%S"), "version": aj.__version__}
-    tuning.save_params(out, config, res.params, fit=meta | res.summary())
+    with common.output_lock(out):  # one writer; a killed one's temporary file goes
+        tuning.save_params(out, config, res.params, fit=meta | res.summary())
     p = res.params
     print(
         f"{out}: {res.solver} {res.status} after {res.steps} steps ({res.seconds:.1f} s, compile "
