@@ -182,6 +182,16 @@ def check_output_file(path: Path, suffixes: tuple[str, ...], what: str) -> Path:
     return path
 
 
+def output_lock(out: Path, also=()):
+    """The lock of an output file, folder or store for the time a command writes it
+    (:func:`abrdf_jax.io._lock.output_lock`): a second process writing the same output is
+    refused (exit 2, naming the holder); a killed holder's lock is taken over with a warning and
+    its temporary files are removed."""
+    from ..io._lock import output_lock as lock
+
+    return lock(out, warn=warn, also=also)
+
+
 def check_json_output(path: Path) -> Path:
     """A parameter file name (``.json``) in an existing, writable folder."""
     if path.suffix.lower() != ".json":

@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import sys
@@ -172,7 +173,9 @@ def cmd_reconstruct(args) -> int:
     stats: dict = {}
     opts = dict(chunk=args.chunk, progress=not args.quiet, dtype=args.dtype, devices=args.devices)
     opts |= dict(backend=args.backend, overwrite=args.overwrite, stats=stats, model=args.model)
-    store = btf.reconstruct_btf(meas, out, config, params, **opts)
+    # one writer of the store (several hosts of one jax.distributed job share it on purpose)
+    with common.output_lock(out) if jax.process_count() == 1 else contextlib.nullcontext():
+        store = btf.reconstruct_btf(meas, out, config, params, **opts)
     done, seconds = stats["chunks_done"], stats["seconds"]
     head = (
         f"{out}: {store.n_texels} texels ({done} chunks computed, {stats['chunks_skipped']} "

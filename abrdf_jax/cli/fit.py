@@ -83,7 +83,8 @@ def _fit_and_save(
     for w in res.warnings:
         common.warn(f"{out}: {w}")
     meta |= {"date": time.strftime("%Y-%m-%d %H:%M:%S"), "version": aj.__version__}
-    tuning.save_params(out, config, res.params, fit=meta | res.summary())
+    with common.output_lock(out):  # one writer; a killed one's temporary file goes
+        tuning.save_params(out, config, res.params, fit=meta | res.summary())
     p = res.params
     print(
         f"{out}: {res.solver} {res.status} after {res.steps} steps ({res.seconds:.1f} s, compile "

@@ -77,7 +77,8 @@ def _train(args) -> int:
         )
     from ..prior import save_prior
 
-    save_prior(prior, out)
+    with common.output_lock(out):  # one writer; a killed one's temporary file goes
+        save_prior(prior, out)
     sel = prior.metadata.get("selection")
     cv = f", cross-validated dE76 {sel['cv_de76']:.3f}" if sel else ""
     print(f"{out}: K={prior.n_components}, lambda={float(prior.lam):g}{cv}, {len(names)} tables")
@@ -116,7 +117,8 @@ def _default(args) -> int:
     from ..prior import default_prior, save_prior
 
     prior = default_prior()
-    save_prior(prior, out)
+    with common.output_lock(out):  # one writer; a killed one's temporary file goes
+        save_prior(prior, out)
     print(f"{out}: default prior, K={prior.n_components}, lambda={float(prior.lam):g}")
     return 0
 

@@ -287,6 +287,14 @@ def run(args) -> int:
     targets = _targets(files, out, folder_mode, args.format)
     check_model_arguments(args)
     prior = common.prior_source(args)  # a bad prior file fails here, before any work
+    # One writer of the output (and its model record) at a time; a killed one's lock is taken
+    # over and its temporary files removed (docs/stability.md, "Faults").
+    record = out.parent / ((out.name if folder_mode else out.stem) + ".model.json")
+    with common.output_lock(out, also=[record]):
+        return _run(args, files, targets, out, folder_mode, prior)
+
+
+def _run(args, files, targets, out, folder_mode, prior) -> int:
     args.resumed = []
     if args.resume:
         if not folder_mode:

@@ -227,6 +227,7 @@ def run(args) -> int:
     else:
         config, params = common.params_for(budget, alpha)
         samples, note = aj.sample(source, config, params), ""
-    io.write_samples_csv(out, samples)
+    with common.output_lock(out):  # one writer; a killed one's temporary file goes
+        io.write_samples_csv(out, samples)
     print(f"{out}: {len(samples)} samples ({budget}, alpha {alpha:g} deg) of {args.source}{note}")
     return 0

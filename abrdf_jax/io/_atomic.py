@@ -3,6 +3,12 @@
 A writer that goes through :func:`atomic_write` either produces the complete file or leaves the
 destination as it was: the data go to a temporary file in the same folder, which is flushed,
 ``fsync``-ed and then renamed over the destination (atomic on POSIX and Windows).
+
+Temporary files are named ``.NAME.PID.XXXXXXXX.tmp`` beside ``NAME`` (PID: the writing process;
+:func:`is_temp`, :func:`temp_owner`). A process killed mid-write leaves one behind; the next
+writer of the same output removes those whose process is gone (:func:`remove_stale_temps`, run
+by :func:`abrdf_jax.io._lock.output_lock` when it takes an output's lock), and every reader
+ignores them (no real output starts with ``.`` and ends with ``.tmp``).
 """
 
 from __future__ import annotations
@@ -16,6 +22,9 @@ from pathlib import Path
 from typing import IO
 
 from .._errors import InputError, located
+
+#: The suffix of every temporary file of :func:`atomic_write` (its prefix: ``.NAME.PID.``).
+TEMP_SUFFIX = ".tmp"
 
 
 def _current_umask() -> int:
@@ -61,7 +70,7 @@ def atomic_write(
     if path.is_dir():
         raise InputError(f"cannot write {path}: it is a folder")
     try:
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=temp_prefix(path), suffix=TEMP_SUFFIX)
     except OSError as e:
         raise InputError(
             f"cannot write {path}: folder {folder} is not writable ({e.strerror})"
@@ -90,6 +99,76 @@ def atomic_write(
         raise
     if durable:
         _fsync_folder(folder)
+
+
+def temp_prefix(path: Path) -> str:
+    """The name prefix of this process's temporary files for ``path`` (``.NAME.PID.``)."""
+    return f".{Path(path).name}.{os.getpid()}."
+
+
+def is_temp(name: str) -> bool:
+    """Whether a file name is one of :func:`atomic_write`'s temporary files (``.*.tmp``)."""
+    return name.startswith(".") and name.endswith(TEMP_SUFFIX) and len(name) > 5
+
+
+def temp_owner(name: str) -> int | None:
+    """The pid in a temporary file's name (``.NAME.PID.XXXXXXXX.tmp``); ``None`` if it has none."""
+    if not is_temp(name):
+        return None
+    parts = name[: -len(TEMP_SUFFIX)].split(".")
+    return int(parts[-2]) if len(parts) >= 4 and parts[-2].isdigit() else None
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process ``pid`` runs on this host (a process of another user counts)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True
+    return True
+
+
+def remove_stale_temps(
+    path: str | os.PathLike, *, inside: bool = True, locked: bool = False
+) -> int:
+    """Remove the temporary files that killed writers of ``path`` left behind; returns how many.
+
+    Those beside ``path`` (``.NAME.*.tmp``) and, when ``path`` is a folder and ``inside``, every
+    temporary file under it, whose owner (the pid in its name) no longer runs, or that carries no
+    pid (an older release's). ``locked``: the caller holds the output's lock
+    (:func:`abrdf_jax.io._lock.output_lock`), so no other writer of ``path`` runs and every
+    temporary file but this process's own is stale (its pid may have been reused). Errors (a
+    file already gone, a read-only folder) are skipped.
+    """
+    path = Path(path)
+    me, removed = os.getpid(), 0
+    candidates: list[Path] = []
+    with contextlib.suppress(OSError):
+        candidates += [
+            e for e in path.parent.glob(f".{glob_escape(path.name)}.*{TEMP_SUFFIX}") if e.is_file()
+        ]
+    if inside and path.is_dir():
+        for root, _, names in os.walk(path):
+            candidates += [Path(root) / n for n in names if is_temp(n)]
+    for f in candidates:
+        owner = temp_owner(f.name)
+        if owner == me or (not locked and owner is not None and pid_alive(owner)):
+            continue
+        with contextlib.suppress(OSError):
+            f.unlink()
+            removed += 1
+    return removed
+
+
+def glob_escape(name: str) -> str:
+    """``name`` with the glob wildcards ``*?[`` escaped."""
+    import glob
+
+    return glob.escape(name)
 
 
 def _fsync_folder(folder: Path) -> None:
