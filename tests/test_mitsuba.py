@@ -48,4 +48,6 @@ def test_lambertian_sphere_is_rho_times_l():
         }
     )
     img = np.asarray(mi.render(scene))
-    np.testing.assert_allclose(img[6:10, 6:10], rho * L, rtol=0.03)
+    block = img[5:11, 5:11].reshape(-1, 3)  # pixels on the sphere; each a 16-spp mean
+    err = 4 * block.std(axis=0) / np.sqrt(len(block)) + 1e-6
+    assert np.all(np.abs(block.mean(axis=0) - rho * L) < err), (block.mean(axis=0), err)
