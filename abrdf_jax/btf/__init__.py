@@ -50,7 +50,8 @@ _EXPORTS = {
     ),
     "_store": ("ChunkedStore",),
     "_backend": ("FORMATS", "DEFAULT_FORMAT", "open_store"),
-    "_zarr": ("ZarrStore", "export_zarr"),
+    "_zarr": ("ZarrStore",),
+    "_zarr_export": ("export_zarr",),
     "_texel": ("TexelModel",),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS)
