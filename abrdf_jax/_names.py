@@ -61,6 +61,8 @@ BTF_BACKENDS = ("auto", "operator", "pipeline")
 BTF_MODELS = ("fixed", "auto")
 #: dtypes of the values in a chunked BTF store
 STORE_DTYPES = ("float16", "float32")
+#: storage backends of a BTF store (``abrdf_jax.btf.FORMATS``), the default first
+STORE_FORMATS = ("npy", "zarr")
 # learned priors (abrdf_jax.prior): channel layouts, training inputs
 PRIOR_CHANNELS = ("joint", "shared")
 PRIOR_INPUT_SUFFIXES = (".npz", ".exr", ".binary")

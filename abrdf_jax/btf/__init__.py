@@ -5,6 +5,8 @@
   dense ground truth and slice measurements, deterministic from a seed, written chunk by chunk.
 - :class:`ChunkedStore`: a folder with a JSON manifest and one checksummed ``.npy`` per chunk of
   texels, written atomically (a crash never leaves a chunk that looks valid).
+- :class:`ZarrStore` / :func:`export_zarr`: the same store as a zarr v3 group (``[zarr]``
+  extra; read by xarray, dask, napari); :func:`open_store` opens either format.
 - :func:`write_exr_pairs` / :func:`read_image_pairs`: one image per direction pair, the layout of
   the UBO2003 and UTIA BTF databases: EXR written; PNG, JPEG (sRGB) or EXR read, from a folder
   or a zip archive, in a configurable azimuth convention (:func:`capture_angles`).
@@ -47,6 +49,9 @@ _EXPORTS = {
         "texel_chunk",
     ),
     "_store": ("ChunkedStore",),
+    "_backend": ("FORMATS", "DEFAULT_FORMAT", "open_store"),
+    "_zarr": ("ZarrStore",),
+    "_zarr_export": ("export_zarr",),
     "_texel": ("TexelModel",),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS)

@@ -31,7 +31,8 @@ from ..select._isotropy import LEVEL, MIN_EFFECT
 from ._chunkfn import BACKENDS, N_PAIRS, grouping, texel_isotropy
 from ._chunkfn import make_chunk_fn, make_model_choice_fn
 from ._devices import DEFAULT_BLOCK, ShardedRunner, resolve_devices
-from ._store import ABRDF_GEOMETRY, ChunkedStore, open_store, pad_rows, progress_bar
+from ._backend import DEFAULT_FORMAT, open_store, store_class
+from ._store import ABRDF_GEOMETRY, ChunkedStore, pad_rows, progress_bar
 
 #: Texels per chunk when none is given (about 40 MB of float16 output per chunk).
 DEFAULT_CHUNK = 1024
@@ -102,6 +103,7 @@ def reconstruct_btf(
     overwrite: bool = False,
     stats: dict | None = None,
     model: str = "fixed",
+    format: str = DEFAULT_FORMAT,
 ) -> ChunkedStore:
     """Reconstruct every texel of a measured BTF into a chunked ABRDF store.
 
@@ -127,6 +129,9 @@ def reconstruct_btf(
             test of :mod:`abrdf_jax.select` on its axial slices picks the diagonal-only model
             (``default_config("iso102")``, default parameters) or ``config`` (which must be
             ``aniso204``); see :func:`isotropy_map` for the decisions.
+        format: the output's storage backend, ``"npy"`` (:class:`ChunkedStore`, the default)
+            or ``"zarr"`` (a zarr v3 group; ``chunk`` a multiple of the width or a divisor of
+            it, so chunks are tiles; see ``docs/btf.md``).
         stats: if given, filled with ``chunks_done``, ``chunks_skipped``, ``seconds`` (the
             whole call), ``first_chunk_seconds`` (compilation included), ``backend``,
             ``devices``, ``batch``, ``build_seconds`` (the chunk map: operator or pipeline
@@ -161,7 +166,7 @@ def reconstruct_btf(
     job.update(backend=backend, compute_dtype=compute_dtype, model=model)
     attrs = dict(job=job, source=meas.attrs)
     shape = dict(texel_shape=meas.texel_shape, item_shape=(N_PAIRS, 3), dtype=dtype, chunk=chunk)
-    out = ChunkedStore.create(
+    out = store_class(format).create(
         out_store, kind="abrdf", geometry=ABRDF_GEOMETRY, attrs=attrs, overwrite=overwrite, **shape
     )
     pid, nproc = jax.process_index(), jax.process_count()

@@ -17,7 +17,8 @@ from ..metrics._metrics import (
     srgb_to_lab,
     tonemap,
 )
-from ._store import open_store, pad_rows
+from ._backend import open_store
+from ._store import pad_rows
 
 METRICS = ("de76", "logerr")
 

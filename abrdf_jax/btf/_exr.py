@@ -47,9 +47,9 @@ from ._store import (
     MANIFEST,
     ChunkedStore,
     make_folder,
-    open_store,
     progress_bar,
 )
+from ._backend import open_store
 
 PAIRS_INDEX = "pairs.json"
 _ANGLE = r"(\d+(?:\.\d+)?)"

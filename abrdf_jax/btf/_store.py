@@ -54,21 +54,6 @@ def _ours(name: str) -> bool:
     return name == CHUNKS or (name.startswith(f".{MANIFEST}.") and name.endswith(".tmp"))
 
 
-def open_store(store, kind: str | None = None, complete: bool = False) -> "ChunkedStore":
-    """``store`` (a :class:`ChunkedStore` or its folder), checked to be of ``kind`` and, with
-    ``complete``, to have every chunk (markers and sizes; no checksums)."""
-    store = store if isinstance(store, ChunkedStore) else ChunkedStore.open(store)
-    if kind is not None and store.kind != kind:
-        raise InputError(f"{store.path}: is a {store.kind} store, expected {kind}")
-    bad = [k for k in range(store.n_chunks) if complete and not store.is_done(k, verify=False)]
-    if bad:
-        raise InputError(
-            f"{store.path}: {len(bad)} of {store.n_chunks} chunks missing or invalid "
-            f"(first: {bad[0]}); finish it first"
-        )
-    return store
-
-
 def make_folder(path) -> Path:
     """The folder ``path``, created if needed (its parent must exist)."""
     path = Path(path)

@@ -7,7 +7,8 @@
   an interruption), sharded over all local devices; ``--exr-dir`` also exports one EXR per pair.
 - ``abrdf-jax btf import IMAGES -o STORE [--azimuth cw] [--light-offset DEG]``: a folder or a zip
   archive of per-pair PNG/JPEG/EXR images (UBO2003/UTIA names) → chunked store.
-- ``abrdf-jax btf export STORE --exr-dir DIR``: chunked store → one EXR image per pair.
+- ``abrdf-jax btf export STORE --exr-dir DIR``: chunked store → one EXR image per pair;
+  ``--zarr OUT.zarr``: an ``.npy`` store → a zarr v3 group.
 - ``abrdf-jax btf evaluate REC REF [--png MAP.png]``: per-texel ΔE76 / LogErr against a reference.
 """
 
@@ -22,7 +23,7 @@ import time
 from pathlib import Path
 
 from .._errors import InputError
-from .._names import AZIMUTHS, BTF_BACKENDS, BTF_MODELS, PRESETS, STORE_DTYPES
+from .._names import AZIMUTHS, BTF_BACKENDS, BTF_MODELS, PRESETS, STORE_DTYPES, STORE_FORMATS
 from . import _common as common
 
 #: The configuration without ``--preset``/``--params``: linear in the log of the samples, so the
@@ -54,6 +55,8 @@ HELP = {
     "--float32": "32-bit channels (default 16-bit half)",
     "--no-compression": "uncompressed (faster, larger)",
     "--png": "save the ΔE76 map",
+    "--format": "output store: npy (default: a manifest and one checksummed .npy per chunk) or "
+    "zarr (a zarr v3 group for xarray/dask/napari; pip install abrdf_jax[zarr])",
     "--azimuth": "how the image names count azimuths: ccw, counter-clockwise as PROTOCOL.md "
     "(default; what 'btf export' writes), or cw, clockwise (mirrored: phi -> 360 - phi)",
     "--light-offset": "degrees added to every light azimuth, after --azimuth (e.g. 180 when the "
@@ -173,6 +176,7 @@ def cmd_reconstruct(args) -> int:
     stats: dict = {}
     opts = dict(chunk=args.chunk, progress=not args.quiet, dtype=args.dtype, devices=args.devices)
     opts |= dict(backend=args.backend, overwrite=args.overwrite, stats=stats, model=args.model)
+    opts |= dict(format=args.format)
     # one writer of the store (several hosts of one jax.distributed job share it on purpose)
     with common.output_lock(out) if jax.process_count() == 1 else contextlib.nullcontext():
         store = btf.reconstruct_btf(meas, out, config, params, **opts)
@@ -247,7 +251,14 @@ def cmd_import(args) -> int:
 
 
 def cmd_export(args) -> int:
+    if (args.exr_dir is None) == (args.zarr is None):
+        raise InputError("btf export: give one of --exr-dir DIR or --zarr OUT.zarr")
     from abrdf_jax import btf
+
+    if args.zarr:
+        store = btf.export_zarr(args.input, args.zarr, progress=not args.quiet)
+        print(f"{args.zarr}: zarr v3 group, {store.n_chunks} chunks of {store.chunk} texels")
+        return 0
 
     compression = "none" if args.no_compression else "zip"
     opts = dict(half=not args.float32, compression=compression, progress=not args.quiet)
@@ -261,7 +272,7 @@ def cmd_evaluate(args) -> int:
 
     from abrdf_jax import btf
 
-    rec, ref = btf.ChunkedStore.open(args.rec), btf.ChunkedStore.open(args.ref)
+    rec, ref = btf.open_store(args.rec), btf.open_store(args.ref)
     for s in (rec, ref):
         if s.kind != "abrdf":
             what = "expected a reconstruction or reference"
@@ -316,6 +327,7 @@ def register(sub) -> None:
     common.budget_flags(r, anisotropic=False)
     add("--backend", choices=BTF_BACKENDS, default=BTF_BACKENDS[0])
     add("--model", choices=BTF_MODELS, default=BTF_MODELS[0])
+    add("--format", choices=STORE_FORMATS, default=STORE_FORMATS[0])
     add("--devices", type=common.positive("--devices"), metavar="N")
     add("--overwrite", action="store_true", help="replace an output store of other settings")
     d = common.adder(r.add_argument_group(HELP["hosts"]), HELP)
@@ -344,7 +356,8 @@ def register(sub) -> None:
     e = common.command(bsub, "export", cmd_export, HELP["export"])
     add = common.adder(e, HELP)
     add("input", metavar="STORE")
-    add("--exr-dir", required=True, metavar="DIR")
+    add("--exr-dir", metavar="DIR")
+    add("--zarr", metavar="OUT.zarr", help="an .npy ABRDF store -> a zarr v3 group")
     add("--float32", action="store_true")
     add("--no-compression", action="store_true")
     add("-q", "--quiet", action="store_true")
