@@ -90,7 +90,7 @@ def _nbrdf_file(filename: str, data_dir=None) -> Path:
 def _weights(path: str) -> dict[str, dict[str, np.ndarray]]:
     """All networks of ``weights.npz`` as ``{material: {key: array}}`` (cached per file)."""
     out: dict[str, dict[str, np.ndarray]] = {}
-    with np.load(path) as z:
+    with np.load(path, allow_pickle=False) as z:  # never unpickle a data file
         for key in z.files:
             name, _, part = key.rpartition("/")
             out.setdefault(name, {})[part] = np.array(z[key])
@@ -277,7 +277,7 @@ def load_tables81(data_dir=None) -> dict[str, np.ndarray]:
         DataNotFoundError: if the file is missing.
     """
     path = _nbrdf_file("tables81.npz", data_dir)
-    with np.load(path) as z:
+    with np.load(path, allow_pickle=False) as z:  # never unpickle a data file
         return {k: np.array(z[k]) for k in z.files}
 
 
