@@ -240,9 +240,9 @@ BAD = [
 def test_cli_bad_capture_values(tmp_path, flags, name):
     proc = run_cli("sample", "ggx-plastic", "-o", "m.csv", *flags, cwd=tmp_path)
     assert proc.returncode == 2, (proc.stdout, proc.stderr)
-    assert "Traceback" not in proc.stderr and f"abrdf-jax: error: {name}" in proc.stderr, (
-        proc.stderr
-    )
+    # checked while parsing (argparse's "error: argument NAME: ...") or right after it
+    named = f"abrdf-jax: error: {name}" in proc.stderr or f"error: argument {name}:" in proc.stderr
+    assert "Traceback" not in proc.stderr and named, proc.stderr
     assert not (tmp_path / "m.csv").exists()
 
 
