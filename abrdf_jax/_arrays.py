@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from ._errors import InputError
+from ._errors import InputError, non_finite
 
 import numpy as np
 
@@ -97,11 +97,11 @@ def check_finite(table, where: str = "reconstruction") -> None:
         where: what to name in the message (the input file).
     """
     arr = np.asarray(table)
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        first = tuple(int(i) for i in np.argwhere(bad)[0])
+    found = non_finite(arr)
+    if found is not None:
+        count, first = found
         raise InputError(
-            f"{where}: the reconstruction holds {int(bad.sum())} NaN or infinite value(s) (first at "
+            f"{where}: the reconstruction holds {count} NaN or infinite value(s) (first at "
             f"index {first}): the sample values are too large for {arr.dtype} arithmetic or the RBF solve failed; "
             "nothing was written for it (rescale the values, e.g. to a maximum near 1)"
         )

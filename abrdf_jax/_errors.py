@@ -33,3 +33,14 @@ def require(module: str, purpose: str, requirement: str, name: str | None = None
     except ImportError as e:
         name = name or f"the {requirement.split('>')[0]} package"
         raise InputError(f"{purpose} needs {name} (pip install '{requirement}')") from e
+
+
+def non_finite(arr) -> tuple[int, tuple[int, ...]] | None:
+    """``(how many, index of the first)`` NaN or infinite entries of a numpy array, or ``None``:
+    what a message about non-finite input names."""
+    import numpy as np
+
+    bad = ~np.isfinite(arr)
+    if not bad.any():
+        return None
+    return int(bad.sum()), tuple(int(i) for i in np.argwhere(bad)[0])

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._errors import InputError
+from ._errors import InputError, non_finite
 from ._slices import KINDS, PROTOCOL_ALPHA_DEG, slice_angles
 
 
@@ -34,11 +34,11 @@ def _check_finite_field(owner: str, name: str, x) -> None:
     arr = _concrete(x)
     if arr is None or arr.dtype.kind not in "fc":
         return
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        first = tuple(int(i) for i in np.argwhere(bad)[0])
+    found = non_finite(arr)
+    if found is not None:
+        count, first = found
         raise InputError(
-            f"{owner}.{name} holds {int(bad.sum())} NaN or infinite value(s) (first at index "
+            f"{owner}.{name} holds {count} NaN or infinite value(s) (first at index "
             f"{first}); every sample must be finite (drop or repair the bad samples first)"
         )
 

@@ -35,6 +35,7 @@ import numpy as np
 from .._errors import InputError
 from .._names import STORE_DTYPES as DTYPES
 from ..io import atomic_write
+from ._chunked import ChunkIndex
 
 FORMAT = "abrdf_jax.btf-store"
 VERSION = 1
@@ -108,7 +109,7 @@ def progress_bar(desc: str, total: int, enabled: bool, **kw):
     )
 
 
-class ChunkedStore:
+class ChunkedStore(ChunkIndex):
     """A chunked per-texel array on disk (see the module docstring for the layout).
 
     Open one with :meth:`open` or make one with :meth:`create`; read with :meth:`read_chunk`,
@@ -117,32 +118,6 @@ class ChunkedStore:
     ``item_shape``, ``shape``, ``dtype``, ``chunk`` (texels per chunk), ``n_chunks``,
     ``geometry``, ``attrs``.
     """
-
-    def __init__(self, path: Path, manifest: dict):
-        self.path, self.manifest = Path(path), manifest
-        self.kind = manifest["kind"]
-        self.texel_shape = tuple(int(x) for x in manifest["texel_shape"])
-        self.item_shape = tuple(int(x) for x in manifest["item_shape"])
-        self.dtype = np.dtype(manifest["dtype"])
-        self.chunk = int(manifest["chunk"])
-        self.geometry = manifest.get("geometry", {})
-        self.attrs = manifest.get("attrs", {})
-        self.n_texels = self.texel_shape[0] * self.texel_shape[1]
-        self.shape = (self.n_texels, *self.item_shape)
-        self.n_chunks = -(-self.n_texels // self.chunk)
-
-    def chunk_range(self, k: int) -> tuple[int, int]:
-        """Texel range ``[start, stop)`` of chunk ``k``."""
-        if not 0 <= k < self.n_chunks:
-            raise IndexError(f"{self.path}: chunk {k} out of range 0..{self.n_chunks - 1}")
-        return k * self.chunk, min((k + 1) * self.chunk, self.n_texels)
-
-    def chunk_ranges(self) -> list[tuple[int, int]]:
-        return [self.chunk_range(k) for k in range(self.n_chunks)]
-
-    def texels(self, chunks) -> int:
-        """How many texels the chunks ``chunks`` hold."""
-        return sum(b - a for a, b in map(self.chunk_range, chunks))
 
     def _files(self, k: int) -> tuple[Path, Path]:
         base = self.path / CHUNKS / f"c{k:06d}"
@@ -305,23 +280,6 @@ class ChunkedStore:
         if verify and zlib.crc32(data.read_bytes()) != m.get("crc32"):
             return CORRUPT
         return "done"
-
-    def is_done(self, k: int, verify: bool = True) -> bool:
-        return self.chunk_status(k, verify) == "done"
-
-    def done_chunks(self, verify: bool = True) -> list[int]:
-        """Indices of the valid chunks (``verify`` also checks every CRC-32)."""
-        return [k for k in range(self.n_chunks) if self.is_done(k, verify)]
-
-    @property
-    def complete(self) -> bool:
-        return all(self.is_done(k, verify=False) for k in range(self.n_chunks))
-
-    def verify(self) -> dict[int, str]:
-        """``{chunk: problem}`` for every chunk that is not done (empty when all are valid)."""
-        return {
-            k: s for k in range(self.n_chunks) if (s := self.chunk_status(k, verify=True)) != "done"
-        }
 
     def write_chunk(self, k: int, values) -> None:
         """Write chunk ``k`` atomically, then its marker.

@@ -26,6 +26,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._grid import ubo_grid
+from ._chunked import ChunkIndex
 from ._store import CORRUPT, FORMAT, KINDS, VERSION, all_finite, make_folder
 
 ARRAY = "abrdf"
@@ -60,39 +61,19 @@ def band(texel_shape, chunk: int) -> tuple[int, int]:
     )
 
 
-class ZarrStore:
+class ZarrStore(ChunkIndex):
     """A zarr v3 ABRDF store with the reading and writing interface of ``ChunkedStore``."""
 
     format = "zarr"
 
     def __init__(self, path: Path, manifest: dict, group):
-        self.path, self.manifest, self.group = Path(path), manifest, group
-        self.kind = manifest["kind"]
-        self.texel_shape = tuple(int(x) for x in manifest["texel_shape"])
-        self.item_shape = tuple(int(x) for x in manifest["item_shape"])
-        self.dtype = np.dtype(manifest["dtype"])
-        self.chunk = int(manifest["chunk"])
-        self.geometry = manifest.get("geometry", {})
-        self.attrs = manifest.get("attrs", {})
-        self.n_texels = self.texel_shape[0] * self.texel_shape[1]
-        self.shape = (self.n_texels, *self.item_shape)
-        self.n_chunks = -(-self.n_texels // self.chunk)
+        super().__init__(path, manifest)
+        self.group = group
         self.tile = band(self.texel_shape, self.chunk)
         self.array = group[ARRAY]
 
     def __repr__(self) -> str:
         return f"ZarrStore({str(self.path)!r}, shape={self.shape}, dtype={self.dtype.name})"
-
-    def chunk_range(self, k: int) -> tuple[int, int]:
-        if not 0 <= k < self.n_chunks:
-            raise IndexError(f"{self.path}: chunk {k} out of range 0..{self.n_chunks - 1}")
-        return k * self.chunk, min((k + 1) * self.chunk, self.n_texels)
-
-    def chunk_ranges(self) -> list[tuple[int, int]]:
-        return [self.chunk_range(k) for k in range(self.n_chunks)]
-
-    def texels(self, chunks) -> int:
-        return sum(b - a for a, b in map(self.chunk_range, chunks))
 
     def _index(self, k: int):
         """The zarr chunk coordinates and the (rows, columns) slices of store chunk ``k``."""
@@ -229,21 +210,6 @@ class ZarrStore:
             except InputError as e:
                 return str(e).rpartition(": ")[2] or CORRUPT
         return "done"
-
-    def is_done(self, k: int, verify: bool = True) -> bool:
-        return self.chunk_status(k, verify) == "done"
-
-    def done_chunks(self, verify: bool = True) -> list[int]:
-        return [k for k in range(self.n_chunks) if self.is_done(k, verify)]
-
-    @property
-    def complete(self) -> bool:
-        return all(self.is_done(k, verify=False) for k in range(self.n_chunks))
-
-    def verify(self) -> dict[int, str]:
-        return {
-            k: s for k in range(self.n_chunks) if (s := self.chunk_status(k, verify=True)) != "done"
-        }
 
     def write_chunk(self, k: int, values) -> None:
         """Write chunk ``k`` (``(stop - start, 6561, 3)``) as one zarr chunk key."""
