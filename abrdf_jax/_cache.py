@@ -40,7 +40,7 @@ from .io._atomic import atomic_write
 CACHE_ENV = "ABRDF_JAX_CACHE_DIR"
 NO_CACHE_ENV = "ABRDF_JAX_NO_CACHE"
 #: Version of the operator entry format and key; bump it when either changes meaning.
-CACHE_FORMAT = 1
+CACHE_FORMAT = 2
 #: ``cache_dir("off")``: no cache.
 OFF = "off"
 OPERATORS = "operators"
@@ -387,6 +387,7 @@ def build_entry(meas, config, params, *, build_dtype: str = BUILD_DTYPE) -> Oper
         index=np.asarray(op.index, np.int64),
         t=np.asarray(op.t, np.float32),
         count=np.asarray(op.count, np.int32),
+        keep=np.asarray(op.keep, np.int32),
         log_samples=value_space(config.value_space).log_samples,
         log_eps=float(config.log_eps),
     )

@@ -40,10 +40,11 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ._errors import InputError
-from ._grid import centre_layout, keep_centres, ubo_target_vectors
+from ._grid import _centre_target_index, centre_layout, keep_centres, ubo_target_vectors
 from ._measurements import Measurements
 from ._params import Config, Params
-from ._pipeline import rbf_map, subspace_values
+from ._pipeline import fit_inputs, rbf_map, subspace_values
+from ._spikes import cap_samples
 from ._subspace import get_rule
 from ._values import log_values, value_eps, value_space
 
@@ -61,6 +62,8 @@ class ReconstructionOperator(eqx.Module):
         matrix: ``(q, n_features)`` dense operator (``q`` = 6561 UBO pairs or the targets);
             ``n_features`` = ``n_in`` valid samples (single stage) or the RBF centres (two stage).
         index: ``(n_in,)`` flat index ``s · nmax + k`` of each valid sample of the template.
+        keep: the output rows (flat ``i · 81 + v``) where the restored subspaces are kept (the
+            centres that are UBO pairs; none at other targets): the spike cap's correction.
         t, count: the template's slice parameters ``(S, nmax)`` and counts ``(S,)``.
         params: the parameters it was built with (the two-stage path needs α).
         config: the static configuration.
@@ -71,6 +74,7 @@ class ReconstructionOperator(eqx.Module):
 
     matrix: Float[Array, "q f"]
     index: Int[Array, " n_in"]
+    keep: Int[Array, " k"]
     t: Float[Array, "S nmax"]
     count: Int[Array, " S"]
     params: Params
@@ -211,12 +215,23 @@ def _matmul_batch(m: Float[Array, "q f"], z: Float[Array, "B f C"]) -> Float[Arr
 TILE = 128
 
 
-def _decoded(op: ReconstructionOperator, vs, z, eps):
-    """Features ``z`` ``(T, f, C)`` of ``T`` materials to their outputs ``(T, q, C)``."""
-    return vs.decode(_matmul_batch(op.matrix, z), eps)
+def _decoded(op: ReconstructionOperator, vs, z, zc, eps):
+    """Features ``z`` ``(T, f, C)`` of ``T`` materials to their outputs ``(T, q, C)``.
+
+    With the spike cap (``zc``: the features the RBF fits, ``_spikes.py``) the map is
+    ``M · zc`` with the rows where the restored subspaces are kept corrected by
+    ``M[keep] · (z − zc)``: there the uncapped restoration goes back, as in the pipeline (those
+    rows of ``M`` are the restoration itself)."""
+    if zc is None:
+        return vs.decode(_matmul_batch(op.matrix, z), eps)
+    lin = _matmul_batch(op.matrix, zc)
+    if op.keep.shape[0]:
+        fix = _matmul_batch(op.matrix[op.keep], z - zc)
+        lin = lin.at[:, op.keep, :].add(fix)
+    return vs.decode(lin, eps)
 
 
-def _tiled(op: ReconstructionOperator, vs, z, eps, out):
+def _tiled(op: ReconstructionOperator, vs, z, zc, eps, out):
     """:func:`_decoded` of a batch, :data:`TILE` materials at a time, written into ``out``.
 
     One GEMM over the whole batch writes its ``(B·C, q)`` product to memory and reads it back
@@ -232,8 +247,9 @@ def _tiled(op: ReconstructionOperator, vs, z, eps, out):
     def step(i, out):
         start = jnp.minimum(i * size, b - size)
         zt = jax.lax.dynamic_slice_in_dim(z, start, size)
+        ct = None if zc is None else jax.lax.dynamic_slice_in_dim(zc, start, size)
         et = None if eps is None else jax.lax.dynamic_slice_in_dim(eps, start, size)
-        return jax.lax.dynamic_update_slice_in_dim(out, _decoded(op, vs, zt, et), start, 0)
+        return jax.lax.dynamic_update_slice_in_dim(out, _decoded(op, vs, zt, ct, et), start, 0)
 
     return jax.lax.fori_loop(0, -(-b // size), step, out)
 
@@ -252,6 +268,7 @@ def _apply_impl(op: ReconstructionOperator, x, full: bool, out=None):
     )
     if op.stage == "single":
         z = log_values(x, eps) if vs.log_samples else x  # single stage: never log after the rule
+        zc = cap_samples(z) if vs.log_samples else None
     else:
         s, nmax = op.t.shape
         full_y = (
@@ -263,16 +280,15 @@ def _apply_impl(op: ReconstructionOperator, x, full: bool, out=None):
         p = op.params.astype(x.dtype)
 
         def features(y, e):
-            meas = vs.encode_samples(template.replace(y=y), e)
-            return vs.encode_subspace(subspace_values(meas, cfg, p), e)
+            return fit_inputs(template.replace(y=y), cfg, p, vs, e)[1:]
 
-        z = jax.vmap(features)(full_y, eps)
+        z, zc = jax.vmap(features)(full_y, eps)
     q = op.matrix.shape[0]
     if out is None and b <= TILE:
-        res = _decoded(op, vs, z, eps)
+        res = _decoded(op, vs, z, zc, eps)
     else:
         out = jnp.zeros((b, q, c), x.dtype) if out is None else out.reshape(b, q, c)
-        res = _tiled(op, vs, z, eps, out)
+        res = _tiled(op, vs, z, zc, eps, out)
     if op.grid:
         res = res.reshape(b, 81, 81, c)
     return res
@@ -422,9 +438,11 @@ def compile_operator(
         jnp.dtype(build_dtype),
         template.centre_azimuths,
     )
+    keep = _centre_target_index(template.pairs, template.centre_azimuths)[1]
     return ReconstructionOperator(
         matrix.astype(dtype),
         jnp.asarray(index, jnp.int32),
+        jnp.asarray(keep if targets is None else np.zeros(0, int), jnp.int32),
         jnp.asarray(t, dtype),
         jnp.asarray(count, jnp.int32),
         params.astype(dtype),

@@ -14,6 +14,7 @@ import hashlib
 import numpy as np
 
 from ._errors import InputError
+from ._spikes import cap_samples
 
 #: The pipeline's ε offset, ``sqrt(tiny)`` of float32 (``_values.value_eps``).
 _EPS_FLOOR = np.finfo(np.float32).tiny ** 0.5
@@ -29,6 +30,9 @@ class OperatorEntry:
         index: ``(n_in,)`` flat index ``s · nmax + k`` of each valid sample of the template.
         t: ``(S, nmax)`` float32 slice parameters of the template (padding zero).
         count: ``(S,)`` valid samples per slice.
+        keep: output rows where the restored subspaces are kept (``ReconstructionOperator.keep``):
+            with ``log_samples`` the map applies the spike cap (``_spikes.py``) as the JAX
+            operator does.
         log_samples: whether the map works on ``ln(max(y, 0) + ε)`` (``value_space="logsamples"``)
             or on the values themselves (``"linear"``).
         log_eps: ``Config.log_eps``: ``ε = log_eps · mean |y| + sqrt(tiny)`` per material and
@@ -39,13 +43,14 @@ class OperatorEntry:
     index: np.ndarray
     t: np.ndarray
     count: np.ndarray
+    keep: np.ndarray
     log_samples: bool
     log_eps: float
 
     #: The entry kind in the store's metadata (entries written before kinds existed are this).
     KIND = "rbf"
     #: The arrays an entry file holds.
-    ARRAYS = ("matrix", "index", "t", "count")
+    ARRAYS = ("matrix", "index", "t", "count", "keep")
 
     @property
     def n_inputs(self) -> int:
@@ -74,13 +79,19 @@ class OperatorEntry:
         x = np.asarray(x, np.float32)
         b, n_in, c = x.shape
         q = self.matrix.shape[0]
-        eps = None
+        eps = xc = None
         if self.log_samples:
             eps = np.float32(self.log_eps) * np.mean(np.abs(x), axis=1) + _EPS_FLOOR  # (B, C)
             x = np.log(np.maximum(x, np.float32(0.0)) + eps[:, None, :])
-        # every material and channel is a row: one GEMM (B·C, n_in) · (n_in, q), as _operator
-        rows = np.ascontiguousarray(np.transpose(x, (0, 2, 1))).reshape(b * c, n_in)
-        out = (rows @ self.matrix.T).reshape(b, c, q)
+            xc = cap_samples(x, xp=np).astype(np.float32)
+
+        def rows(v):  # every material and channel is a row: one GEMM, as _operator
+            return np.ascontiguousarray(np.transpose(v, (0, 2, 1))).reshape(b * c, n_in)
+
+        out = (rows(x if xc is None else xc) @ self.matrix.T).reshape(b, c, q)
+        if xc is not None and self.keep.size:
+            fix = rows(x - xc) @ self.matrix[self.keep].T
+            out[:, :, self.keep] += fix.reshape(b, c, -1)
         if eps is not None:
             np.exp(out, out=out)
             out -= eps[:, :, None]
@@ -89,7 +100,7 @@ class OperatorEntry:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The arrays by name (what the cache stores)."""
-        return {"matrix": self.matrix, "index": self.index, "t": self.t, "count": self.count}
+        return {name: getattr(self, name) for name in self.ARRAYS}
 
     def meta(self) -> dict:
         """The entry's scalars (stored in its metadata beside the arrays)."""
@@ -106,6 +117,13 @@ class OperatorEntry:
         if not (m.dtype == np.float32 and m.ndim == 2 and m.shape[0] == GRID[0] * GRID[1]):
             return "malformed (inconsistent array shapes)"
         problem = check_layout(arrays, m.shape[1])
+        keep = arrays.get("keep")
+        if (
+            keep is None
+            or keep.ndim != 1
+            or (keep.size and not 0 <= keep.min() <= keep.max() < m.shape[0])
+        ):
+            return "malformed (no kept rows)"
         if problem or int(arrays["count"].sum()) != m.shape[1]:  # every valid sample is read
             return problem or "malformed (inconsistent array shapes)"
         if not isinstance(meta.get("log_samples"), bool) or not isinstance(

@@ -21,6 +21,7 @@ from ._measurements import Measurements, Samples, stack_measurements
 from ._params import Config, Params
 from ._rbf import SolveInfo, fit_rbf_info
 from ._slices import PROTOCOL_PAIRS
+from ._spikes import cap_samples
 from ._subspace import subspace
 from ._values import value_space
 
@@ -90,23 +91,43 @@ def rbf_map(
     return out
 
 
-#: A dense capture's RBF input (log values) is capped at this quantile of the centre values plus
-#: this margin (log units, i.e. x 1.65): see :func:`_cap_spikes`.
-SPIKE_QUANTILE, SPIKE_MARGIN = 0.95, 0.5
+#: A dense capture's RBF input in the value space ``"log"`` (log after the subspace rule) is
+#: capped at this quantile of the centre values plus this margin (log units, i.e. x 1.65): see
+#: :func:`_cap_centres`. The log-sample value space caps the samples instead (``_spikes.py``).
+CENTRE_QUANTILE, CENTRE_MARGIN = 0.95, 0.5
 
 
-def _cap_spikes(fit_vals, meas: Measurements, vs):
+def _cap_centres(fit_vals, meas: Measurements, vs):
     """A dense capture (``meas.centre_azimuths`` set) resolves specular spikes that 26 samples per
     slice alias. Put back at their grid pairs they are kept, but the global kernel would carry a
-    spike across elevations to pairs it never saw (MERL test, 100 per slice: ΔE76 1.03x the
-    protocol's with the UBO centres and no cap, 0.74x with the dense layout and the cap;
-    ``python -m benchmarks.capture_ablations``, docs/captures.md). So the RBF fits log values capped at
-    ``SPIKE_QUANTILE`` of the centre values + ``SPIKE_MARGIN``; the restored values themselves go
-    back unchanged. Sparse captures and linear value spaces are not touched."""
-    if meas.centre_azimuths is None or not vs.is_log:
+    spike across elevations to pairs it never saw. In the value space ``"log"`` (which takes the
+    log after the subspace rule, so the samples cannot be capped first) the RBF fits log values
+    capped at ``CENTRE_QUANTILE`` of the centre values + ``CENTRE_MARGIN``; the restored values
+    themselves go back unchanged. Sparse captures there, and linear value spaces, are not touched;
+    the log-sample value space caps its samples in every layout (:mod:`abrdf_jax._spikes`)."""
+    if meas.centre_azimuths is None or not vs.log_subspace:
         return fit_vals
-    cap = jnp.quantile(fit_vals, SPIKE_QUANTILE, axis=0, keepdims=True) + SPIKE_MARGIN
+    cap = jnp.quantile(fit_vals, CENTRE_QUANTILE, axis=-2, keepdims=True) + CENTRE_MARGIN
     return jnp.minimum(fit_vals, cap)
+
+
+def capped_samples(enc: Measurements, vs) -> Measurements:
+    """The encoded samples the RBF's subspaces are restored from: spike-capped in the log-sample
+    value space (:mod:`abrdf_jax._spikes`), else as they are."""
+    return enc.replace(y=cap_samples(enc.y, enc.mask)) if vs.log_samples else enc
+
+
+def fit_inputs(meas: Measurements, config: Config, params: Params, vs, eps):
+    """``(values, restored, fitted)``: the subspace values at the centres as the rule gives them,
+    in the RBF's value space as restored from the samples (what goes back at the grid pairs),
+    and as the RBF fits them (from spike-capped log samples, or capped centre values:
+    :mod:`abrdf_jax._spikes`)."""
+    enc = vs.encode_samples(meas, eps)
+    vals = subspace_values(enc, config, params)
+    raw = vs.encode_subspace(vals, eps)
+    if vs.log_samples:
+        return vals, raw, subspace_values(capped_samples(enc, vs), config, params)
+    return vals, raw, _cap_centres(raw, meas, vs)
 
 
 def _reconstruct_core(
@@ -114,9 +135,7 @@ def _reconstruct_core(
 ):
     vs = value_space(config.value_space)
     eps = vs.eps(meas, config.log_eps)
-    vals = subspace_values(vs.encode_samples(meas, eps), config, params)
-    fit_raw = vs.encode_subspace(vals, eps)
-    fit_vals = _cap_spikes(fit_raw, meas, vs)
+    vals, fit_raw, fit_vals = fit_inputs(meas, config, params, vs, eps)
     # The restored subspaces are put back at their grid pairs (the paper's step 3) in the RBF's
     # value space, except after a log of the subspace values: there the values themselves go back
     # (exp(ln(x + ε)) − ε would only round them).

@@ -58,7 +58,9 @@ def _synthetic(seed: int = 0) -> OperatorEntry:
     index = np.nonzero((np.arange(nmax)[None] < count[:, None]).reshape(-1))[0]
     t = np.where(np.arange(nmax)[None] < count[:, None], rng.uniform(0, 6, (8, nmax)), 0)
     matrix = rng.normal(size=(6561, index.size)).astype(np.float32)
-    return OperatorEntry(matrix, index, t.astype(np.float32), count, True, 0.01)
+    return OperatorEntry(
+        matrix, index, t.astype(np.float32), count, np.zeros(0, np.int64), True, 0.01
+    )
 
 
 def _same(a: OperatorEntry, b: OperatorEntry) -> bool:
@@ -106,7 +108,7 @@ def test_import_and_store_need_no_jax(tmp_path):
         from abrdf_jax.cli import main
         count = np.array([2, 3], np.int32)
         index = np.array([0, 1, 4, 5, 6])
-        e = OperatorEntry(np.ones((6561, 5), np.float32), index, np.zeros((2, 4), np.float32), count, True, 0.01)
+        e = OperatorEntry(np.ones((6561, 5), np.float32), index, np.zeros((2, 4), np.float32), count, np.zeros(0, np.int64), True, 0.01)
         store = OperatorStore(sys.argv[1])
         assert store.save("k", e) and store.load("k") is not None
         out = store.load("k").apply(np.ones((2, 2, 4, 3), np.float32))
@@ -474,10 +476,10 @@ def test_compilation_cache_two_processes_at_once(tmp_path):
 
 @pytest.mark.parametrize("name, n_in", [("iso-operator", 102), ("aniso-average-logsamples", 204)])
 def test_entry_size(built, tmp_path, name, n_in):
-    """One entry is its float32 matrix (6561 x n_in x 4 bytes) and about 4 kB more: 2,680,688
-    bytes for iso102 and 5,358,392 for aniso204 (docs/cache.md)."""
+    """One entry is its float32 matrix (6561 x n_in x 4 bytes) and about 4 kB more, plus the
+    kept rows (int32, 1296 of them at the protocol's pairs: 5 kB)."""
     entry = built[name][3]
     store = OperatorStore(tmp_path)
     assert entry.matrix.shape == (6561, n_in) and store.save("s" * 64, entry)
     size = os.path.getsize(store.path("s" * 64))
-    assert entry.matrix.nbytes < size < entry.matrix.nbytes + 8192
+    assert entry.matrix.nbytes < size < entry.matrix.nbytes + 4096 + 4 * entry.keep.size + 4096

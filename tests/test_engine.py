@@ -73,7 +73,9 @@ def test_pipeline_groups_pad_the_last_batch_and_compile_once(monkeypatch):
     }
     assert len(traces) == 1  # one trace (vmapped) for all three batches
     expected = np.asarray(aj.reconstruct(meas[4], config, params))
-    np.testing.assert_allclose(parts[-1][1][0], expected, rtol=1e-5, atol=1e-6 * expected.max())
+    # float32 rounding of the vmapped RBF solve, which depends on XLA's fusion of the batch
+    # (about 1e-4 of the maximum here; docs/cache.md: ~3e-4 of the max against float64)
+    np.testing.assert_allclose(parts[-1][1][0], expected, rtol=0, atol=5e-4 * expected.max())
 
 
 def _folder(tmp_path, n=5):

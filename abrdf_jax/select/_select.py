@@ -63,7 +63,7 @@ from .._params import Config, Params
 from .._coords import pair_coordinates
 from .._folds import held_out_directions, log_rms, sample_folds
 from .._grid import centre_vectors
-from .._pipeline import prepare, subspace_values
+from .._pipeline import _cap_centres, capped_samples, prepare, subspace_values
 from .._values import measurement_eps, value_space
 from .._rbf import fit_rbf
 from .._measurements import Measurements, Samples
@@ -130,10 +130,15 @@ def _cv_core(data: dict, configs: tuple, params: Params):
     rules = tuple(c.subspace_rule for c in configs)
 
     def fold_values(m, e):
-        m = vs.encode_samples(m, e)
+        # what the pipeline's RBF fits (spike cap included: _pipeline.fit_inputs)
+        enc = capped_samples(vs.encode_samples(m, e), vs)
         if shared:
-            return vs.encode_subspace(subspace_values(m, cfg0, params, rules=rules), e)
-        return jnp.stack([vs.encode_subspace(subspace_values(m, c, params), e) for c in configs])
+            vals = vs.encode_subspace(subspace_values(enc, cfg0, params, rules=rules), e)
+        else:
+            vals = jnp.stack(
+                [vs.encode_subspace(subspace_values(enc, c, params), e) for c in configs]
+            )
+        return _cap_centres(vals, m, vs)
 
     fit_vals = jnp.moveaxis(jax.vmap(fold_values)(train, eps), 1, 0)  # (G, k, n, C)
     G, k, n, C = fit_vals.shape
