@@ -14,6 +14,7 @@ from ._scene import render_table as render_table
 from ._scene_figure import render_views as render_views
 from ._scene_figure import scene_figure as scene_figure
 from ._scene_figure import view_error as view_error
+from ._variants import llvm_library as llvm_library
 
 __all__ = [
     "abrdf_bsdf",
@@ -22,6 +23,7 @@ __all__ = [
     "exposure_of",
     "grid_weights",
     "interpolate_table",
+    "llvm_library",
     "register_plugin",
     "render_sphere",
     "render_table",
