@@ -136,3 +136,37 @@ def test_missing_mitsuba_names_the_extra(tables):
         "abrdf-jax: error: rendering needs Mitsuba 3 (pip install 'abrdf_jax[render]')"
     ], proc.stderr
     assert not (tables / "nomitsuba.png").exists()
+
+
+def test_newest_libllvm_is_chosen(monkeypatch):
+    from abrdf_jax.render import _variants
+
+    found = {
+        _variants.LLVM_GLOBS[0]: ["/x/libLLVM-15.so.1", "/x/libLLVM-19.so", "/x/libLLVM.so.19.1"],
+        _variants.LLVM_GLOBS[1]: ["/y/llvm-14/lib/libLLVM-14.so"],
+    }
+    monkeypatch.setattr(_variants.glob, "glob", lambda pattern: found.get(pattern, []))
+    monkeypatch.setattr(_variants.os.path, "isfile", lambda path: True)
+    assert _variants.llvm_library() == "/x/libLLVM-19.so"
+    monkeypatch.setattr(_variants.glob, "glob", lambda pattern: [])
+    assert _variants.llvm_library() is None
+
+
+def test_a_variant_whose_test_render_aborts_is_refused_in_one_line(monkeypatch):
+    """A libLLVM that Dr.Jit cannot compile with aborts the process (LLVM 15: SIGABRT): the
+    child's death becomes the refusal's reason, and the parent lives on."""
+    from abrdf_jax import InputError
+    from abrdf_jax.render import _variants
+
+    monkeypatch.setattr(
+        _variants, "_PROBE", "import os; print('LLVM ERROR: Cannot select'); os.abort()"
+    )
+    monkeypatch.setattr(_variants, "probe", _variants.probe.__wrapped__)  # no cached answer
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", os.environ.get("DRJIT_LIBLLVM_PATH", ""))  # restored
+    reason = _variants.probe("llvm_ad_rgb")
+    assert reason.startswith("a test render failed (exit status -6)") and "LLVM ERROR" in reason
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    with pytest.raises(InputError, match=r"--variant llvm_ad_rgb does not work here: a test"):
+        _variants.use_variant("llvm_ad_rgb")
+    assert mi.variant() == "scalar_rgb"

@@ -79,7 +79,7 @@ def probe(variant: str) -> str | None:
     if out.returncode == 0 and out.stdout.strip().endswith("ok"):
         return None
     lines = [x.strip() for x in (out.stderr + out.stdout).splitlines() if x.strip()]
-    last = next((x for x in reversed(lines) if "Error" in x or "error" in x), None)
+    last = next((x for x in reversed(lines) if "error" in x.lower()), None)
     last = last or (lines[-1] if lines else "")
     return f"a test render failed (exit status {out.returncode}): {last[:200]}"
 
