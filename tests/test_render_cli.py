@@ -38,11 +38,11 @@ def test_render_a_constant_table(tables):
     assert proc.returncode == 0, proc.stderr
     lines = [x for x in proc.stderr.splitlines() if x.startswith("abrdf-jax: rendered")]
     assert len(lines) == 2  # sphere and cylinder, env light, no reference
-    assert "sphere, env light, reconstruction: 32 x 32 px, 4 spp, scalar_rgb" in lines[0]
+    assert "sphere, env light, table: 32 x 32 px, 4 spp, scalar_rgb" in lines[0]
     assert proc.stdout.strip().endswith("figure: const.png")
-    # scene_figure's layout at 100 dpi: one view per row, 2 rows (0.5 + 1.7 + 0.45 in wide,
+    # scene_figure's layout at 100 dpi: one view per row, 2 rows (4.5 in wide at least,
     # 2 x (1.7 + 0.45) + 0.25 + 0.75 in high)
-    assert _png_size(tables / "const.png") == (265, 530)
+    assert _png_size(tables / "const.png") == (450, 530)
 
 
 def test_identical_reference_gives_a_zero_map_and_quiet_is_quiet(tables):

@@ -28,7 +28,7 @@ from ._figures import _BACKGROUND, _display, exposure_of
 from ._scene import render_table
 
 TONE = (
-    "tone curve: exposure e = 0.18 / median luminance of the reference's object pixels (per "
+    "tone curve: exposure e = 0.18 / median luminance of the {whose} object pixels (per "
     "view, stated above each), Reinhard y/(1+y), sRGB (PROTOCOL.md); background grey"
 )
 
@@ -62,7 +62,8 @@ def render_views(
         shapes, lights: names from :data:`abrdf_jax.render._scene.SHAPES` / ``LIGHTS``.
         size, spp, variant, seed: as :func:`~abrdf_jax.render.render_table`.
         on_image: called as ``on_image(shape, light, which, seconds)`` after each image
-            (``which``: ``"reconstruction"`` or ``"reference"``), for progress lines.
+            (``which``: ``"reference"``, ``"reconstruction"``, or ``"table"`` without a
+            reference), for progress lines.
 
     Returns:
         One :class:`View` per (shape, light), shapes outer.
@@ -71,7 +72,8 @@ def render_views(
     for shape in shapes:
         for light in lights:
             images = {}
-            for which, t in (("reference", reference), ("reconstruction", table)):
+            mine = "table" if reference is None else "reconstruction"
+            for which, t in (("reference", reference), (mine, table)):
                 if t is None:
                     continue
                 t0 = time.perf_counter()
@@ -79,7 +81,7 @@ def render_views(
                 images[which] = render_table(t, **kw, seed=seed)
                 if on_image is not None:
                     on_image(shape, light, which, time.perf_counter() - t0)
-            views.append(View(shape, light, images["reconstruction"], images.get("reference")))
+            views.append(View(shape, light, images[mine], images.get("reference")))
     return views
 
 
@@ -139,7 +141,7 @@ def scene_figure(rows, path, *, note: str = "", dpi: int = 100) -> Path:
     n_cols = max(len(v) for _, v in rows) * per
     ratios = [1.0] * n_cols + ([0.06] if with_ref else [])
     cell, left, top, bottom = 1.7, 0.5, 0.25, 0.75
-    width = left + cell * sum(ratios) + 0.45
+    width = max(left + cell * sum(ratios) + 0.45, 4.5)  # room for the footer
     height = len(rows) * (cell + 0.45) + top + bottom
     fig = Figure(figsize=(width, height), dpi=dpi)
     grid = fig.add_gridspec(
@@ -158,7 +160,7 @@ def scene_figure(rows, path, *, note: str = "", dpi: int = 100) -> Path:
         for k, view in enumerate(views):
             err = view_error(view)
             e = err["exposure"]
-            panels = [("reconstruction", display_image(view.rec, e))]
+            panels = [("reconstruction" if with_ref else "table", display_image(view.rec, e))]
             if with_ref:
                 panels = [("reference", display_image(view.ref, e)), *panels]
             for j, (title, img) in enumerate(panels):
@@ -181,10 +183,11 @@ def scene_figure(rows, path, *, note: str = "", dpi: int = 100) -> Path:
         if with_ref:
             bar = fig.colorbar(im, cax=fig.add_subplot(grid[r, -1]))
             bar.ax.tick_params(labelsize=6, length=2)
+    footer = TONE.format(whose="reference's" if with_ref else "table's own")
+    footer += "\n" + note if note else ""
     fig.text(
-        0.5, 0.05 / height, TONE + ("\n" + note if note else ""), ha="center", va="bottom",
-        fontsize=6.5, color="0.3", wrap=True,
-    )  # fmt: skip
+        0.5, 0.05 / height, footer, ha="center", va="bottom", fontsize=6.5, color="0.3", wrap=True
+    )
     buf = _io.BytesIO()
     fig.savefig(buf, format=path.suffix.lower().lstrip("."), dpi=dpi)
     with atomic_write(path, "wb") as f:
