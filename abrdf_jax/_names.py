@@ -68,6 +68,16 @@ PRIOR_CHANNELS = ("joint", "shared")
 PRIOR_INPUT_SUFFIXES = (".npz", ".exr", ".binary")
 #: relative tolerance of the automatic model choice (the simplest model within it of the best)
 MODEL_TOL = 0.05
+#: Mitsuba 3 rendering (``abrdf-jax render``, ``abrdf_jax.render.render_table``): the RGB variants
+#: the ABRDF plugin runs in (scalar first, the default), the shapes and the lights of the scene
+#: (``both``: one image under each light).
+RENDER_VARIANTS = ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
+RENDER_SHAPES = ("sphere", "cylinder")
+RENDER_LIGHTS = ("env", "point")
+RENDER_LIGHT_CHOICES = ("env", "point", "both")
+#: The image sides and samples per pixel a render accepts (inclusive).
+RENDER_SIZE_RANGE = (8, 2048)
+RENDER_SPP_RANGE = (1, 65536)
 #: Table files by suffix (``abrdf_jax.io.read_table``/``write_table``).
 TABLE_SUFFIXES = (".npz", ".exr")
 MEASUREMENT_SUFFIXES = (".csv",)

@@ -140,6 +140,7 @@ OTHER_SCRIPTS = """other benchmark scripts:
   python -m benchmarks.model_selection [--quick] automatic model choice: confusion, error, cost (issue 6)
   python -m benchmarks.stability [--quick]       numerical edges: conditioning, data edges, method failures
   python -m benchmarks.peer_stability [--quick]  the analytic peer's anisotropic fits: starts, noise, mismatch
+  python -m benchmarks.render [--quick]          Mitsuba 3 renders: s/image per variant, the README figure
 """
 
 

@@ -27,6 +27,8 @@ NO_JAX_CASES = [
     (["sample", "--help"], 0),
     (["fit", "population", "--help"], 0),
     (["btf", "reconstruct", "--help"], 0),
+    (["render", "--help"], 0),
+    (["render", "missing.npz", "-o", "fig.png"], 2),
     (["reconstruct", "bad.csv", "-o", "rec.npz"], 2),  # a malformed CSV (line 3)
     (["reconstruct", "empty.csv", "-o", "rec.npz"], 2),
     (

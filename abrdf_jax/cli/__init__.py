@@ -1,5 +1,5 @@
-"""The ``abrdf-jax`` command line: reconstruct, sample, evaluate, reference, demo, materials, fit,
-btf, cache, prior.
+"""The ``abrdf-jax`` command line: reconstruct, sample, evaluate, reference, render, demo, materials,
+fit, btf, cache, prior.
 
 One module per subcommand, each with ``register(subparsers)``; what they share lives in
 :mod:`abrdf_jax.cli._common` (the only module they import from this package's CLI). This module
@@ -21,11 +21,24 @@ import sys
 import traceback
 
 from .._errors import InputError
-from . import btf, cache, demo, evaluate, fit, materials, prior, reconstruct, reference, sample
+from . import btf, cache, demo, evaluate, fit, materials, prior, reconstruct, reference, render
+from . import sample
 from ._common import PROG, say, verbose_parent, version
 
 #: The subcommands, in ``--help`` order.
-SUBCOMMANDS = (reconstruct, sample, evaluate, reference, demo, materials, fit, btf, cache, prior)
+SUBCOMMANDS = (
+    reconstruct,
+    sample,
+    evaluate,
+    reference,
+    render,
+    demo,
+    materials,
+    fit,
+    btf,
+    cache,
+    prior,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -106,6 +106,21 @@ def positive(name: str):
     return parse
 
 
+def int_in(name: str, low: int, high: int):
+    """An argparse ``type=`` for an integer in ``[low, high]``, named ``name`` in its message."""
+
+    def parse(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
+        if not low <= v <= high:
+            raise argparse.ArgumentTypeError(f"{name} must be in [{low}, {high}], got {v}")
+        return v
+
+    return parse
+
+
 #: The slice offset α a command accepts, degrees, open at both ends. α and α + 360 are the same
 #: slices; at α = 0 the axial slice (φv = φi − α) has light and view at one azimuth, so at the
 #: equal-elevation pairs they coincide along the whole slice (the camera shadows the light) and

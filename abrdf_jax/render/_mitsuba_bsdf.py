@@ -14,20 +14,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._errors import InputError
+from .._errors import InputError, require
 from ._ring_interp import brdf_of, lookup
 
 PLUGIN = "abrdf"
-_MISSING = "Mitsuba 3 is not installed: pip install abrdf_jax[render]"
 
 
 def import_mitsuba():
-    """``mitsuba`` and ``drjit``, or an :class:`InputError` naming the extra."""
-    try:
-        import drjit as dr
-        import mitsuba as mi
-    except ImportError as e:
-        raise InputError(_MISSING) from e
+    """``mitsuba`` and ``drjit``, or a one-line :class:`InputError` naming the extra
+    (``abrdf_jax[render]``)."""
+    mi = require("mitsuba", "rendering", "abrdf_jax[render]", "Mitsuba 3")
+    dr = require("drjit", "rendering", "abrdf_jax[render]", "Mitsuba 3's Dr.Jit")
     return mi, dr
 
 
