@@ -54,6 +54,15 @@ def _local_store(path):
     return DurableLocalStore(path)
 
 
+def _writing(array):
+    """``array`` set to store every chunk it is given without first comparing it with the fill
+    value (``write_empty_chunks``): a store chunk is never all NaN (``write_chunk`` refuses NaN),
+    and that comparison cost more than the write itself (about 2x the .npy store's write time
+    at 1024 texels per chunk). zarr before 3.1 has no ``with_config``: the array as it is."""
+    with_config = getattr(array, "with_config", None)
+    return array if with_config is None else with_config({"write_empty_chunks": True})
+
+
 def is_zarr_store(path) -> bool:
     return (Path(path) / "zarr.json").is_file()
 
@@ -80,7 +89,7 @@ class ZarrStore(ChunkIndex):
         super().__init__(path, manifest)
         self.group = group
         self.tile = band(self.texel_shape, self.chunk)
-        self.array = group[ARRAY]
+        self.array = _writing(group[ARRAY])
 
     def __repr__(self) -> str:
         return f"ZarrStore({str(self.path)!r}, shape={self.shape}, dtype={self.dtype.name})"
@@ -217,7 +226,7 @@ class ZarrStore(ChunkIndex):
         with warnings.catch_warnings():  # "not part of the Zarr format 3 specification": known
             warnings.simplefilter("ignore", UserWarning)
             self.group = zarr.consolidate_metadata(self.group.store)
-        self.array = self.group[ARRAY]
+        self.array = _writing(self.group[ARRAY])
 
     def remove_chunks(self) -> None:
         import shutil
