@@ -82,6 +82,9 @@ def test_export_to_zarr_round_trips(stores, tmp_path):
     _, npy, _ = stores
     out = btf.export_zarr(npy.path, tmp_path / "exported.zarr", progress=False)
     np.testing.assert_array_equal(btf.open_store(out.path).read(), npy.read())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # consolidated before the rename
+        assert xr.open_zarr(out.path)["abrdf"].shape == (SIZE, SIZE, 81, 81, 3)
     with pytest.raises(InputError, match="exists"):
         btf.export_zarr(npy.path, tmp_path / "exported.zarr", progress=False)
 

@@ -9,7 +9,9 @@ are on disk, as the ``.npy`` store's marker does. The cost is one ``fsync`` of t
 of its folder per chunk (the same as the ``.npy`` store's data file), plus one per folder this
 write creates. Temporary files follow ``atomic_write``'s naming (``.NAME.PID.XXXXXXXX.tmp``):
 no zarr key looks like one, and a killed writer's are removed by the next writer's output lock
-or by ``ZarrStore.remove_temporary``. Imported only with the ``[zarr]`` extra.
+or by ``ZarrStore.remove_temporary``. ``set_if_not_exists`` (zarr's implicit parent groups,
+which a store's flat group never needs) stays zarr's own. Imported only with the ``[zarr]``
+extra.
 """
 
 from __future__ import annotations
