@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ._btf_formats import markdown_rows
+
 
 def scaling_chart(path: Path, sizes, size_times, devices, device_times, title: str) -> None:
     import matplotlib
@@ -81,6 +83,8 @@ def markdown(out: dict, suffix: str) -> str:
             cells = " | ".join("–" if sp.get(k) is None else f"{sp[k]:.1f} s" for k in sp)
             lines.append(f"| {run} | {cells} | {wall:.1f} s |")
         lines.append("")
+    if out.get("store_formats"):
+        lines += [*markdown_rows(out["store_formats"], out["chunk"]), ""]
     lines += [
         "| beside it (same run) | figure |",
         "|---|---|",

@@ -1,9 +1,10 @@
 """Whole-BTF benchmark (issue 7): a 256 x 256-texel procedural BTF, 204 samples per texel,
 reconstructed to 81 x 81 x 3 per texel into the chunked store; scaling; accuracy map.
 
-Run: ``python -m benchmarks.btf [--quick]``. Writes ``benchmarks/results/btf.json`` and
-``btf.md`` (quick: ``btf_quick.{json,md}``) and the charts ``btf_scaling.png`` and
-``btf_error_map.png`` (quick: ``*_quick.png``). Full mode: 64² … 256² texels, 1–8 simulated
+Run: ``python -m benchmarks.btf [--quick] [--formats]``. Writes ``benchmarks/results/btf.json``
+and ``btf.md`` (quick: ``btf_quick.{json,md}``) and the charts ``btf_scaling.png`` and
+``btf_error_map.png`` (quick: ``*_quick.png``); ``--formats``: only the store formats, into
+``btf_formats{,_quick}.{json,md}``. Full mode: 64² … 256² texels, 1–8 simulated
 devices at 128²; quick: 16² … 64², 1–4 devices at 32².
 
 What is measured, all in one run:
@@ -19,6 +20,8 @@ What is measured, all in one run:
   settings, after compilation), the in-memory operator throughput (one chunk, no I/O) and the
   machine's float32 matrix-product rate (the roofline: the operator's own GEMM shape and a
   2048² GEMM), with the fraction of it the operator reaches;
+- **store formats**: the largest size into the zarr v3 group beside the ``.npy`` store, same
+  settings: time and bytes on disk (:mod:`benchmarks._btf_formats`);
 - **scaling**: warm time against texel count (64² … 256²) and against the number of simulated
   CPU devices (subprocesses with ``XLA_FLAGS=--xla_force_host_platform_device_count=N``);
 - **accuracy**: ΔE76 and LogErr per texel against the procedural ground truth (computed chunk by
@@ -41,6 +44,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from . import _btf_formats
 from ._btf_report import markdown as _markdown
 from ._btf_report import scaling_chart as _scaling_chart
 
@@ -50,20 +54,21 @@ CHUNK = 1024
 
 
 def _child(argv) -> int:
-    """``--child MEAS OUT``: reconstruct twice (cold, then warm into OUT-warm); print JSON."""
+    """``--child MEAS OUT [FORMAT]``: reconstruct twice (cold, then warm into OUT-warm) into the
+    store format FORMAT (default npy); print JSON."""
     t0 = time.perf_counter()
     import jax
 
     from abrdf_jax import btf
 
-    meas, out = argv
+    meas, out, fmt = (*argv, "npy")[:3]
     t_import = time.perf_counter() - t0
     runs = []
     for k, target in enumerate((out, out + "-warm")):
         stats: dict = {}
         t = time.perf_counter()
         store = btf.reconstruct_btf(
-            meas, target, chunk=CHUNK, progress=False, dtype="float16", stats=stats
+            meas, target, chunk=CHUNK, progress=False, dtype="float16", stats=stats, format=fmt
         )
         runs.append(dict(stats, seconds=time.perf_counter() - t))  # the whole call
         if k == 1:
@@ -85,13 +90,13 @@ def _child(argv) -> int:
     return 0
 
 
-def _run_child(meas: Path, out: Path, devices: int | None = None) -> dict:
+def _run_child(meas: Path, out: Path, devices: int | None = None, fmt: str = "npy") -> dict:
     env = dict(os.environ)
     if devices is not None:
         env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
     t = time.perf_counter()
     res = subprocess.run(
-        [sys.executable, "-m", "benchmarks.btf", "--child", str(meas), str(out)],
+        [sys.executable, "-m", "benchmarks.btf", "--child", str(meas), str(out), fmt],
         env=env,
         capture_output=True,
         text=True,
@@ -287,6 +292,7 @@ def main(argv=None) -> int:
         help="keep the stores in DIR (default: a temporary folder, removed)",
     )
     ap.add_argument("--no-exr", action="store_true", help="skip the EXR export")
+    ap.add_argument("--formats", action="store_true", help="only the npy-vs-zarr store row")
     ap.add_argument(
         "--note", default="", help="a remark stored with the figures (e.g. the machine was busy)"
     )
@@ -299,6 +305,8 @@ def main(argv=None) -> int:
     sizes = [16, 32, 64] if args.quick else [64, 128, 192, 256]
     device_counts = [1, 2, 4] if args.quick else [1, 2, 4, 8]
     device_size = 32 if args.quick else 128
+    if args.formats:  # the largest size only, into both store formats
+        sizes, device_size = sizes[-1:], sizes[-1]
     suffix = "_quick" if args.quick else ""
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="abrdf_btf_bench_"))
     work.mkdir(parents=True, exist_ok=True)
@@ -321,8 +329,13 @@ def main(argv=None) -> int:
             print(f"generated {s}x{s} measurements in {gen_times[s]:.1f} s", flush=True)
         out["generate_measurements_seconds"] = {str(k): v for k, v in gen_times.items()}
 
-        # Roofline and the single-material figure, same process, same machine state.
         big = sizes[-1]
+        if args.formats:
+            meas = work / f"btf{big}" / "measurements"
+            out["store_formats"] = _btf_formats.compare(work, meas, big, _run_child)
+            return _btf_formats.write(out, suffix, RESULTS)
+
+        # Roofline and the single-material figure, same process, same machine state.
         op = _operator_in_memory(work / f"btf{big}" / "measurements")
         m, k, n = op["gemm_shape"]
         out["roofline_gflops"] = dict(
@@ -377,6 +390,9 @@ def main(argv=None) -> int:
             },
             store_bytes=sum(f.stat().st_size for f in (work / f"rec{big}" / "chunks").iterdir()),
         )
+        known = {"npy": (head, work / f"rec{big}")}
+        meas = work / f"btf{big}" / "measurements"
+        out["store_formats"] = _btf_formats.compare(work, meas, big, _run_child, known)
         out["headline"]["vs_single_material"] = (
             out["headline"]["texels_per_second_warm"] / out["single_material"]["abrdfs_per_second"]
         )

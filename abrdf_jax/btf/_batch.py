@@ -189,6 +189,7 @@ def reconstruct_btf(
     with progress_bar("btf reconstruct", total, progress, initial=total - out.texels(todo)) as bar:
         if todo:
             _stream(meas, out, todo, runner, work, info, bar)
+    out.finish()  # zarr: consolidated metadata once the last chunk is in (also on a rerun)
     info["seconds"] = time.perf_counter() - t_start
     if stats is not None:
         stats.update(info)

@@ -44,6 +44,10 @@ class ChunkIndex:
     def chunk_status(self, k: int, verify: bool = True) -> str:
         raise NotImplementedError
 
+    def finish(self) -> None:
+        """What a store does once its writer has written every chunk it owns (the zarr store
+        consolidates its metadata when complete); nothing here."""
+
     def is_done(self, k: int, verify: bool = True) -> bool:
         return self.chunk_status(k, verify) == "done"
 

@@ -37,6 +37,7 @@ def export_zarr(store, out, *, progress: bool = True, overwrite: bool = False) -
             for k in range(src.n_chunks):
                 dst.write_chunk(k, src.read_chunk(k, verify=True))
                 bar.update(src.texels([k]))
+        dst.finish()
         if out.exists():
             shutil.rmtree(out)
         os.replace(tmp, out)
