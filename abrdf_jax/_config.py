@@ -69,6 +69,10 @@ class Config:
         pairs: measured elevation pairs ``(θi, θv)`` in degrees. Off the UBO rings the RBF
             centres of a pair take 24 azimuths per direction.
         slice_count: samples per slice when sampling pairs other than PROTOCOL.md's.
+        spike_cap: ``(quantile, margin)``: in the value space ``"logsamples"`` the RBF fits the
+            subspaces restored from log samples capped at that quantile (per material and
+            channel) plus the margin, while the uncapped restoration stays at the grid pairs
+            (:mod:`abrdf_jax._spikes`); ``None``: no cap. Chosen on the MERL train split.
     """
 
     budget: str = "iso102"
@@ -81,6 +85,7 @@ class Config:
     log_eps: float = 0.01
     pairs: tuple = PROTOCOL_PAIRS
     slice_count: int = 24
+    spike_cap: tuple | None = (0.93, 0.5)
 
     def __post_init__(self):
         for name, value, allowed in (
@@ -102,6 +107,17 @@ class Config:
             )
         if not (isinstance(self.slice_count, int) and self.slice_count >= 2):
             raise InputError(f"Config.slice_count must be an int >= 2, got {self.slice_count!r}")
+        cap = self.spike_cap
+        if cap is not None and not (
+            isinstance(cap, tuple)
+            and len(cap) == 2
+            and all(isinstance(v, (int, float)) and np.isfinite(v) for v in cap)
+            and 0 < cap[0] <= 1
+            and cap[1] >= 0
+        ):
+            raise InputError(
+                f"Config.spike_cap must be None or (quantile in (0, 1], margin >= 0), got {cap!r}"
+            )
         if not (isinstance(self.log_eps, float) and self.log_eps > 0):
             raise InputError(f"Config.log_eps must be a positive float, got {self.log_eps!r}")
 

@@ -268,7 +268,7 @@ def _apply_impl(op: ReconstructionOperator, x, full: bool, out=None):
     )
     if op.stage == "single":
         z = log_values(x, eps) if vs.log_samples else x  # single stage: never log after the rule
-        zc = cap_samples(z) if vs.log_samples else None
+        zc = cap_samples(z, cfg.spike_cap) if vs.log_samples and cfg.spike_cap else None
     else:
         s, nmax = op.t.shape
         full_y = (

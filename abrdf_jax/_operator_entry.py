@@ -30,13 +30,13 @@ class OperatorEntry:
         index: ``(n_in,)`` flat index ``s · nmax + k`` of each valid sample of the template.
         t: ``(S, nmax)`` float32 slice parameters of the template (padding zero).
         count: ``(S,)`` valid samples per slice.
-        keep: output rows where the restored subspaces are kept (``ReconstructionOperator.keep``):
-            with ``log_samples`` the map applies the spike cap (``_spikes.py``) as the JAX
-            operator does.
+        keep: output rows where the restored subspaces are kept (``ReconstructionOperator.keep``).
         log_samples: whether the map works on ``ln(max(y, 0) + ε)`` (``value_space="logsamples"``)
             or on the values themselves (``"linear"``).
         log_eps: ``Config.log_eps``: ``ε = log_eps · mean |y| + sqrt(tiny)`` per material and
             channel over the valid samples (``_values.value_eps``).
+        spike_cap: ``Config.spike_cap`` (``None`` or ``(quantile, margin)``): with
+            ``log_samples`` the map applies the spike cap (``_spikes.py``) as the JAX operator.
     """
 
     matrix: np.ndarray
@@ -46,6 +46,7 @@ class OperatorEntry:
     keep: np.ndarray
     log_samples: bool
     log_eps: float
+    spike_cap: tuple | None = None
 
     #: The entry kind in the store's metadata (entries written before kinds existed are this).
     KIND = "rbf"
@@ -83,7 +84,8 @@ class OperatorEntry:
         if self.log_samples:
             eps = np.float32(self.log_eps) * np.mean(np.abs(x), axis=1) + _EPS_FLOOR  # (B, C)
             x = np.log(np.maximum(x, np.float32(0.0)) + eps[:, None, :])
-            xc = cap_samples(x, xp=np).astype(np.float32)
+            if self.spike_cap:
+                xc = cap_samples(x, self.spike_cap, xp=np).astype(np.float32)
 
         def rows(v):  # every material and channel is a row: one GEMM, as _operator
             return np.ascontiguousarray(np.transpose(v, (0, 2, 1))).reshape(b * c, n_in)
@@ -104,11 +106,20 @@ class OperatorEntry:
 
     def meta(self) -> dict:
         """The entry's scalars (stored in its metadata beside the arrays)."""
-        return {"log_samples": bool(self.log_samples), "log_eps": float(self.log_eps)}
+        cap = None if self.spike_cap is None else [float(v) for v in self.spike_cap]
+        return {
+            "log_samples": bool(self.log_samples),
+            "log_eps": float(self.log_eps),
+            "spike_cap": cap,
+        }
 
     @classmethod
     def from_stored(cls, arrays: dict[str, np.ndarray], meta: dict) -> "OperatorEntry":
-        return cls(**arrays, log_samples=meta["log_samples"], log_eps=meta["log_eps"])
+        cap = meta.get("spike_cap")
+        cap = None if cap is None else tuple(cap)
+        return cls(
+            **arrays, log_samples=meta["log_samples"], log_eps=meta["log_eps"], spike_cap=cap
+        )
 
     @staticmethod
     def check(arrays: dict[str, np.ndarray], meta: dict) -> str | None:

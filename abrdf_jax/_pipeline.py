@@ -111,10 +111,12 @@ def _cap_centres(fit_vals, meas: Measurements, vs):
     return jnp.minimum(fit_vals, cap)
 
 
-def capped_samples(enc: Measurements, vs) -> Measurements:
+def capped_samples(enc: Measurements, config: Config, vs) -> Measurements:
     """The encoded samples the RBF's subspaces are restored from: spike-capped in the log-sample
-    value space (:mod:`abrdf_jax._spikes`), else as they are."""
-    return enc.replace(y=cap_samples(enc.y, enc.mask)) if vs.log_samples else enc
+    value space (``config.spike_cap``, :mod:`abrdf_jax._spikes`), else as they are."""
+    if not (vs.log_samples and config.spike_cap):
+        return enc
+    return enc.replace(y=cap_samples(enc.y, config.spike_cap, enc.mask))
 
 
 def fit_inputs(meas: Measurements, config: Config, params: Params, vs, eps):
@@ -126,7 +128,7 @@ def fit_inputs(meas: Measurements, config: Config, params: Params, vs, eps):
     vals = subspace_values(enc, config, params)
     raw = vs.encode_subspace(vals, eps)
     if vs.log_samples:
-        return vals, raw, subspace_values(capped_samples(enc, vs), config, params)
+        return vals, raw, subspace_values(capped_samples(enc, config, vs), config, params)
     return vals, raw, _cap_centres(raw, meas, vs)
 
 

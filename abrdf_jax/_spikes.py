@@ -9,10 +9,11 @@ sampling: 0.5° of encoder jitter turned ss440's ΔE76 from 5.4 into 30 (MERL te
 peak made chrome-steel 1.7x worse.
 
 So, in the log-sample value space, the RBF is fitted to the subspaces restored from the log
-samples capped at their :data:`SPIKE_QUANTILE` (per material and channel, over the valid samples)
-plus :data:`SPIKE_MARGIN`; the subspaces restored from the *uncapped* samples still go back at
+samples capped at their quantile ``Config.spike_cap[0]`` (per material and channel, over the
+valid samples; default :data:`SPIKE_QUANTILE`) plus the margin ``Config.spike_cap[1]``
+(:data:`SPIKE_MARGIN`); the subspaces restored from the *uncapped* samples still go back at
 their grid pairs, so a measured peak is kept where it was measured. Chosen on the MERL train
-split (``docs/captures.md``, "The spike cap"): among quantiles 0.8–0.97 and margins 0.25–0.5, the
+split by ``python -m benchmarks.spike_cap`` (``docs/captures.md``, "The spike cap"): the
 lowest mean ΔE76 over five capture kinds (protocol, 100 per slice, 0.5° jitter, 5 % noise, two
 extra pairs). It is elementwise in the samples, so the compiled operator applies it too: the
 map stays ``M · cap(z)`` plus the uncapped correction at the kept rows (``_operator.py``).
@@ -25,8 +26,8 @@ import numpy as np
 SPIKE_QUANTILE, SPIKE_MARGIN = 0.93, 0.5
 
 
-def cap_samples(z, mask=None, xp=None):
-    """``min(z, quantile(z, SPIKE_QUANTILE) + SPIKE_MARGIN)`` per material and channel.
+def cap_samples(z, cap=(SPIKE_QUANTILE, SPIKE_MARGIN), mask=None, xp=None):
+    """``min(z, quantile(z, q) + margin)`` per material and channel, ``cap = (q, margin)``.
 
     Args:
         z: log sample values, ``(..., S, nmax, C)`` with ``mask`` ``(..., S, nmax)`` marking the
@@ -35,9 +36,9 @@ def cap_samples(z, mask=None, xp=None):
     """
     if xp is None:
         import jax.numpy as xp
+    q, margin = cap
     if mask is None:
-        cap = xp.quantile(z, SPIKE_QUANTILE, axis=-2, keepdims=True)
-        return xp.minimum(z, cap + SPIKE_MARGIN)
+        return xp.minimum(z, xp.quantile(z, q, axis=-2, keepdims=True) + margin)
     flat = xp.where(mask[..., None], z, np.nan).reshape(*z.shape[:-3], -1, z.shape[-1])
-    cap = xp.nanquantile(flat, SPIKE_QUANTILE, axis=-2)[..., None, None, :]
-    return xp.minimum(z, cap + SPIKE_MARGIN)
+    level = xp.nanquantile(flat, q, axis=-2)[..., None, None, :]
+    return xp.minimum(z, level + margin)

@@ -141,6 +141,8 @@ OTHER_SCRIPTS = """other benchmark scripts:
   python -m benchmarks.stability [--quick]       numerical edges: conditioning, data edges, method failures
   python -m benchmarks.peer_stability [--quick]  the analytic peer's anisotropic fits: starts, noise, mismatch
   python -m benchmarks.render [--quick]          Mitsuba 3 renders: s/image per variant, the README figure
+  python -m benchmarks.captures [--quick]        real captures through the CLI: dense, jitter, noise, geometry
+  python -m benchmarks.spike_cap [--quick]       how Config.spike_cap was chosen (MERL train, five capture kinds)
 """
 
 

@@ -44,6 +44,7 @@ def params_to_dict(config: Config, params: "Params", fit: dict | None = None) ->
     """The JSON-ready dictionary of a configuration and its parameters."""
     cfg = {k: getattr(config, k) for k in _CONFIG_FIELDS}
     cfg["pairs"] = [list(map(float, p)) for p in config.pairs]
+    cfg["spike_cap"] = None if config.spike_cap is None else [float(v) for v in config.spike_cap]
     widths = [float(w) for w in np.asarray(params.widths)]
     values = [params.alpha_deg, float(params.reg), *widths]
     if not all(math.isfinite(v) for v in values):
@@ -80,11 +81,15 @@ def params_from_dict(d: dict, where: str = "parameters") -> tuple[Config, "Param
         c, p = dict(d["config"]), d["params"]
     except (KeyError, TypeError) as exc:
         raise InputError(f"{where}: missing section {exc}") from None
-    unknown = set(c) - set(_CONFIG_FIELDS) - {"pairs"}
+    unknown = set(c) - set(_CONFIG_FIELDS) - {"pairs", "spike_cap"}
     if unknown:
         raise InputError(f"{where}: unknown config field(s) {sorted(unknown)}")
     if "pairs" in c:
         c["pairs"] = tuple(tuple(float(t) for t in pair) for pair in c["pairs"])
+    if isinstance(
+        c.get("spike_cap"), list
+    ):  # a file written before the cap was a field: the default
+        c["spike_cap"] = tuple(c["spike_cap"])
     if "log_eps" in c:
         c["log_eps"] = float(c["log_eps"])
     try:

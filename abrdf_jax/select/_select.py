@@ -131,7 +131,7 @@ def _cv_core(data: dict, configs: tuple, params: Params):
 
     def fold_values(m, e):
         # what the pipeline's RBF fits (spike cap included: _pipeline.fit_inputs)
-        enc = capped_samples(vs.encode_samples(m, e), vs)
+        enc = capped_samples(vs.encode_samples(m, e), cfg0, vs)
         if shared:
             vals = vs.encode_subspace(subspace_values(enc, cfg0, params, rules=rules), e)
         else:
