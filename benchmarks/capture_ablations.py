@@ -1,8 +1,9 @@
 """Two ablations behind docs/captures.md, on MERL test materials (iso captures, recommended preset).
 
 - ``density``: ΔE76 against samples per slice (protocol, 50, 100, 1000) with the dense layout of
-  ``group_slices`` (24 centre azimuths per ring and the spike cap, the default) and without it
-  (``centre_azimuths=None``: the UBO centres, no cap); per material in the JSON.
+  ``group_slices`` (24 centre azimuths per ring, the default) and without it
+  (``centre_azimuths=None``: the UBO centres); both with the configuration's spike cap
+  (``Config.spike_cap``; ``python -m benchmarks.spike_cap`` shows it); per material in the JSON.
 - ``noise``: relative value noise 0, 2, 5, 10 % against the RBF regularisation (the tuned λ and
   larger ones), and the capture's noise estimate (``abrdf_jax.select.estimate_noise``, log units).
 - ``jitter``: 0.5° angle jitter with several seeds per material: how much of the jitter cost is
@@ -47,7 +48,7 @@ def _density(names, cfg):
                 out.setdefault(f"{per or 'protocol'}/{layout}", {})[n] = de
     base = np.mean(list(out["protocol/default"].values()))
     lines = [
-        "| per slice | UBO centres, no cap | default (dense: 24 azimuths + cap) |",
+        "| per slice | UBO centres | default (dense: 24 azimuths) |",
         "|---|---|---|",
     ]
     for per in DENSITIES:

@@ -110,27 +110,38 @@ def reconstruct_scipy(
     value_space="linear",
     alpha=15.0,
     log_eps=0.01,
+    spike_cap=(0.93, 0.5),
 ):
-    """Full reconstruction to an (81, 81, 3) table with scipy's RBFInterpolator."""
+    """Full reconstruction to an (81, 81, 3) table with scipy's RBFInterpolator.
+
+    ``spike_cap=(q, margin)`` (``Config.spike_cap``; log-sample value space only): the RBF fits
+    the subspaces of the log samples capped at their quantile ``q`` (all slices' samples, per
+    channel) plus ``margin``; the uncapped subspaces are kept where they were measured."""
     slices = split_slices(ti, pi_, tv, pv, rgb, alpha)
     # ε from the slice samples (a sample where two slices cross counts for both)
     eps = log_eps * np.mean(np.abs(np.concatenate([v for _, v in slices.values()])), 0) + 1e-19
+    capped = None
     if value_space == "logsamples":  # the log of the samples, before slice interpolation
         slices = {k: (a, np.log(np.maximum(v, 0) + eps)) for k, (a, v) in slices.items()}
-    xs, ys, idx = [], [], []
+        if spike_cap is not None:
+            logs = np.concatenate([v for _, v in slices.values()])
+            level = np.quantile(logs, spike_cap[0], axis=0) + spike_cap[1]
+            capped = {k: (a, np.minimum(v, level)) for k, (a, v) in slices.items()}
+    xs, ys, ycs, idx = [], [], [], []
     th, ph = ubo()
     for pair in PAIRS:
         a, b, val = subspace_on_grid(slices, pair, alpha)
         wi, wv = vec(np.full_like(a, pair[0]), a), vec(np.full_like(b, pair[1]), b)
         xs.append(np.concatenate([onion(wi), onion(wv)], -1))
         ys.append(val)
+        ycs.append(val if capped is None else subspace_on_grid(capped, pair, alpha)[2])
         ii = np.array([np.nonzero((th == pair[0]) & np.isclose(ph, x))[0][0] for x in a])
         vv = np.array([np.nonzero((th == pair[1]) & np.isclose(ph, x))[0][0] for x in b])
         idx.append(ii * 81 + vv)
     x = np.concatenate(xs) / np.asarray(widths)
     y = np.concatenate(ys)
     idx = np.concatenate(idx)
-    y_fit = np.log(np.maximum(y, 0) + eps) if value_space == "log" else y
+    y_fit = np.log(np.maximum(y, 0) + eps) if value_space == "log" else np.concatenate(ycs)
     wi = vec(np.repeat(th, 81), np.repeat(ph, 81))
     wv = vec(np.tile(th, 81), np.tile(ph, 81))
     xq = np.concatenate([onion(wi), onion(wv)], -1) / np.asarray(widths)
