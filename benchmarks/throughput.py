@@ -147,6 +147,8 @@ PRESETS = {
     # the recommended setting made linear: the log of the samples (before slice interpolation) in place
     # of the log after it; not the same numbers (the suite measures both), the same widths and λ
     "recommended": lambda: aj.Config.recommended(value_space="logsamples"),
+    # the same without the spike cap (Config.spike_cap): what the cap's second product costs
+    "recommended-nocap": lambda: aj.Config.recommended(value_space="logsamples", spike_cap=None),
 }
 
 
