@@ -194,9 +194,9 @@ def progress(total: int, desc: str, disable: bool):
 # --------------------------------------------------------------------------------------------
 
 
-def output_lock(out: Path, also=()):
+def output_lock(out: Path, also=(), announce=True):
     """The writer's lock of an output (:func:`abrdf_jax.cli._outputs.output_lock`), warning here."""
-    return _output_lock(out, warn, also)
+    return _output_lock(out, warn, also, announce)
 
 
 def expand_inputs(inputs: list[str]) -> tuple[list[Path], bool]:

@@ -52,15 +52,17 @@ def check_json_output(path: Path) -> Path:
     return check_output_file(path, (".json",), "parameter file")
 
 
-def output_lock(out: Path, warn, also=()):
+def output_lock(out: Path, warn, also=(), announce=True):
     """The lock of an output file, folder or store for the time a command writes it
     (:func:`abrdf_jax.io._lock.output_lock`): a second process writing the same output is
     refused (exit 2, naming the holder); a killed holder's lock is taken over with a warning and
     its temporary files are removed. Taken just before the output is written: an existing
-    output file is announced here ("replacing FILE", the policy)."""
+    output file is announced here ("replacing FILE", the policy) unless ``announce`` is false
+    (a command that takes the lock before its input checks announces at the write)."""
     from ..io._lock import output_lock as lock
 
-    announce_replace(out)
+    if announce:
+        announce_replace(out)
     return lock(out, warn=warn, also=also)
 
 

@@ -294,7 +294,7 @@ def run(args) -> int:
     # One writer of the output (and its model record) at a time; a killed one's lock is taken
     # over and its temporary files removed (docs/stability.md, "Faults").
     record = out.parent / ((out.name if folder_mode else out.stem) + ".model.json")
-    with common.output_lock(out, also=[record]):
+    with common.output_lock(out, also=[record], announce=False):  # said at the write
         return _run(args, files, targets, out, folder_mode, prior)
 
 
@@ -393,6 +393,7 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, cache
     )
     table = np.asarray(tables[0])
     check_finite(table, str(item.path))
+    common.announce_replace(out)
     io.write_table(out, table)
     choice["record"]["engine"] = engine
     how = f"parameters from {args.params}" if args.params else f"model {choice['name']}"
