@@ -10,13 +10,21 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 from pathlib import Path
 from typing import NamedTuple
 
 from .._errors import InputError
 from .._names import check_registry
+from ._outputs import (  # noqa: F401 - the outputs' checks and policy, used through this module
+    OVERWRITE_POLICY,
+    announce_replace,
+    check_json_output,
+    check_output_file,
+    folder_settings_check,
+    refused_store,
+)
+from ._outputs import output_lock as _output_lock
 
 PROG = "abrdf-jax"
 #: Format tag of the model record written beside a reconstruction (``OUT.model.json``).
@@ -65,9 +73,13 @@ def verbose_parent() -> argparse.ArgumentParser:
     return p
 
 
-def command(sub, name: str, func, help: str, description: str | None = None):
-    """Add subcommand ``name`` (with ``-v``) to ``sub``, run by ``func(args)`` (``None``: a group)."""
-    p = sub.add_parser(name, parents=[verbose_parent()], help=help, description=description)
+def command(sub, name: str, func, help: str, description: str | None = None, writes=False):
+    """Add subcommand ``name`` (with ``-v``) to ``sub``, run by ``func(args)`` (``None``: a group);
+    a command that ``writes`` quotes the overwrite policy at the end of its ``--help``."""
+    epilog = OVERWRITE_POLICY if writes else None
+    p = sub.add_parser(
+        name, parents=[verbose_parent()], help=help, description=description, epilog=epilog
+    )
     if func is not None:
         p.set_defaults(func=func)
     return p
@@ -182,36 +194,9 @@ def progress(total: int, desc: str, disable: bool):
 # --------------------------------------------------------------------------------------------
 
 
-def check_output_file(path: Path, suffixes: tuple[str, ...], what: str) -> Path:
-    """Fail before any work when ``path`` cannot be an output of the given kind."""
-    if path.suffix.lower() not in suffixes:
-        use = " or ".join(suffixes)
-        raise InputError(f"{path}: unknown {what} extension {path.suffix or '(none)'!r}; use {use}")
-    parent = path.parent
-    if not parent.is_dir():
-        raise InputError(f"{path}: output folder {parent} does not exist")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, expected a file name")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise InputError(f"{path}: output folder {parent} is not writable")
-    return path
-
-
-def output_lock(out: Path, also=()):
-    """The lock of an output file, folder or store for the time a command writes it
-    (:func:`abrdf_jax.io._lock.output_lock`): a second process writing the same output is
-    refused (exit 2, naming the holder); a killed holder's lock is taken over with a warning and
-    its temporary files are removed."""
-    from ..io._lock import output_lock as lock
-
-    return lock(out, warn=warn, also=also)
-
-
-def check_json_output(path: Path) -> Path:
-    """A parameter file name (``.json``) in an existing, writable folder."""
-    if path.suffix.lower() != ".json":
-        raise InputError(f"{path}: parameter files are JSON; use a .json name")
-    return check_output_file(path, (".json",), "parameter file")
+def output_lock(out: Path, also=(), announce=True):
+    """The writer's lock of an output (:func:`abrdf_jax.cli._outputs.output_lock`), warning here."""
+    return _output_lock(out, warn, also, announce)
 
 
 def expand_inputs(inputs: list[str]) -> tuple[list[Path], bool]:

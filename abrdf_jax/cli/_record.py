@@ -21,17 +21,21 @@ def model_choice(where: Path, name, config, params, how: str, reason: str, extra
     return {"name": name, "config": config, "params": params, "record": rec}
 
 
-def save_model_record(out: Path, choices: list[dict], folder_mode: bool) -> Path:
+def save_model_record(out: Path, choices: list[dict], folder_mode: bool, settings=None) -> Path:
     """Write the model record(s) atomically to ``OUT.model.json``, beside the output file or
     folder. A folder's record has one entry per line, each serialised once (``choice["json"]``):
-    a run rewrites it after its batches."""
+    a run rewrites it after its batches; it also holds the run's ``settings`` (the overwrite
+    policy compares a rerun's with them)."""
     from ..io import atomic_write
 
     out = Path(out)
     path = out.parent / ((out.name if folder_mode else out.stem) + ".model.json")
     if folder_mode:
         entries = ",\n".join("    " + _entry_json(c) for c in choices)
-        text = f'{{\n  "format": {json.dumps(MODEL_FORMAT)},\n  "inputs": [\n{entries}\n  ]\n}}'
+        head = f'  "format": {json.dumps(MODEL_FORMAT)},\n'
+        if settings is not None:
+            head += f'  "settings": {json.dumps(_clean(settings), sort_keys=True)},\n'
+        text = f'{{\n{head}  "inputs": [\n{entries}\n  ]\n}}'
     else:
         doc = {"format": MODEL_FORMAT, **choices[0]["record"]}
         text = json.dumps(_clean(doc), indent=2, allow_nan=False)

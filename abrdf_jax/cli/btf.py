@@ -90,13 +90,22 @@ def _init_distributed(args) -> None:
         print(f"jax.distributed: process {pid} of {n}", file=sys.stderr)
 
 
+def _refusing(write, *args, **kw):
+    """``write(*args, **kw)``, a store writer whose refusal of a store of other settings names
+    ``--overwrite`` (the overwrite policy, :data:`abrdf_jax.cli._common.OVERWRITE_POLICY`)."""
+    try:
+        return write(*args, **kw)
+    except InputError as e:
+        raise common.refused_store(e) from e
+
+
 def cmd_generate(args) -> int:
     from abrdf_jax import btf
 
     t0 = time.perf_counter()
     opts = dict(chunk=args.chunk, reference=not args.no_reference, overwrite=args.overwrite)
     opts |= dict(reference_dtype=args.reference_dtype, progress=not args.quiet)
-    paths = btf.generate_btf(args.output, args.size, args.seed, **opts)
+    paths = _refusing(btf.generate_btf, args.output, args.size, args.seed, **opts)
     n = args.size * args.size
     what = "measurements" + ("" if args.no_reference else " and dense reference")
     print(
@@ -179,7 +188,7 @@ def cmd_reconstruct(args) -> int:
     opts |= dict(format=args.format)
     # one writer of the store (several hosts of one jax.distributed job share it on purpose)
     with common.output_lock(out) if jax.process_count() == 1 else contextlib.nullcontext():
-        store = btf.reconstruct_btf(meas, out, config, params, **opts)
+        store = _refusing(btf.reconstruct_btf, meas, out, config, params, **opts)
     done, seconds = stats["chunks_done"], stats["seconds"]
     head = (
         f"{out}: {store.n_texels} texels ({done} chunks computed, {stats['chunks_skipped']} "
@@ -232,7 +241,9 @@ def cmd_import(args) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            store = btf.read_image_pairs(args.input, args.output, chunk=args.chunk, **opts)
+            store = _refusing(
+                btf.read_image_pairs, args.input, args.output, chunk=args.chunk, **opts
+            )
         finally:
             for message in caught:
                 common.warn(str(message.message))
@@ -256,7 +267,8 @@ def cmd_export(args) -> int:
     from abrdf_jax import btf
 
     if args.zarr:
-        store = btf.export_zarr(args.input, args.zarr, progress=not args.quiet)
+        opts = dict(progress=not args.quiet, overwrite=args.overwrite)
+        store = _refusing(btf.export_zarr, args.input, args.zarr, **opts)
         print(f"{args.zarr}: zarr v3 group, {store.n_chunks} chunks of {store.chunk} texels")
         return 0
 
@@ -285,6 +297,7 @@ def cmd_evaluate(args) -> int:
         png = Path(args.png)
         if png.suffix.lower() != ".png" or not png.parent.is_dir():
             raise InputError(f"{png}: expected a .png file in an existing folder")
+        common.announce_replace(png)
         btf.save_error_map(maps["de76"], png, title="ΔE76 per texel")
     if args.json:
         print(json.dumps(dict(rec=str(args.rec), ref=str(args.ref), **summary), indent=2))
@@ -299,7 +312,9 @@ def register(sub) -> None:
     bsub = b.add_subparsers(dest="btf_command", metavar="BTF_COMMAND", required=True)
     chunk = dict(type=common.positive("--chunk"), default=1024, metavar="N")
 
-    g = common.command(bsub, "generate", cmd_generate, HELP["generate"], DESCRIPTION["generate"])
+    g = common.command(
+        bsub, "generate", cmd_generate, HELP["generate"], DESCRIPTION["generate"], writes=True
+    )
     add = common.adder(g, HELP)
     add("-o", "--output", required=True, metavar="DIR")
     add("--size", required=True, type=common.positive("--size"), metavar="N")
@@ -312,7 +327,12 @@ def register(sub) -> None:
     add("-q", "--quiet", action="store_true")
 
     r = common.command(
-        bsub, "reconstruct", cmd_reconstruct, HELP["reconstruct"], DESCRIPTION["reconstruct"]
+        bsub,
+        "reconstruct",
+        cmd_reconstruct,
+        HELP["reconstruct"],
+        DESCRIPTION["reconstruct"],
+        writes=True,
     )
     add = common.adder(r, HELP)
     what = "a measurement store, a generated BTF folder, or an image capture (a folder or zip of "
@@ -337,7 +357,9 @@ def register(sub) -> None:
     d("--process-id", type=int, metavar="K")
     add("-q", "--quiet", action="store_true")
 
-    i = common.command(bsub, "import", cmd_import, HELP["import"], DESCRIPTION["import"])
+    i = common.command(
+        bsub, "import", cmd_import, HELP["import"], DESCRIPTION["import"], writes=True
+    )
     add = common.adder(i, HELP)
     add("input", metavar="IMAGES", help="a folder (any sub-folder) or a .zip archive of images")
     add("-o", "--output", required=True, metavar="STORE")
@@ -350,19 +372,20 @@ def register(sub) -> None:
     )
     add("--azimuth", choices=AZIMUTHS, default=AZIMUTHS[0])
     add("--light-offset", type=_degrees("--light-offset"), default=0.0, metavar="DEG")
-    add("--overwrite", action="store_true")
+    add("--overwrite", action="store_true", help="replace a different store at STORE")
     add("-q", "--quiet", action="store_true")
 
-    e = common.command(bsub, "export", cmd_export, HELP["export"])
+    e = common.command(bsub, "export", cmd_export, HELP["export"], writes=True)
     add = common.adder(e, HELP)
     add("input", metavar="STORE")
     add("--exr-dir", metavar="DIR")
     add("--zarr", metavar="OUT.zarr", help="an .npy ABRDF store -> a zarr v3 group")
+    add("--overwrite", action="store_true", help="replace an existing OUT.zarr")
     add("--float32", action="store_true")
     add("--no-compression", action="store_true")
     add("-q", "--quiet", action="store_true")
 
-    v = common.command(bsub, "evaluate", cmd_evaluate, HELP["evaluate"])
+    v = common.command(bsub, "evaluate", cmd_evaluate, HELP["evaluate"], writes=True)
     add = common.adder(v, HELP)
     add("rec", metavar="REC")
     add("ref", metavar="REF")

@@ -203,7 +203,7 @@ def register(sub) -> None:
         add("-q", "--quiet", action="store_true")
         return add
 
-    s = common.command(fsub, "self", cmd_fit_self, HELP["self"])
+    s = common.command(fsub, "self", cmd_fit_self, HELP["self"], writes=True)
     s.add_argument("input", metavar="MEAS.csv")
     add = shared(s)
     common.budget_flags(s)
@@ -215,7 +215,7 @@ def register(sub) -> None:
     )
     add("--folds", choices=FOLD_KINDS, default=FOLD_KINDS[0])
 
-    p = common.command(fsub, "population", cmd_fit_population, HELP["population"])
+    p = common.command(fsub, "population", cmd_fit_population, HELP["population"], writes=True)
     add = shared(p)
     add("--materials", default="merl-train")
     add("--limit", type=int)

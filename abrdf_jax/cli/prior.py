@@ -127,7 +127,7 @@ def register(sub) -> None:
     g = common.command(sub, "prior", None, HELP["prior"], HELP["description"])
     gsub = g.add_subparsers(dest="prior_command", metavar="ACTION", required=True)
 
-    t = common.command(gsub, "train", _train, HELP["train"])
+    t = common.command(gsub, "train", _train, HELP["train"], writes=True)
     add = common.adder(t, HELP)
     add("tables", nargs="+", metavar="TABLES")
     add("-o", "--output", required=True, metavar="PRIOR.npz")
@@ -145,7 +145,7 @@ def register(sub) -> None:
     add("prior_file", metavar="PRIOR.npz")
     add("--json", action="store_true")
 
-    d = common.command(gsub, "default", _default, HELP["default"])
+    d = common.command(gsub, "default", _default, HELP["default"], writes=True)
     add = common.adder(d, HELP)
     add("-o", "--output", required=True, metavar="PRIOR.npz")
 

@@ -56,13 +56,16 @@ HELP = {
     "prior train') or 'default' (the built-in prior, trained on the package's own analytic "
     "materials; what --model prior uses without --prior). With --model auto, --prior adds the "
     "prior-only model to the candidates (docs/model_selection.md)",
+    "--overwrite": "folder mode: replace an output folder written with other settings (model, "
+    "preset, parameters, prior, tolerance, budget, alpha, format); without it such a folder is "
+    "refused",
     "--noise": "relative noise of one sample for the isotropy test (default: estimated from the "
     "data)",
 }
 
 
 def register(sub) -> None:
-    r = common.command(sub, "reconstruct", run, HELP["help"], HELP["description"])
+    r = common.command(sub, "reconstruct", run, HELP["help"], HELP["description"], writes=True)
     add = common.adder(r, HELP)
     add("inputs", nargs="+", metavar="MEAS")
     add("-o", "--output", required=True, metavar="OUT")
@@ -77,6 +80,7 @@ def register(sub) -> None:
     add("--noise", type=common.finite("--noise", 0.0, open_low=False), metavar="SIGMA")
     add("--prior", metavar="FILE")
     add("--resume", action="store_true")
+    add("--overwrite", action="store_true")
     add("--cache-dir", metavar="DIR")
 
 
@@ -290,16 +294,35 @@ def run(args) -> int:
     # One writer of the output (and its model record) at a time; a killed one's lock is taken
     # over and its temporary files removed (docs/stability.md, "Faults").
     record = out.parent / ((out.name if folder_mode else out.stem) + ".model.json")
-    with common.output_lock(out, also=[record]):
+    with common.output_lock(out, also=[record], announce=False):  # said at the write
         return _run(args, files, targets, out, folder_mode, prior)
+
+
+def folder_settings(args) -> dict:
+    """What decides a folder run's tables besides its inputs (the model record's ``settings``):
+    a rerun into the folder with other settings is refused unless ``--overwrite``."""
+    params = None if args.params is None else str(args.params)
+    keys = ("model", "preset", "tol", "noise", "prior", "isotropic", "anisotropic", "alpha")
+    settings = {k: getattr(args, k) for k in keys} | {
+        "params": params,
+        "format": args.format or FORMATS[0],
+    }
+    return settings | {"model": args.model or "auto"}  # no --model is --model auto
 
 
 def _run(args, files, targets, out, folder_mode, prior) -> int:
     args.resumed = []
+    if args.overwrite and not folder_mode:
+        raise InputError("--overwrite is for an output folder; an output file is always replaced")
+    args.settings = folder_settings(args) if folder_mode else None
+    same = folder_mode and common.folder_settings_check(
+        out.parent / (out.name + ".model.json"), args.settings, args.overwrite
+    )
     if args.resume:
         if not folder_mode:
             raise InputError("--resume needs an output folder (several inputs or a folder)")
-        files, targets, args.resumed = _resumable(files, targets, out)
+        if same:
+            files, targets, args.resumed = _resumable(files, targets, out)
         if not files:
             print(f"{out}: all {len(args.resumed)} tables are complete (--resume); nothing to do")
             return 0
@@ -370,6 +393,7 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, cache
     )
     table = np.asarray(tables[0])
     check_finite(table, str(item.path))
+    common.announce_replace(out)
     io.write_table(out, table)
     choice["record"]["engine"] = engine
     how = f"parameters from {args.params}" if args.params else f"model {choice['name']}"
@@ -418,7 +442,7 @@ def _reconstruct_folder(
             pending.clear()
             # the record of a big folder is large: rewritten at most every RECORD_EVERY s
             if final or time.perf_counter() - saved[0] >= RECORD_EVERY:
-                common.save_model_record(out, done, True)
+                common.save_model_record(out, done, True, args.settings)
                 saved[0] = time.perf_counter()
 
         for (_, _, config), members in groups.items():
@@ -453,7 +477,9 @@ def _reconstruct_folder(
         f"{out}: wrote {len(items) - len(failed)} tables{kept} ({budgets}; {engines}; models "
         f"{common.summary(choices)})"
     )
-    print(f"model record: {common.save_model_record(out, done, True)}")  # all of them
+    print(
+        f"model record: {common.save_model_record(out, done, True, args.settings)}"
+    )  # all of them
     for msg in failed:
         common.say(f"error: {msg}")
     if failed:

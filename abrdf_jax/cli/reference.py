@@ -26,7 +26,7 @@ HELP = {
 
 
 def register(sub) -> None:
-    p = common.command(sub, "reference", run, HELP["help"], HELP["description"])
+    p = common.command(sub, "reference", run, HELP["help"], HELP["description"], writes=True)
     add = common.adder(p, HELP)
     add("material", metavar="MATERIAL")
     add("-o", "--output", required=True, type=Path, metavar="REF.npz")
@@ -40,6 +40,7 @@ def run(args) -> int:
     from .. import io, materials
 
     table = materials.dense_table(args.material)
+    common.announce_replace(out)
     io.write_table(out, table)
     print(f"reference: {out} ({args.material}, 81 x 81 x 3, linear RGB, BRDF * cos(theta_i))")
     return 0

@@ -37,7 +37,7 @@ HELP = {
 
 
 def register(sub) -> None:
-    p = common.command(sub, "render", run, HELP["help"], HELP["description"])
+    p = common.command(sub, "render", run, HELP["help"], HELP["description"], writes=True)
     add = common.adder(p, HELP)
     add("table", metavar="TABLE")
     add("reference", metavar="REFERENCE", nargs="?")

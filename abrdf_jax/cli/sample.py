@@ -59,7 +59,9 @@ HELP = {
 
 
 def register(sub) -> None:
-    add = common.adder(common.command(sub, "sample", run, HELP["help"], HELP["description"]), HELP)
+    add = common.adder(
+        common.command(sub, "sample", run, HELP["help"], HELP["description"], writes=True), HELP
+    )
     add("source", metavar="SOURCE")
     add("-o", "--output", required=True, metavar="MEAS.csv")
     add("--budget", choices=BUDGETS)
