@@ -215,23 +215,23 @@ def _matmul_batch(m: Float[Array, "q f"], z: Float[Array, "B f C"]) -> Float[Arr
 TILE = 128
 
 
-def _decoded(op: ReconstructionOperator, vs, z, zc, eps):
+def _decoded(op: ReconstructionOperator, vs, z, zc, eps, kept=None):
     """Features ``z`` ``(T, f, C)`` of ``T`` materials to their outputs ``(T, q, C)``.
 
     With the spike cap (``zc``: the features the RBF fits, ``_spikes.py``) the map is
     ``M · zc`` with the rows where the restored subspaces are kept corrected by
     ``M[keep] · (z − zc)``: there the uncapped restoration goes back, as in the pipeline (those
-    rows of ``M`` are the restoration itself)."""
+    rows of ``M`` are the restoration itself); ``kept`` is ``M[keep]``, taken once per call."""
     if zc is None:
         return vs.decode(_matmul_batch(op.matrix, z), eps)
     lin = _matmul_batch(op.matrix, zc)
     if op.keep.shape[0]:
-        fix = _matmul_batch(op.matrix[op.keep], z - zc)
+        fix = _matmul_batch(op.matrix[op.keep] if kept is None else kept, z - zc)
         lin = lin.at[:, op.keep, :].add(fix)
     return vs.decode(lin, eps)
 
 
-def _tiled(op: ReconstructionOperator, vs, z, zc, eps, out):
+def _tiled(op: ReconstructionOperator, vs, z, zc, eps, out, kept=None):
     """:func:`_decoded` of a batch, :data:`TILE` materials at a time, written into ``out``.
 
     One GEMM over the whole batch writes its ``(B·C, q)`` product to memory and reads it back
@@ -249,7 +249,8 @@ def _tiled(op: ReconstructionOperator, vs, z, zc, eps, out):
         zt = jax.lax.dynamic_slice_in_dim(z, start, size)
         ct = None if zc is None else jax.lax.dynamic_slice_in_dim(zc, start, size)
         et = None if eps is None else jax.lax.dynamic_slice_in_dim(eps, start, size)
-        return jax.lax.dynamic_update_slice_in_dim(out, _decoded(op, vs, zt, ct, et), start, 0)
+        res = _decoded(op, vs, zt, ct, et, kept)
+        return jax.lax.dynamic_update_slice_in_dim(out, res, start, 0)
 
     return jax.lax.fori_loop(0, -(-b // size), step, out)
 
@@ -288,7 +289,8 @@ def _apply_impl(op: ReconstructionOperator, x, full: bool, out=None):
         res = _decoded(op, vs, z, zc, eps)
     else:
         out = jnp.zeros((b, q, c), x.dtype) if out is None else out.reshape(b, q, c)
-        res = _tiled(op, vs, z, zc, eps, out)
+        kept = None if zc is None else op.matrix[op.keep]  # once, not per tile
+        res = _tiled(op, vs, z, zc, eps, out, kept)
     if op.grid:
         res = res.reshape(b, 81, 81, c)
     return res

@@ -107,8 +107,7 @@ def _cap_centres(fit_vals, meas: Measurements, vs):
     the log-sample value space caps its samples in every layout (:mod:`abrdf_jax._spikes`)."""
     if meas.centre_azimuths is None or not vs.log_subspace:
         return fit_vals
-    cap = jnp.quantile(fit_vals, CENTRE_QUANTILE, axis=-2, keepdims=True) + CENTRE_MARGIN
-    return jnp.minimum(fit_vals, cap)
+    return cap_samples(fit_vals, (CENTRE_QUANTILE, CENTRE_MARGIN))  # over the centres (axis -2)
 
 
 def capped_samples(enc: Measurements, config: Config, vs) -> Measurements:

@@ -5,7 +5,7 @@ and ``spike_cap.md`` (``--quick``: ``spike_cap_quick.*``: every third material, 
 
 For each material of the MERL *train* split (merl-nbrdf fits; the test split is never looked
 at here) five iso102 captures are simulated with :func:`abrdf_jax.simulate_capture` (seed
-``12 + i``, as ``benchmarks.captures``): the protocol capture, 100 samples per slice, 0.5°
+``SEED + i`` of ``benchmarks.captures``, whose kinds these are): the protocol capture, 100 samples per slice, 0.5°
 angle jitter, 5 % value noise and the protocol plus the pairs 45/45 and 60/60. Each is grouped
 (:func:`abrdf_jax.group_slices`) and reconstructed with the recommended configuration and
 ``spike_cap=(quantile, margin)`` (or ``None``: no cap), and ΔE76 is taken against the dense
@@ -24,7 +24,9 @@ import numpy as np
 import abrdf_jax as aj
 from abrdf_jax import materials, metrics
 
+from ._captures_kinds import KINDS as CAPTURE_KINDS
 from ._common import RESULTS, machine, write_json
+from .captures import SEED
 
 SETTINGS = (
     None,
@@ -38,15 +40,10 @@ SETTINGS = (
     (0.97, 0.25),
 )
 QUICK_SETTINGS = (None, (0.93, 0.5), (0.95, 0.5))
+#: The five capture kinds, as ``benchmarks.captures`` defines them (``simulate_capture`` keywords).
 KINDS = {
-    "protocol": {},
-    "dense-100": {"per_slice": 100},
-    "jitter-0.5": {"jitter_deg": 0.5},
-    "noise-5": {"noise": 0.05},
-    "extra-pairs": {
-        "pairs": tuple(aj.PROTOCOL_PAIRS) + ((45.0, 45.0), (60.0, 60.0)),
-        "per_slice": tuple(aj.PROTOCOL_COUNTS) + (26, 26),
-    },
+    k: CAPTURE_KINDS[k].capture
+    for k in ("protocol", "dense-100", "jitter-0.5", "noise-5", "extra-pairs")
 }
 
 
@@ -59,7 +56,7 @@ def captures(names):
         out[n] = (
             ref,
             {
-                k: aj.group_slices(aj.simulate_capture(model, budget="iso102", seed=12 + i, **kw))
+                k: aj.group_slices(aj.simulate_capture(model, budget="iso102", seed=SEED + i, **kw))
                 for k, kw in KINDS.items()
             },
         )

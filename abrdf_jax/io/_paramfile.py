@@ -86,9 +86,7 @@ def params_from_dict(d: dict, where: str = "parameters") -> tuple[Config, "Param
         raise InputError(f"{where}: unknown config field(s) {sorted(unknown)}")
     if "pairs" in c:
         c["pairs"] = tuple(tuple(float(t) for t in pair) for pair in c["pairs"])
-    if isinstance(
-        c.get("spike_cap"), list
-    ):  # a file written before the cap was a field: the default
+    if isinstance(c.get("spike_cap"), list):  # JSON has no tuples (absent: the default)
         c["spike_cap"] = tuple(c["spike_cap"])
     if "log_eps" in c:
         c["log_eps"] = float(c["log_eps"])
