@@ -49,6 +49,29 @@ def test_chi2_survival_matches_scipy():
         np.testing.assert_allclose(
             select.chi2_sf(q, dof), stats.chi2.sf(q, dof), rtol=1e-9, atol=1e-300
         )
+    # both branches (series below a + 1, continued fraction above) over the dof of real layouts
+    for dof in (1, 3, 24, 97, 500, 3000):
+        q = np.concatenate([[1e-9], np.linspace(0.05, 4.0 * dof + 60.0, 97)])
+        want = stats.chi2.sf(q, dof)
+        ok = want > 1e-290
+        np.testing.assert_allclose(select.chi2_sf(q, dof)[ok], want[ok], rtol=1e-9)
+
+
+def test_chi2_critical_value_is_the_level_crossing():
+    from abrdf_jax.select._chi2 import chi2_critical
+
+    stats = pytest.importorskip("scipy.stats")
+    for dof in (1, 10, 96, 1000):
+        for level in (0.001, 0.01, 0.5):
+            crit = chi2_critical(level, dof)
+            np.testing.assert_allclose(crit, stats.chi2.isf(level, dof), rtol=1e-10)
+            assert (
+                select.chi2_sf(crit * (1 + 1e-9), dof)
+                < level
+                <= select.chi2_sf(crit * (1 - 1e-9), dof)
+            )
+    with pytest.raises(ValueError, match="level"):
+        chi2_critical(1.5, 10)
 
 
 @pytest.mark.parametrize("sigma", [0.0, 0.03])

@@ -27,10 +27,10 @@ _EXPORTS = {
         "MIN_EFFECT",
         "IsotropyReport",
         "isotropy_batch",
-        "chi2_sf",
         "estimate_noise",
         "isotropy_test",
     ),
+    "_chi2": ("chi2_sf",),
     "_candidates": (
         "CANDIDATES",
         "DEFAULT_ANISO",

@@ -143,7 +143,7 @@ def check_budget(budget) -> None:
 
 def plan(meas, alpha: float, candidates, budget, noise, level, min_effect) -> Plan:
     """Test isotropy and list the candidates left for a grouped measurement (everything before
-    the folds; numpy: the isotropy test imports JAX only for the χ² tail of axial slices)."""
+    the folds; numpy: the isotropy test and its χ² tail need no JAX)."""
     check_budget(budget)
     if budget == "aniso204" and not meas.has_axial:
         raise InputError("budget 'aniso204' needs axial slices, but the measurement has none")

@@ -36,7 +36,6 @@ only up to rounding, so the test compares the axial slices' variation with a noi
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 
 from typing import TYPE_CHECKING
@@ -47,6 +46,7 @@ from .._errors import InputError
 from .._grouping import group_arrays
 from .._memo import BoundedMemo
 from .._protocol import LUMA
+from ._chi2 import chi2_critical, chi2_sf
 
 if TYPE_CHECKING:  # JAX pytrees; one material's test runs in numpy on their fields
     from .._measurements import Measurements, Samples
@@ -112,21 +112,6 @@ class IsotropyReport:
                 out[k] = None
         out["per_pair"] = [dict(d, pair=list(d["pair"])) for d in self.per_pair]
         return out
-
-
-def chi2_sf(q, dof):
-    """Survival function ``P(χ²_dof ≥ q)``: the regularised upper incomplete gamma ``Q(dof/2, q/2)``."""
-    jnp = _jnp()
-    return _gammaincc()(jnp.asarray(dof / 2.0, jnp.result_type(float)), jnp.asarray(q) / 2.0)
-
-
-@functools.cache
-def _gammaincc():
-    """``jax.scipy.special.gammaincc``, compiled (op by op it costs ~10 ms a material)."""
-    import jax
-    from jax.scipy.special import gammaincc
-
-    return jax.jit(gammaincc)
 
 
 def _interp_weights(t: np.ndarray) -> np.ndarray:
@@ -386,5 +371,6 @@ def isotropy_batch(
     dof, nn = int((count[used] - 1).sum()), int(count[used].sum())
     q = ss / sigma**2
     effect = jnp.sqrt(jnp.maximum(ss - dof * sigma**2, 0.0) / nn)
-    isotropic = ~((chi2_sf(q, dof) < level) & (effect >= min_effect))
+    # chi2_sf(q, dof) < level exactly when q exceeds the critical value: one root per layout
+    isotropic = ~((q > chi2_critical(level, dof)) & (effect >= min_effect))
     return isotropic, q / dof, effect
