@@ -157,14 +157,25 @@ def _dist_version(name: str) -> str:
         return ""
 
 
-def operator_key(config, params, meas, *, build_dtype: str = BUILD_DTYPE) -> str:
+def config_doc(config) -> dict:
+    """Every field of a :class:`Config` as canonical JSON (part of a cache key)."""
+    return {
+        "type": type(config).__qualname__,
+        **{f.name: _canon(getattr(config, f.name)) for f in dataclasses.fields(config)},
+    }
+
+
+def operator_key(
+    config, params, meas, *, build_dtype: str = BUILD_DTYPE, extra: dict | None = None
+) -> str:
     """The cache key of the operator built for ``config``, ``params`` and ``meas``'s layout.
 
     sha256 (hex) of a canonical JSON of: the package version, :data:`CACHE_FORMAT`, a digest of
     the package's modules, the JAX/jaxlib versions and ``JAX_PLATFORMS`` (they change the built
     matrix's rounding), the entry dtype and the build dtype, every :class:`Config` field, the
     parameter values (α, widths, λ) and the layout (pairs, axial slices, centre azimuths, the
-    valid slice parameters' bytes and dtype, the counts). No JAX is imported.
+    valid slice parameters' bytes and dtype, the counts), and ``extra`` (what else an entry of
+    another kind depends on, canonical JSON). No JAX is imported.
     """
     t = np.asarray(meas.t)
     count = np.asarray(meas.count).astype(np.int64)
@@ -180,10 +191,7 @@ def operator_key(config, params, meas, *, build_dtype: str = BUILD_DTYPE) -> str
         "platforms": os.environ.get("JAX_PLATFORMS", ""),
         "dtype": "float32",
         "build_dtype": build_dtype,
-        "config": {
-            "type": type(config).__qualname__,
-            **{f.name: _canon(getattr(config, f.name)) for f in dataclasses.fields(config)},
-        },
+        "config": config_doc(config),
         "params": {n: _canon(getattr(params, n)) for n in ("alpha", "widths", "reg")},
         "layout": {
             "pairs": _canon(meas.pairs),
@@ -195,6 +203,8 @@ def operator_key(config, params, meas, *, build_dtype: str = BUILD_DTYPE) -> str
             "count": count.tolist(),
         },
     }
+    if extra is not None:
+        doc["extra"] = extra
     text = json.dumps(doc, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 

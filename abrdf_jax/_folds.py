@@ -12,15 +12,49 @@ Self-calibration (:mod:`abrdf_jax.tuning`), model selection and the sample-count
 
 from __future__ import annotations
 
-import jax.numpy as jnp
 import numpy as np
 
 from ._errors import InputError
-from ._measurements import Measurements
-from ._slices import slice_vectors
 
 
-def sample_folds(meas: Measurements, k: int):
+def _jnp():
+    import jax.numpy as jnp
+
+    return jnp
+
+
+def fold_slots(count, nmax: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where the samples of each fold come from: ``(train, test)``, int arrays ``(k, S, nmax)``
+    and ``(k, S, ⌈nmax/k⌉)`` of the flat slot ``s · nmax + i`` of the measurement's sample that
+    fold ``j`` trains on / holds out at each of its own slots, ``-1`` where the fold's slice
+    ends (numpy, no JAX: the held-out operators of the command line read them too).
+
+    Fold ``j`` holds out samples ``j, j+k, …`` of every slice; a slice that would keep fewer
+    than 3 samples holds none out (it is in every fold's training data).
+
+    Raises:
+        InputError: ``k < 2``.
+    """
+    if not (isinstance(k, int) and k >= 2):
+        raise InputError(f"k (folds) must be an int >= 2, got {k!r}")
+    cnt = np.asarray(count)
+    S = cnt.shape[0]
+    ntest = -(-nmax // k)
+    train = np.full((k, S, nmax), -1, np.int64)
+    test = np.full((k, S, ntest), -1, np.int64)
+    for j in range(k):
+        for s in range(S):
+            n = int(cnt[s])
+            idx = np.arange(n)
+            held, kept = idx[idx % k == j], idx[idx % k != j]
+            if n and len(kept) < 3:  # too short to spare a sample: kept whole, never held out
+                held, kept = idx[:0], idx
+            train[j, s, : len(kept)] = s * nmax + kept
+            test[j, s, : len(held)] = s * nmax + held
+    return train, test
+
+
+def sample_folds(meas, k: int):
     """``k`` folds: fold ``j`` holds out samples ``j, j+k, ...`` of every slice (numpy, concrete).
 
     Returns:
@@ -32,45 +66,25 @@ def sample_folds(meas: Measurements, k: int):
         InputError: ``k < 2``. A slice that would keep fewer than 3 samples in a fold holds
         none out (it is in every fold's training data).
     """
-    if not (isinstance(k, int) and k >= 2):
-        raise InputError(f"k (folds) must be an int >= 2, got {k!r}")
+    jnp = _jnp()
     t, y, cnt = np.asarray(meas.t), np.asarray(meas.y), np.asarray(meas.count)
     S, nmax = t.shape
-    train_t, train_y, train_c, test_t, test_y, test_m = [], [], [], [], [], []
-    ntest = -(-nmax // k)
-    for j in range(k):
-        tt, yy, cc = np.zeros_like(t), np.zeros_like(y), np.zeros(S, np.int32)
-        et, ey, em = (
-            np.zeros((S, ntest), t.dtype),
-            np.zeros((S, ntest, 3), y.dtype),
-            np.zeros((S, ntest), bool),
-        )
-        for s in range(S):
-            n = int(cnt[s])
-            idx = np.arange(n)
-            held = idx[idx % k == j]
-            kept = idx[idx % k != j]
-            if n and len(kept) < 3:  # too short to spare a sample: kept whole, never held out
-                held, kept = idx[:0], idx
-            tt[s, : len(kept)], yy[s, : len(kept)], cc[s] = t[s, kept], y[s, kept], len(kept)
-            if n:
-                et[s, : len(held)], ey[s, : len(held)], em[s, : len(held)] = (
-                    t[s, held],
-                    y[s, held],
-                    True,
-                )
-        train_t.append(tt), train_y.append(yy), train_c.append(cc)
-        test_t.append(et), test_y.append(ey), test_m.append(em)
-    train = meas.replace(
-        t=jnp.asarray(np.stack(train_t)),
-        y=jnp.asarray(np.stack(train_y)),
-        count=jnp.asarray(np.stack(train_c)),
+    train, test = fold_slots(cnt, nmax, k)
+
+    def gather(a, slots):  # a: (S, nmax, ...) by flat slot; zero where the fold's slice ends
+        flat = a.reshape(S * nmax, *a.shape[2:])[np.maximum(slots, 0)]
+        return np.where((slots >= 0).reshape(*slots.shape, *([1] * (a.ndim - 2))), flat, 0)
+
+    train_meas = meas.replace(
+        t=jnp.asarray(gather(t, train).astype(t.dtype)),
+        y=jnp.asarray(gather(y, train).astype(y.dtype)),
+        count=jnp.asarray((train >= 0).sum(-1).astype(np.int32)),
     )
     return (
-        train,
-        jnp.asarray(np.stack(test_t)),
-        jnp.asarray(np.stack(test_y)),
-        jnp.asarray(np.stack(test_m)),
+        train_meas,
+        jnp.asarray(gather(t, test).astype(t.dtype)),
+        jnp.asarray(gather(y, test).astype(y.dtype)),
+        jnp.asarray(test >= 0),
     )
 
 
@@ -80,20 +94,26 @@ def held_out_directions(test_t, pairs, alpha):
     Slice ``s`` is the axial (even) or diagonal (odd) slice of ``pairs[s // 2]``; ``alpha`` in
     radians (traced: differentiable).
     """
+    from ._slices import slice_vectors
+
     wi, wv = zip(
         *(slice_vectors(test_t[s], s % 2, pairs[s // 2], alpha) for s in range(test_t.shape[0]))
     )
+    jnp = _jnp()
     return jnp.concatenate(wi), jnp.concatenate(wv)
 
 
-def log_residual(pred, y, eps, mask):
-    """``ln(max(pred, 0) + ε) − ln(max(y, 0) + ε)`` where ``mask``, else 0 (``mask`` broadcasts)."""
-    r = jnp.log(jnp.maximum(pred, 0.0) + eps) - jnp.log(jnp.maximum(y, 0.0) + eps)
-    return jnp.where(mask, r, 0.0)
+def log_residual(pred, y, eps, mask, xp=None):
+    """``ln(max(pred, 0) + ε) − ln(max(y, 0) + ε)`` where ``mask``, else 0 (``mask`` broadcasts;
+    ``xp``: ``jax.numpy`` by default, or ``numpy``)."""
+    xp = xp or _jnp()
+    r = xp.log(xp.maximum(pred, 0.0) + eps) - xp.log(xp.maximum(y, 0.0) + eps)
+    return xp.where(mask, r, 0.0)
 
 
-def log_rms(pred, y, eps, mask, axis=None):
+def log_rms(pred, y, eps, mask, axis=None, xp=None):
     """RMS of :func:`log_residual` over the masked entries (and the channels) along ``axis``."""
-    r = log_residual(pred, y, eps, mask)
-    n = jnp.sum(jnp.broadcast_to(mask, r.shape), axis=axis)
-    return jnp.sqrt(jnp.sum(r * r, axis=axis) / jnp.maximum(n, 1))
+    xp = xp or _jnp()
+    r = log_residual(pred, y, eps, mask, xp)
+    n = xp.sum(xp.broadcast_to(mask, r.shape), axis=axis)
+    return xp.sqrt(xp.sum(r * r, axis=axis) / xp.maximum(n, 1))

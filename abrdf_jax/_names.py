@@ -52,6 +52,9 @@ KERNEL_MIN_DEGREE = {
     "linear": 0,
 }
 LINEAR_RULES = ("average", "crossing", "diagonal")
+#: The rules affine in the slice terms a, b, c once the slices' extremes are known
+#: (``abrdf_jax._rules``): every rule but the multiplicative one.
+AFFINE_RULES = ("filip2012", "average", "crossing", "diagonal")
 LOG_SUBSPACE = ("log",)
 SOLVERS = ("lm", "gn", "bfgs", "lbfgs", "lbfgsb")
 FOLD_KINDS = ("pairs", "samples")

@@ -22,35 +22,42 @@ from ._params import Config, Params
 from ._rbf import SolveInfo, fit_rbf_info
 from ._slices import PROTOCOL_PAIRS
 from ._spikes import cap_samples
-from ._subspace import subspace
+from ._subspace import subspace, subspace_terms
 from ._values import value_space
 
 
 def subspace_values(
-    meas: Measurements, config: Config, params: Params, rules: tuple[str, ...] | None = None
+    meas: Measurements,
+    config: Config,
+    params: Params,
+    rules: tuple[str, ...] | None = None,
+    terms: bool = False,
 ) -> Float[Array, "n 3"]:
     """Values of the reconstructed toroidal subspaces at the RBF centres (eq. 2–5).
 
     ``rules``: several subspace rules at once, ``(R, n, 3)``, from one set of slice
-    interpolations (default: ``config``'s rule alone, ``(n, 3)``)."""
+    interpolations (default: ``config``'s rule alone, ``(n, 3)``). ``terms``: instead, the
+    slice terms ``(a, b, c)`` that the rules combine, ``(3, n, 3)``
+    (:func:`abrdf_jax._subspace.subspace_terms`)."""
     vals = []
     alpha = params.alpha.astype(meas.y.dtype)
     for p, (pi_, pv) in enumerate(centre_layout(meas.pairs, meas.centre_azimuths)):
-        vals.append(
-            subspace(
-                meas.t[2 * p],
-                meas.y[2 * p],
-                meas.count[2 * p],
-                meas.t[2 * p + 1],
-                meas.y[2 * p + 1],
-                meas.count[2 * p + 1],
-                jnp.asarray(np.deg2rad(pi_), meas.y.dtype),
-                jnp.asarray(np.deg2rad(pv), meas.y.dtype),
-                alpha,
-                rule=config.subspace_rule if rules is None else tuple(rules),
-                interp=config.interp,
-            )
+        pair = (
+            meas.t[2 * p],
+            meas.y[2 * p],
+            meas.count[2 * p],
+            meas.t[2 * p + 1],
+            meas.y[2 * p + 1],
+            meas.count[2 * p + 1],
+            jnp.asarray(np.deg2rad(pi_), meas.y.dtype),
+            jnp.asarray(np.deg2rad(pv), meas.y.dtype),
+            alpha,
         )
+        if terms:
+            vals.append(subspace_terms(*pair, config.interp))
+            continue
+        rule = config.subspace_rule if rules is None else tuple(rules)
+        vals.append(subspace(*pair, rule=rule, interp=config.interp))
     return jnp.concatenate(vals, axis=-2)
 
 

@@ -43,6 +43,7 @@ from jaxtyping import Array, Float
 
 from ._interp1d import periodic_interp
 from ._names import check_registry, check_trait, lookup
+from ._rules import AFFINE, combine
 
 TWO_PI = 2.0 * jnp.pi
 
@@ -81,6 +82,24 @@ class _Slices:
         self.td, self.yd, self.nd = t_diag, y_diag, n_diag
         self.s, self.d = phi_i + phi_v, phi_i - phi_v
         self.alpha, self.interp, self.log_eps = alpha, interp, log_eps
+
+    xp = jnp
+
+    @functools.cached_property
+    def amin(self):
+        return _masked_extreme(self.ya, self.na, jnp.min)
+
+    @functools.cached_property
+    def amax(self):
+        return _masked_extreme(self.ya, self.na, jnp.max)
+
+    @functools.cached_property
+    def dmin(self):
+        return _masked_extreme(self.yd, self.nd, jnp.min)
+
+    @functools.cached_property
+    def dmax(self):
+        return _masked_extreme(self.yd, self.nd, jnp.max)
 
     @functools.cached_property
     def a(self):
@@ -139,30 +158,21 @@ def _rule(name: str, *, linear: bool, needs_axial: bool = True, description: str
     return register
 
 
-@_rule(
+def _affine_rule(name: str, *, linear: bool, needs_axial: bool = True, description: str):
+    """Register the rule ``name`` of :data:`abrdf_jax._rules.AFFINE` (its one definition)."""
+    coefficients = AFFINE[name]
+    _rule(name, linear=linear, needs_axial=needs_axial, description=description)(
+        lambda sl: combine(coefficients(sl), lambda: sl.a, lambda: sl.b, lambda: sl.c)
+    )
+
+
+_affine_rule(
     "filip2012",
     linear=False,
     description="eq. (2-4): min-max stretch of a + b to the slices' range",
 )
-def _filip2012(sl: _Slices):
-    amin, amax = _masked_extreme(sl.ya, sl.na, jnp.min), _masked_extreme(sl.ya, sl.na, jnp.max)
-    dmin, dmax = _masked_extreme(sl.yd, sl.nd, jnp.min), _masked_extreme(sl.yd, sl.nd, jnp.max)
-    m, big_m = jnp.minimum(amin, dmin), jnp.maximum(amax, dmax)
-    lo, hi = amin + dmin, amax + dmax
-    span = hi - lo
-    ok = span > 0
-    u = jnp.where(ok, (sl.a + sl.b - lo) / jnp.where(ok, span, 1.0), 0.0)
-    return m + u * (big_m - m)
-
-
-@_rule("average", linear=True, description="(a + b) / 2")
-def _average(sl: _Slices):
-    return 0.5 * (sl.a + sl.b)
-
-
-@_rule("crossing", linear=True, description="a + b - c: reproduces both slices")
-def _crossing(sl: _Slices):
-    return sl.a + sl.b - sl.c
+_affine_rule("average", linear=True, description="(a + b) / 2")
+_affine_rule("crossing", linear=True, description="a + b - c: reproduces both slices")
 
 
 @_rule("log", linear=False, description="a * b / c: multiplicative")
@@ -183,9 +193,7 @@ def _log(sl: _Slices):
     return jnp.exp(lg(sl.a) + lg(sl.b) - lg(sl.c)) - eps
 
 
-@_rule("diagonal", linear=True, needs_axial=False, description="eq. (5), isotropic: b")
-def _diagonal(sl: _Slices):
-    return sl.b
+_affine_rule("diagonal", linear=True, needs_axial=False, description="eq. (5), isotropic: b")
 
 
 check_registry("RULES", RULES)
@@ -195,6 +203,21 @@ check_trait("LINEAR_RULES", tuple(n for n, r in RULES.items() if r.linear))
 def get_rule(name: str) -> Rule:
     """The registered rule ``name``; :class:`InputError` listing the names otherwise."""
     return lookup(RULES, name, "subspace rule")
+
+
+def _slices(t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, *rest) -> _Slices:
+    """The :class:`_Slices` of one pair, counts of at least 1 (see :func:`subspace`)."""
+    na, nd = jnp.maximum(n_axial, 1), jnp.maximum(n_diag, 1)
+    return _Slices(t_axial, y_axial, na, t_diag, y_diag, nd, *rest)
+
+
+def subspace_terms(t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, interp):
+    """The slice terms ``(a, b, c)`` of :class:`_Slices` at the queries, ``(3, Q, C)``: linear in
+    the slice values (the held-out errors of model selection build matrices from them,
+    :mod:`abrdf_jax.select._held_out_entry`; the rules of :mod:`abrdf_jax._rules` combine them).
+    A missing slice (count 0) is the caller's to handle, as :func:`subspace` does."""
+    sl = _slices(t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, interp, 0)
+    return jnp.stack([sl.a, sl.b, jnp.broadcast_to(sl.c, sl.a.shape)])
 
 
 def subspace(
@@ -233,18 +256,8 @@ def subspace(
     # when only the diagonal one is there (docs/stability.md). Counts of at least 1 keep every
     # branch finite, so the unused one cannot put NaN into gradients.
     has_axial, has_diag = jnp.asarray(n_axial) > 0, jnp.asarray(n_diag) > 0
-    sl = _Slices(
-        t_axial,
-        y_axial,
-        jnp.maximum(n_axial, 1),
-        t_diag,
-        y_diag,
-        jnp.maximum(n_diag, 1),
-        phi_i,
-        phi_v,
-        alpha,
-        interp,
-        log_eps,
+    sl = _slices(
+        t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, interp, log_eps
     )
     outs = []
     for r in rs:

@@ -156,18 +156,30 @@ def choose(item: common.Measured, args, forced: str | None, caches: "_Caches") -
 
 
 def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
-    """The automatic choice of every input: without JAX where one candidate is left
-    (:func:`abrdf_jax.select.quick_selection`), else by held-out errors, the folds of several
-    inputs in batches (:func:`abrdf_jax.select.select_models`: the same choices)."""
-    from ..select import quick_selection
+    """The automatic choice of every input: without JAX where one candidate is left or the
+    held-out errors are matrices in the operator store (``abrdf_jax.select._held_out_entry``:
+    a single file, or a layout shared by ``MIN_GROUP`` inputs), else by held-out errors in JAX,
+    the folds of several inputs in batches (:func:`abrdf_jax.select.select_models`). The same
+    choices either way (errors within float32 rounding)."""
+    from ..select import LEVEL, MIN_EFFECT, TOL
+    from ..select._held_out_entry import MIN_GROUP, entry_selections
 
     tol = {} if args.tol is None else {"tol": args.tol}
     sels = [None] * len(items)  # with a prior every material compares candidates (JAX)
-    for k, it in enumerate(items if caches.prior is None else ()):
-        try:
-            sels[k] = quick_selection(it.meas, it.alpha, budget=forced, noise=args.noise, **tol)
-        except InputError as e:
-            raise InputError(f"{it.path}: {e}") from e
+    if caches.prior is None:
+        sels = entry_selections(
+            [(it.meas, it.alpha) for it in items],
+            store=caches.store,
+            warn=common.warn,
+            budget=forced,
+            tol=TOL if args.tol is None else args.tol,
+            noise=args.noise,
+            level=LEVEL,
+            min_effect=MIN_EFFECT,
+            min_group=1 if len(items) == 1 else MIN_GROUP,
+            before_build=caches.numerics,
+            where=[it.path for it in items],
+        )
     rest = [k for k, s in enumerate(sels) if s is None]
     if rest:
         caches.numerics()

@@ -40,10 +40,9 @@ _EXPORTS = {
         "Candidate",
         "candidate",
     ),
-    "_choice": ("Selection", "quick_selection", "tolerance_choice"),
+    "_choice": ("Selection", "group_configs", "quick_selection", "tolerance_choice"),
     "_select": (
         "fold_data",
-        "group_configs",
         "held_out_errors",
         "held_out_errors_batch",
         "select_model",

@@ -228,3 +228,17 @@ def quick_selection(
     if len(p.configs) > 1:
         return None
     return finish(p, None, tol, k, time.perf_counter() - t0)
+
+
+def _group_key(config: Config):
+    """Configurations with equal keys share the RBF system (and the default parameters)."""
+    fields = ("kernel", "degree", "value_space", "parameterization", "log_eps")
+    return tuple(getattr(config, f) for f in fields)
+
+
+def group_configs(configs: dict[str, Config]) -> list[tuple[tuple[str, ...], tuple[Config, ...]]]:
+    """Split named configurations into groups that share one RBF system."""
+    groups: dict = {}
+    for name, cfg in configs.items():
+        groups.setdefault(_group_key(cfg), []).append((name, cfg))
+    return [(tuple(n for n, _ in g), tuple(c for _, c in g)) for g in groups.values()]

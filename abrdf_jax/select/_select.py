@@ -44,6 +44,7 @@ from ._choice import (  # noqa: F401
     Selection,
     check_budget,
     finish,
+    group_configs,
     plan,
     rbf_configs,
     tolerance_choice,
@@ -71,12 +72,6 @@ from .._measurements import Measurements, Samples
 
 # ------------------------------------------------------------------------------------------------
 # Held-out error of several configurations at once
-
-
-def _group_key(config: Config):
-    """Configurations with equal keys share the RBF system (and the default parameters)."""
-    fields = ("kernel", "degree", "value_space", "parameterization", "log_eps")
-    return tuple(getattr(config, f) for f in fields)
 
 
 def fold_data(meas: Measurements, alpha, k: int = 4) -> dict:
@@ -120,46 +115,90 @@ def _cv_core(data: dict, configs: tuple, params: Params):
     train = data["train"]
     cfg0 = configs[0]
     vs = value_space(cfg0.value_space)
-    dtype = train.y.dtype
     # (k, 3): each fold's own ε
     eps = jax.vmap(lambda m: vs.eps(m, cfg0.log_eps))(train) if vs.is_log else None
-
-    # every configuration of the group from one set of slice interpolations per fold (they
-    # differ in the subspace rule only, or else each reads its own)
-    shared = len({c.interp for c in configs}) == 1
-    rules = tuple(c.subspace_rule for c in configs)
 
     def fold_values(m, e):
         # what the pipeline's RBF fits (spike cap included: _pipeline.fit_inputs)
         enc = capped_samples(vs.encode_samples(m, e), cfg0, vs)
-        if shared:
-            vals = vs.encode_subspace(subspace_values(enc, cfg0, params, rules=rules), e)
-        else:
-            vals = jnp.stack(
-                [vs.encode_subspace(subspace_values(enc, c, params), e) for c in configs]
-            )
+        vals = _group_subspaces(enc, configs, params, lambda v: vs.encode_subspace(v, e))
         return _cap_centres(vals, m, vs)
 
     fit_vals = jnp.moveaxis(jax.vmap(fold_values)(train, eps), 1, 0)  # (G, k, n, C)
+    pred = vs.decode(
+        _fold_predictions(fit_vals, data, cfg0, params),
+        None if eps is None else eps[:, None, None, :],
+    )
+    mask = data["test_mask"][:, :, None, None]
+    return log_rms(pred, data["test_y"][:, :, None, :], data["res_eps"], mask, axis=(0, 1, 3))
+
+
+def _group_subspaces(m: Measurements, configs: tuple, params: Params, encode=None):
+    """Subspace values ``(G, n, C)`` of every configuration of one kernel group (``encode``d
+    for the RBF): one set of slice interpolations when they differ in the rule only."""
+    encode = encode or (lambda v: v)
+    if len({c.interp for c in configs}) == 1:
+        rules = tuple(c.subspace_rule for c in configs)
+        return encode(subspace_values(m, configs[0], params, rules=rules))
+    return jnp.stack([encode(subspace_values(m, c, params)) for c in configs])
+
+
+def _fold_predictions(fit_vals, data: dict, cfg0: Config, params: Params):
+    """The RBF part of the held-out fits, linear in the values it fits: fold ``j``'s prediction
+    at fold ``j``'s held-out samples ``(k, q, G, C)`` from the centre values ``fit_vals``
+    ``(G, k, n, C)`` of every configuration and fold (in the RBF's value space)."""
     G, k, n, C = fit_vals.shape
     # Every fold and configuration as right-hand sides of one system (it ignores the values).
-    rhs = jnp.moveaxis(fit_vals, 2, 0).reshape(n, G * k * C)
+    out = _rbf_at_held_out(jnp.moveaxis(fit_vals, 2, 0).reshape(n, G * k * C), data, cfg0, params)
+    fold = jnp.arange(k)
+    return out.reshape(k, -1, G, k, C)[fold, :, :, fold, :]  # fold j's own: (k, q, G, C)
+
+
+def _rbf_at_held_out(rhs, data: dict, cfg0: Config, params: Params):
+    """The RBF fitted at the centres to the columns ``rhs`` ``(n, R)``, read at every fold's
+    held-out samples: ``(k, q, R)`` (the centres, and so the system, are the same in every fold)."""
+    train = data["train"]
+    dtype = train.y.dtype
     wi_c, wv_c = centre_vectors(train.pairs, dtype, train.centre_azimuths)
     xc = pair_coordinates(wi_c, wv_c, cfg0.parameterization)
     rbf = fit_rbf(
         xc, rhs, params.widths.astype(dtype), cfg0.kernel, params.reg.astype(dtype), cfg0.degree
     )
-    q = data["test_wi"].shape[1]
+    k, q = data["test_wi"].shape[:2]
     xq = pair_coordinates(
         data["test_wi"].reshape(-1, 3), data["test_wv"].reshape(-1, 3), cfg0.parameterization
     )
-    out = rbf(xq).reshape(k, q, G, k, C)
-    fold = jnp.arange(k)
-    # fold j's own prediction at fold j's held-out samples: (k, q, G, C)
-    out = out[fold, :, :, fold, :]
-    pred = vs.decode(out, None if eps is None else eps[:, None, None, :])
-    mask = data["test_mask"][:, :, None, None]
-    return log_rms(pred, data["test_y"][:, :, None, :], data["res_eps"], mask, axis=(0, 1, 3))
+    return rbf(xq).reshape(k, q, -1)
+
+
+@eqx.filter_jit
+def held_out_terms(data: dict, config: Config, params: Params, centres: tuple[int, ...]):
+    """The held-out fits of :func:`_cv_core` as matrices, for rules affine in the slice terms
+    (:mod:`abrdf_jax._rules`) in a value space without a log after the rule (the JAX-free
+    held-out errors, :mod:`abrdf_jax.select._held_out_entry`).
+
+    Returns ``(terms, ones)``: ``terms`` ``(k, P, 3, q, S·nmax)``, the RBF prediction at fold
+    ``j``'s held-out samples from pair ``p``'s slice term ``a``, ``b`` or ``c`` alone, as a
+    matrix on the values of fold ``j``'s training slots (``s · nmax + i`` of ``data["train"]``);
+    ``ones`` ``(k, P, q)``, the prediction from the constant 1 at pair ``p``'s centres.
+    ``centres``: the number of RBF centres of each pair (``abrdf_jax._grid.centre_layout``).
+    Built as the reconstruction operator is (``abrdf_jax._operator``): the pipeline's own
+    linear parts applied to unit vectors."""
+    train = data["train"]
+    dtype = train.y.dtype
+    k, s, nmax = train.t.shape
+    unit = jnp.eye(s * nmax, dtype=dtype).reshape(s, nmax, s * nmax)
+    terms = jax.vmap(lambda m: subspace_values(m.replace(y=unit), config, params, terms=True))(
+        train
+    )  # (k, 3, n, slots)
+    n = terms.shape[2]
+    rbf = _rbf_at_held_out(jnp.eye(n, dtype=dtype), data, config, params)  # (k, q, n)
+    bounds = np.cumsum((0,) + tuple(centres))
+    maps, ones = [], []
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        maps.append(jnp.einsum("kqn,ktns->ktqs", rbf[..., lo:hi], terms[:, :, lo:hi]))
+        ones.append(jnp.sum(rbf[..., lo:hi], axis=-1))
+    return jnp.stack(maps, 1), jnp.stack(ones, 1)
 
 
 _cv_jit = eqx.filter_jit(_cv_core)
@@ -171,14 +210,6 @@ def held_out_errors_batch(data, configs: tuple, params: Params):
     :func:`group_configs`) for a batch of materials: ``data`` is :func:`fold_data` of each,
     stacked along a leading axis (one layout); one compiled program for the whole batch."""
     return jax.vmap(lambda d: _cv_core(d, configs, params))(data)
-
-
-def group_configs(configs: dict[str, Config]) -> list[tuple[tuple[str, ...], tuple[Config, ...]]]:
-    """Split named configurations into groups that share one RBF system."""
-    groups: dict = {}
-    for name, cfg in configs.items():
-        groups.setdefault(_group_key(cfg), []).append((name, cfg))
-    return [(tuple(n for n, _ in g), tuple(c for _, c in g)) for g in groups.values()]
 
 
 def held_out_errors(

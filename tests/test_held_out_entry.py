@@ -1,0 +1,116 @@
+"""Held-out errors of model selection as numpy matrices (``abrdf_jax.select._held_out_entry``):
+the same errors as the JAX path for every default candidate (the min–max rule ``filip2012``
+included), kept in the operator store, and the same choices."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import abrdf_jax as aj
+from abrdf_jax import _cache, materials, select
+from abrdf_jax.select import _held_out_entry as H
+
+NAMES = ("ward-brushed-steel", "ggx-aniso-metal", "ashikhmin-satin", "ggx-plastic")
+
+
+@pytest.fixture(scope="module")
+def captures():
+    """Grouped aniso204 captures of one layout (1 % noise): ``[(meas, alpha_deg)]``."""
+    out = []
+    for i, name in enumerate(NAMES):
+        m, info = aj.group_slices(
+            aj.simulate_capture(materials.get_material(name), noise=0.01, seed=i)
+        )
+        out.append((m, float(info["alpha_deg"])))
+    return out
+
+
+def _configs():
+    return {n: select.CANDIDATES[n].config() for n in select.DEFAULT_ANISO}
+
+
+def _entry_errors(meas, alpha, configs, k=4):
+    out = {}
+    for names, cfgs in H.entry_groups(configs):
+        entry = H.build_entry(meas, alpha, names, cfgs, k)
+        ys = np.asarray(meas.y)[None]
+        out.update({n: float(e) for n, e in zip(names, entry.errors(ys)[0])})
+    return out
+
+
+def test_every_default_candidate_has_an_entry():
+    rules = {c.subspace_rule for c in _configs().values()}
+    assert "filip2012" in rules  # the non-linear rule is covered, not skipped
+    assert all(r in H.AFFINE for r in rules)
+
+
+def test_entry_errors_equal_the_jax_held_out_errors(captures):
+    """Float32 rounding apart (the JAX path runs in float32; the entry was built in float64)."""
+    configs = _configs()
+    for meas, alpha in captures[1:2]:
+        want = select.held_out_errors(meas, configs, alpha_deg=alpha)
+        got = _entry_errors(meas, alpha, configs)
+        assert set(got) == set(want)
+        for name in want:
+            assert got[name] == pytest.approx(want[name], rel=1e-4), name
+
+
+def test_a_pair_without_its_axial_slice_reads_the_diagonal_one(captures):
+    """An axial slice not measured (count 0): its pair falls back to the diagonal slice in both
+    paths (``abrdf_jax._subspace.subspace``), so the errors still agree."""
+    meas, alpha = captures[0]
+    count = np.asarray(meas.count).copy()
+    count[2] = 0  # the axial slice of the second pair
+    meas = meas.replace(count=count.astype(np.asarray(meas.count).dtype))
+    configs = _configs()
+    want = select.held_out_errors(meas, configs, alpha_deg=alpha)
+    got = _entry_errors(meas, alpha, configs)
+    for name in want:
+        assert got[name] == pytest.approx(want[name], rel=1e-4), name
+
+
+def test_entry_selections_make_the_same_choices_and_use_the_store(captures, tmp_path):
+    store = _cache.OperatorStore(tmp_path / "store")
+    warnings, builds = [], []
+    kw = dict(tol=select.TOL, level=select.LEVEL, min_effect=select.MIN_EFFECT)
+    first = H.entry_selections(
+        captures,
+        store=store,
+        warn=warnings.append,
+        min_group=2,
+        before_build=lambda: builds.append(1),
+        **kw,
+    )
+    assert builds and not warnings
+    again = H.entry_selections(
+        captures, store=store, warn=warnings.append, min_group=2, before_build=builds.clear, **kw
+    )
+    assert builds, "the second call read every entry from the store (nothing built)"
+    for (meas, alpha), a, b in zip(captures, first, again):
+        one = select.select_model(meas, alpha_deg=alpha)
+        assert a.name == b.name == one.name
+        assert a.errors == pytest.approx(b.errors, rel=0, nan_ok=True)  # read back exactly
+        for n, e in one.errors.items():
+            assert a.errors[n] == pytest.approx(e, rel=1e-4, nan_ok=True)
+    # fewer inputs of the layout than min_group: left to the JAX path
+    assert H.entry_selections(
+        captures[:1], store=store, warn=warnings.append, min_group=2, **kw
+    ) == [None]
+
+
+def test_a_corrupt_stored_entry_is_rebuilt(captures, tmp_path):
+    meas, alpha = captures[1]
+    store = _cache.OperatorStore(tmp_path / "store")
+    (names, cfgs), *_ = H.entry_groups(_configs())
+    built = H.cached_entry(store, meas, alpha, names, cfgs, 4, print)
+    files = [p for p in (tmp_path / "store").rglob("*") if p.is_file() and p.suffix == ".npz"]
+    assert len(files) == 1
+    files[0].write_bytes(files[0].read_bytes()[:200])  # truncated
+    warnings = []
+    again = H.cached_entry(store, meas, alpha, names, cfgs, 4, warnings.append)
+    assert warnings and "rebuil" in " ".join(warnings).lower()
+    np.testing.assert_array_equal(again.terms, built.terms)
+    np.testing.assert_array_equal(
+        again.errors(np.asarray(meas.y)[None]), built.errors(np.asarray(meas.y)[None])
+    )
