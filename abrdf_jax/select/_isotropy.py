@@ -36,6 +36,7 @@ only up to rounding, so the test compares the axial slices' variation with a noi
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 
 from typing import TYPE_CHECKING
@@ -202,9 +203,15 @@ def estimate_noise(meas: "Measurements", log_eps: float = None, slices: str = "a
     log_eps = LOG_EPS if log_eps is None else log_eps
     if slices not in ("axial", "diagonal", "all"):
         raise InputError(f"slices must be 'axial', 'diagonal' or 'all', got {slices!r}")
-    t, cnt = np.asarray(meas.t, np.float64), np.asarray(meas.count)
-    y = np.asarray(meas.y)[None]  # one material: on the host (numpy)
-    logl = _log_luminance(y, np.asarray(meas.mask)[None], log_eps, np)
+    return _estimate(meas, log_eps, slices)
+
+
+def _estimate(meas, log_eps: float, slices: str, logl=None) -> float:
+    """:func:`estimate_noise` (``logl``: the measurement's log luminance, if at hand), memoised
+    by a digest of the measurement's bytes and the slices that enter it (the command line asks
+    for all slices of every file of a folder first, then the isotropy test for the axial ones:
+    the same rows when no axial slice is measured)."""
+    t, cnt, y = np.asarray(meas.t, np.float64), np.asarray(meas.count), np.asarray(meas.y)
     if slices == "axial" and not np.any(cnt[0::2] >= 3):
         slices = "diagonal"
     rows = {
@@ -212,7 +219,23 @@ def estimate_noise(meas: "Measurements", log_eps: float = None, slices: str = "a
         "diagonal": range(1, len(cnt), 2),
         "all": range(len(cnt)),
     }[slices]
-    return float(_noise(logl, t, cnt, rows, np)[0])
+    rows = tuple(s for s in rows if cnt[s] >= 3)
+    digest = hashlib.blake2b(digest_size=16)
+    for a in (t, cnt, y):
+        digest.update(repr((a.shape, a.dtype.str)).encode())
+        digest.update(np.ascontiguousarray(a).tobytes())
+    key = (digest.digest(), float(log_eps), rows)
+
+    def build():
+        lg = logl
+        if lg is None:  # one material: on the host (numpy)
+            lg = _log_luminance(y[None], np.asarray(meas.mask)[None], log_eps, np)
+        return float(_noise(lg, t, cnt, rows, np)[0])
+
+    return _ESTIMATES.get(key, build)
+
+
+_ESTIMATES = BoundedMemo(4096)  # a few hundred kB
 
 
 def isotropy_test(
@@ -261,7 +284,7 @@ def isotropy_test(
     logl = _log_luminance(np.asarray(meas.y)[None], np.asarray(meas.mask)[None], log_eps, np)
     floor = 1e-6  # log units: float32 rounding of constant slices stays below it
     if noise is None:
-        sigma, source = estimate_noise(meas, log_eps), "estimated"
+        sigma, source = _estimate(meas, log_eps, "axial", logl), "estimated"
     else:
         sigma, source = float(noise), "given"
     sigma = max(sigma, floor) if math.isfinite(sigma) else floor
