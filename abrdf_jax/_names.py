@@ -53,6 +53,8 @@ KERNEL_MIN_DEGREE = {
 }
 LINEAR_RULES = ("average", "crossing", "diagonal")
 LOG_SUBSPACE = ("log",)
+#: Value spaces that take the log of the samples (where the spike cap and slice smoothing act).
+LOG_SAMPLES = ("logsamples",)
 SOLVERS = ("lm", "gn", "bfgs", "lbfgs", "lbfgsb")
 FOLD_KINDS = ("pairs", "samples")
 LOSSES = ("lab", "log", "lab+log")

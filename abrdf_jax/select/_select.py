@@ -63,7 +63,13 @@ from .._params import Config, Params
 from .._coords import pair_coordinates
 from .._folds import held_out_directions, log_rms, sample_folds
 from .._grid import centre_vectors
-from .._pipeline import _cap_centres, capped_samples, prepare, subspace_values
+from .._pipeline import (
+    _cap_centres,
+    capped_samples,
+    prepare,
+    smoothed_samples,
+    subspace_values,
+)
 from .._values import measurement_eps, value_space
 from .._rbf import fit_rbf
 from .._measurements import Measurements, Samples
@@ -74,8 +80,17 @@ from .._measurements import Measurements, Samples
 
 
 def _group_key(config: Config):
-    """Configurations with equal keys share the RBF system (and the default parameters)."""
-    fields = ("kernel", "degree", "value_space", "parameterization", "log_eps")
+    """Configurations with equal keys share the RBF system (and the default parameters) and
+    the samples it is fitted from (spike cap, slice smoothing)."""
+    fields = (
+        "kernel",
+        "degree",
+        "value_space",
+        "parameterization",
+        "log_eps",
+        "spike_cap",
+        "slice_smoothing",
+    )
     return tuple(getattr(config, f) for f in fields)
 
 
@@ -130,8 +145,8 @@ def _cv_core(data: dict, configs: tuple, params: Params):
     rules = tuple(c.subspace_rule for c in configs)
 
     def fold_values(m, e):
-        # what the pipeline's RBF fits (spike cap included: _pipeline.fit_inputs)
-        enc = capped_samples(vs.encode_samples(m, e), cfg0, vs)
+        # what the pipeline's RBF fits (slice smoothing and spike cap: _pipeline.fit_inputs)
+        enc = capped_samples(smoothed_samples(vs.encode_samples(m, e), cfg0, vs), cfg0, vs)
         if shared:
             vals = vs.encode_subspace(subspace_values(enc, cfg0, params, rules=rules), e)
         else:
