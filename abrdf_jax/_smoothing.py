@@ -199,3 +199,24 @@ def smoothing_report(setting, y, t, count, log_eps: float) -> dict | None:
         "noise_log": round(sigma, 6) if np.isfinite(sigma) else None,
         "beta": [round(float(b), 4) for b in beta],
     }
+
+
+def slice_smoothing(meas, config) -> dict | None:
+    """What ``config.slice_smoothing`` does to a grouped measurement: the noise it reads and
+    the weight ``β`` of every slice (the model record's ``smoothing`` entry; numpy, no JAX).
+
+    Args:
+        meas: one grouped :class:`abrdf_jax.Measurements` (unbatched).
+        config: the reconstruction's :class:`abrdf_jax.Config`.
+
+    Returns:
+        ``{"setting", "noise_log", "beta"}`` (``noise_log``: ``σ̂`` in the log samples the
+        slices interpolate, ``None`` for a fixed weight; ``beta``: one per slice), or ``None``
+        when the configuration does not smooth (setting ``None``, or a value space other than
+        ``"logsamples"``).
+    """
+    from ._names import LOG_SAMPLES
+
+    if config.value_space not in LOG_SAMPLES:
+        return None
+    return smoothing_report(config.slice_smoothing, meas.y, meas.t, meas.count, config.log_eps)

@@ -337,16 +337,11 @@ def _noise(meas) -> float | None:
 
 
 def smoothing_record(item: "Measured", config) -> dict | None:
-    """The model record's ``smoothing`` entry of one input (``None``: no slice smoothing): the
-    setting, the noise it read in the log samples and the weight per slice (numpy, no JAX;
-    :func:`abrdf_jax._smoothing.smoothing_report`)."""
-    from .._names import LOG_SAMPLES
-    from .._smoothing import smoothing_report
+    """The model record's ``smoothing`` entry of one input (``None``: no slice smoothing):
+    :func:`abrdf_jax._smoothing.slice_smoothing` (numpy, no JAX)."""
+    from .._smoothing import slice_smoothing
 
-    if config is None or config.value_space not in LOG_SAMPLES:
-        return None
-    m = item.meas
-    return smoothing_report(config.slice_smoothing, m.y, m.t, m.count, config.log_eps)
+    return None if config is None else slice_smoothing(item.meas, config)
 
 
 def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measured:
