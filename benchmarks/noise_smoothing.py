@@ -64,16 +64,18 @@ def captures(names, noise, kw):
 
 
 def run_cell(refs, stacked, alpha, members, settings) -> dict:
-    """``{setting: (ΔE76 per material, median diagonal β)}`` of one capture kind and noise."""
+    """``{setting: (ΔE76 per material, median diagonal β, σ̂ the rule read per material)}`` of
+    one capture kind and noise."""
     out = {}
     for setting in settings:
         cfg = aj.preset("recommended", "iso102", slice_smoothing=setting)
         params = aj.Params.default(cfg, alpha_deg=alpha)
         tables = np.asarray(aj.reconstruct_batch(stacked, cfg, params), np.float32)
         de = [float(metrics.evaluate(t, r)["de76"]) for t, r in zip(tables, refs)]
-        betas = [aj.slice_smoothing(m, cfg) for m in members]
-        beta = [np.median(b["beta"][1::2]) for b in betas if b is not None]
-        out[str(setting)] = (de, float(np.median(beta)) if beta else 0.0)
+        reports = [aj.slice_smoothing(m, cfg) for m in members]
+        beta = [np.median(r["beta"][1::2]) for r in reports if r is not None]
+        sig = [r["noise_log"] for r in reports if r is not None and r["noise_log"] is not None]
+        out[str(setting)] = (de, float(np.median(beta)) if beta else 0.0, sig)
     return out
 
 
@@ -85,23 +87,25 @@ def markdown(payload) -> str:
         "",
         f"`{payload['command']}`: {payload['n_materials']} materials (one in "
         f"{payload['every']} of the split), iso102, recommended configuration; mean ΔE76 per "
-        "capture (ratio to no smoothing), the noise estimate (median, log luminance) and the "
-        "median weight of the diagonal slices. Load average before/after: "
+        "capture (ratio to no smoothing), the noise estimate (median; log luminance, the model "
+        "record's `noise_log`), the σ̂ the rule read (median; the reconstruction's log samples) "
+        "and the median weight β of the diagonal slices. Load average before/after: "
         f"{payload['load_before']} / {payload['load_after']}; {payload['seconds']:.0f} s.",
         "",
-        "| capture | noise | estimate | " + " | ".join(map(str, settings)) + " |",
-        "|---" * (len(settings) + 3) + "|",
+        "| capture | noise | estimate | rule's σ̂ | " + " | ".join(map(str, settings)) + " |",
+        "|---" * (len(settings) + 4) + "|",
     ]
     for c in cells:
         off = np.mean(c["de76"]["None"])
-        row = [c["kind"], f"{100 * c['noise']:g} %", f"{np.median(c['estimate']):.4f}"]
+        rule = "" if not c.get("rule_noise") else f"{np.median(c['rule_noise']):.4f}"
+        row = [c["kind"], f"{100 * c['noise']:g} %", f"{np.median(c['estimate']):.4f}", rule]
         for s in map(str, settings):
             m = np.mean(c["de76"][s])
             beta = "" if s == "None" else f", β {c['beta'][s]:.2f}"
             row.append(f"{m:.3f} ({m / off:.3f}x{beta})")
         lines.append("| " + " | ".join(row) + " |")
     lines.append(
-        "| mean | | | " + " | ".join(f"{payload['overall'][str(s)]:.3f}" for s in settings) + " |"
+        "| mean | | | | " + " | ".join(f"{payload['overall'][str(s)]:.3f}" for s in settings) + " |"
     )
     if payload.get("chosen") is not None:
         lines += ["", f"Chosen (lowest mean, clean captures within 0.5 %): `{payload['chosen']}`"]
@@ -148,6 +152,8 @@ def main(argv=None) -> dict:
                     "estimate": sig,
                     "de76": {k: v[0] for k, v in res.items()},
                     "beta": {k: v[1] for k, v in res.items()},
+                    # σ̂ the rule read (the reconstruction's log samples), per material
+                    "rule_noise": next((v[2] for v in res.values() if v[2]), None),
                 }
             )
             means = " ".join(f"{k}: {np.mean(v[0]):.3f}" for k, v in res.items())
