@@ -19,8 +19,9 @@ variance ``σ²`` on locally linear data the shrink leaves ``σ² ((1 − β)² 
 ``σ̂ = 1.4826 · median |r_k| / sqrt(1 + w_l² + w_r²)`` over every sample of every slice with ≥ 3
 samples and every channel. On a slice whose samples are ``Δ_s`` apart a noise-free material's
 own curvature already reads as ``floor · q_s`` with ``q_s = (Δ_s / Δ_0)²`` (the residual of a smooth
-curve scales as the spacing squared; ``Δ_0 = 2π/26``, the protocol's diagonal slice: 0.023 there
-on MERL, 0.0011 at 100 samples a slice, ``python -m benchmarks.noise_smoothing``), so the noise
+curve scales as the spacing squared; ``Δ_0 = 2π/26``, the protocol's diagonal slice: 0.021 there
+on noise-free MERL test captures, 0.0013 at 100 samples a slice: the "rule's σ̂" column of
+``benchmarks/results/noise_smoothing_test.md``), so the noise
 variance is ``σ_n² = max(σ̂² − (floor · q_s)², 0)`` and
 
     β_s = β_max · σ_n² / (σ_n² + (scale · q_s)²)
