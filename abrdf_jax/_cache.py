@@ -401,6 +401,7 @@ def build_entry(meas, config, params, *, build_dtype: str = BUILD_DTYPE) -> Oper
         log_samples=value_space(config.value_space).log_samples,
         log_eps=float(config.log_eps),
         spike_cap=config.spike_cap,
+        slice_smoothing=config.slice_smoothing,
     )
 
 

@@ -56,6 +56,8 @@ LINEAR_RULES = ("average", "crossing", "diagonal")
 #: (``abrdf_jax._rules``): every rule but the multiplicative one.
 AFFINE_RULES = ("filip2012", "average", "crossing", "diagonal")
 LOG_SUBSPACE = ("log",)
+#: Value spaces that take the log of the samples (where the spike cap and slice smoothing act).
+LOG_SAMPLES = ("logsamples",)
 SOLVERS = ("lm", "gn", "bfgs", "lbfgs", "lbfgsb")
 FOLD_KINDS = ("pairs", "samples")
 LOSSES = ("lab", "log", "lab+log")

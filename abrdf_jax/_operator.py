@@ -44,6 +44,7 @@ from ._grid import _centre_target_index, centre_layout, keep_centres, ubo_target
 from ._measurements import Measurements
 from ._params import Config, Params
 from ._pipeline import fit_inputs, rbf_map, subspace_values
+from ._smoothing import smooth_compact
 from ._spikes import cap_samples
 from ._subspace import get_rule
 from ._values import log_values, value_eps, value_space
@@ -269,6 +270,8 @@ def _apply_impl(op: ReconstructionOperator, x, full: bool, out=None):
     )
     if op.stage == "single":
         z = log_values(x, eps) if vs.log_samples else x  # single stage: never log after the rule
+        if vs.log_samples:  # the pipeline's slice smoothing (_pipeline.smoothed_samples)
+            z = smooth_compact(cfg.slice_smoothing, z, op.index, op.t.astype(x.dtype), op.count)
         zc = cap_samples(z, cfg.spike_cap) if vs.log_samples and cfg.spike_cap else None
     else:
         s, nmax = op.t.shape

@@ -14,6 +14,7 @@ import hashlib
 import numpy as np
 
 from ._errors import InputError
+from ._smoothing import smooth_compact, smoothing_from_json, smoothing_to_json
 from ._spikes import cap_samples
 
 #: The pipeline's ε offset, ``sqrt(tiny)`` of float32 (``_values.value_eps``).
@@ -37,6 +38,8 @@ class OperatorEntry:
             channel over the valid samples (``_values.value_eps``).
         spike_cap: ``Config.spike_cap`` (``None`` or ``(quantile, margin)``): with
             ``log_samples`` the map applies the spike cap (``_spikes.py``) as the JAX operator.
+        slice_smoothing: ``Config.slice_smoothing``: with ``log_samples`` the log samples are
+            smoothed first (``_smoothing.py``), as the JAX operator does.
     """
 
     matrix: np.ndarray
@@ -47,6 +50,7 @@ class OperatorEntry:
     log_samples: bool
     log_eps: float
     spike_cap: tuple | None = None
+    slice_smoothing: float | tuple | None = None
 
     #: The entry kind in the store's metadata (entries written before kinds existed are this).
     KIND = "rbf"
@@ -84,6 +88,8 @@ class OperatorEntry:
         if self.log_samples:
             eps = np.float32(self.log_eps) * np.mean(np.abs(x), axis=1) + _EPS_FLOOR  # (B, C)
             x = np.log(np.maximum(x, np.float32(0.0)) + eps[:, None, :])
+            x = smooth_compact(self.slice_smoothing, x, self.index, self.t, self.count, np)
+            x = x.astype(np.float32)
             if self.spike_cap:
                 xc = cap_samples(x, self.spike_cap, xp=np).astype(np.float32)
 
@@ -111,6 +117,7 @@ class OperatorEntry:
             "log_samples": bool(self.log_samples),
             "log_eps": float(self.log_eps),
             "spike_cap": cap,
+            "slice_smoothing": smoothing_to_json(self.slice_smoothing),
         }
 
     @classmethod
@@ -118,7 +125,11 @@ class OperatorEntry:
         cap = meta.get("spike_cap")
         cap = None if cap is None else tuple(cap)
         return cls(
-            **arrays, log_samples=meta["log_samples"], log_eps=meta["log_eps"], spike_cap=cap
+            **arrays,
+            log_samples=meta["log_samples"],
+            log_eps=meta["log_eps"],
+            spike_cap=cap,
+            slice_smoothing=smoothing_from_json(meta.get("slice_smoothing")),
         )
 
     @staticmethod

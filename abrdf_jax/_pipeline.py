@@ -21,6 +21,7 @@ from ._measurements import Measurements, Samples, stack_measurements
 from ._params import Config, Params
 from ._rbf import SolveInfo, fit_rbf_info
 from ._slices import PROTOCOL_PAIRS
+from ._smoothing import smooth_slices
 from ._spikes import cap_samples
 from ._subspace import subspace, subspace_terms
 from ._values import value_space
@@ -125,12 +126,21 @@ def capped_samples(enc: Measurements, config: Config, vs) -> Measurements:
     return enc.replace(y=cap_samples(enc.y, config.spike_cap, enc.mask))
 
 
+def smoothed_samples(enc: Measurements, config: Config, vs) -> Measurements:
+    """The encoded samples after the slice smoothing (``config.slice_smoothing``,
+    :mod:`abrdf_jax._smoothing`) in the log-sample value space, else as they are."""
+    if not (vs.log_samples and config.slice_smoothing is not None):
+        return enc
+    z = smooth_slices(config.slice_smoothing, enc.y, enc.t, enc.count)[0]
+    return enc.replace(y=z)
+
+
 def fit_inputs(meas: Measurements, config: Config, params: Params, vs, eps):
     """``(values, restored, fitted)``: the subspace values at the centres as the rule gives them,
-    in the RBF's value space as restored from the samples (what goes back at the grid pairs),
-    and as the RBF fits them (from spike-capped log samples, or capped centre values:
-    :mod:`abrdf_jax._spikes`)."""
-    enc = vs.encode_samples(meas, eps)
+    in the RBF's value space as restored from the (smoothed: :mod:`abrdf_jax._smoothing`)
+    samples (what goes back at the grid pairs), and as the RBF fits them (from spike-capped log
+    samples, or capped centre values: :mod:`abrdf_jax._spikes`)."""
+    enc = smoothed_samples(vs.encode_samples(meas, eps), config, vs)
     vals = subspace_values(enc, config, params)
     raw = vs.encode_subspace(vals, eps)
     if vs.log_samples:

@@ -62,6 +62,7 @@ VALUE_SPACES: dict[str, ValueSpace] = {
 }
 check_registry("VALUE_SPACES", VALUE_SPACES)
 check_trait("LOG_SUBSPACE", tuple(n for n, v in VALUE_SPACES.items() if v.log_subspace))
+check_trait("LOG_SAMPLES", tuple(n for n, v in VALUE_SPACES.items() if v.log_samples))
 
 
 def value_space(name: str) -> ValueSpace:

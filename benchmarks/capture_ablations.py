@@ -5,7 +5,9 @@
   (``centre_azimuths=None``: the UBO centres); both with the configuration's spike cap
   (``Config.spike_cap``; ``python -m benchmarks.spike_cap`` shows it); per material in the JSON.
 - ``noise``: relative value noise 0, 2, 5, 10 % against the RBF regularisation (the tuned λ and
-  larger ones), and the capture's noise estimate (``abrdf_jax.select.estimate_noise``, log units).
+  larger ones), and the capture's noise estimate (``abrdf_jax.select.estimate_noise``, log units):
+  a larger λ never helped. What the noise sets instead, the slice smoothing
+  (``Config.slice_smoothing``), is measured by ``python -m benchmarks.noise_smoothing``.
 - ``jitter``: 0.5° angle jitter with several seeds per material: how much of the jitter cost is
   where the samples happen to fall (the ratio of mean ΔE76 to the protocol's, per seed).
 

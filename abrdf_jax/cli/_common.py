@@ -336,6 +336,14 @@ def _noise(meas) -> float | None:
     return round(sigma, 6) if math.isfinite(sigma) else None
 
 
+def smoothing_record(item: "Measured", config) -> dict | None:
+    """The model record's ``smoothing`` entry of one input (``None``: no slice smoothing):
+    :func:`abrdf_jax._smoothing.slice_smoothing` (numpy, no JAX)."""
+    from .._smoothing import slice_smoothing
+
+    return None if config is None else slice_smoothing(item.meas, config)
+
+
 def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measured:
     """Group one measurement into slices (once, numpy: no JAX) and decide its budget and slice
     offset α."""

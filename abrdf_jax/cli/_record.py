@@ -99,6 +99,11 @@ def describe(choice: dict) -> list[str]:
             f"  capture: {alpha}, slice tolerance {m['tolerance_deg']:.2g} deg, noise {noise}"
             + (f", {len(m['gaps'])} gap(s)" if m["gaps"] else "")
         )
+    if rec.get("smoothing"):
+        sm = rec["smoothing"]
+        noise = "" if sm["noise_log"] is None else f" from noise {sm['noise_log']:.3g} (log)"
+        beta = ", ".join(f"{b:.2f}" for b in sm["beta"])
+        lines.append(f"  slice smoothing: weight per slice {beta}{noise}")
     for c in rec.get("candidates") or []:
         err = "n/a" if c["held_out_log_rms"] is None else f"{c['held_out_log_rms']:.4f}"
         mark = "*" if c["name"] == rec["model"] else " "

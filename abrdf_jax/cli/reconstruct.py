@@ -240,6 +240,9 @@ def choose_all(
                 bar.update(1)
     for item, choice in zip(items, out):
         choice["record"]["measurement"] = item.used  # what of the file was used, and why not
+        smoothing = common.smoothing_record(item, choice.get("config"))
+        if smoothing is not None:
+            choice["record"]["smoothing"] = smoothing
     return out
 
 

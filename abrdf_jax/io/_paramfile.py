@@ -22,6 +22,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._config import Config
+from .._smoothing import smoothing_from_json, smoothing_to_json
 
 if TYPE_CHECKING:  # the traced parameters (JAX): made only when a file is read
     from .._params import Params
@@ -45,6 +46,7 @@ def params_to_dict(config: Config, params: "Params", fit: dict | None = None) ->
     cfg = {k: getattr(config, k) for k in _CONFIG_FIELDS}
     cfg["pairs"] = [list(map(float, p)) for p in config.pairs]
     cfg["spike_cap"] = None if config.spike_cap is None else [float(v) for v in config.spike_cap]
+    cfg["slice_smoothing"] = smoothing_to_json(config.slice_smoothing)
     widths = [float(w) for w in np.asarray(params.widths)]
     values = [params.alpha_deg, float(params.reg), *widths]
     if not all(math.isfinite(v) for v in values):
@@ -81,13 +83,15 @@ def params_from_dict(d: dict, where: str = "parameters") -> tuple[Config, "Param
         c, p = dict(d["config"]), d["params"]
     except (KeyError, TypeError) as exc:
         raise InputError(f"{where}: missing section {exc}") from None
-    unknown = set(c) - set(_CONFIG_FIELDS) - {"pairs", "spike_cap"}
+    unknown = set(c) - set(_CONFIG_FIELDS) - {"pairs", "spike_cap", "slice_smoothing"}
     if unknown:
         raise InputError(f"{where}: unknown config field(s) {sorted(unknown)}")
     if "pairs" in c:
         c["pairs"] = tuple(tuple(float(t) for t in pair) for pair in c["pairs"])
     if isinstance(c.get("spike_cap"), list):  # JSON has no tuples (absent: the default)
         c["spike_cap"] = tuple(c["spike_cap"])
+    if "slice_smoothing" in c:
+        c["slice_smoothing"] = smoothing_from_json(c["slice_smoothing"])
     if "log_eps" in c:
         c["log_eps"] = float(c["log_eps"])
     try:

@@ -231,8 +231,17 @@ def quick_selection(
 
 
 def _group_key(config: Config):
-    """Configurations with equal keys share the RBF system (and the default parameters)."""
-    fields = ("kernel", "degree", "value_space", "parameterization", "log_eps")
+    """Configurations with equal keys share the RBF system (and the default parameters) and
+    the samples it is fitted from (spike cap, slice smoothing)."""
+    fields = (
+        "kernel",
+        "degree",
+        "value_space",
+        "parameterization",
+        "log_eps",
+        "spike_cap",
+        "slice_smoothing",
+    )
     return tuple(getattr(config, f) for f in fields)
 
 

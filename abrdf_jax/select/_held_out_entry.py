@@ -28,6 +28,7 @@ from .._names import LOG_SUBSPACE
 from .._folds import fold_slots, log_residual
 from .._operator_entry import _EPS_FLOOR, check_layout
 from .._rules import AFFINE, combine
+from .._smoothing import smooth_compact, smoothing_from_json, smoothing_to_json
 from .._spikes import cap_samples
 from ._choice import finish, group_configs, plan
 
@@ -50,7 +51,8 @@ class HeldOutEntry:
             fold trains on / holds out (``abrdf_jax._folds.fold_slots``; ``-1``: none).
         t, count: the template's layout (checked against the inputs).
         names, rules: the configurations' names and subspace rules, in the order of the errors.
-        log_samples, log_eps, spike_cap: the group's value space, ε and spike cap.
+        log_samples, log_eps, spike_cap, slice_smoothing: the group's value space, ε, spike
+            cap and slice smoothing (``abrdf_jax._smoothing``; both act on log samples only).
         res_log_eps: the ε of the held-out residual (``Config().log_eps``, as the JAX path).
     """
 
@@ -66,6 +68,7 @@ class HeldOutEntry:
     log_eps: float
     res_log_eps: float
     spike_cap: tuple | None = None
+    slice_smoothing: float | tuple | None = None
 
     KIND = "held-out"
     ARRAYS = ("terms", "ones", "train", "test", "t", "count")
@@ -88,6 +91,10 @@ class HeldOutEntry:
             if self.log_samples:
                 eps = np.float32(self.log_eps) * np.mean(np.abs(x), 1) + _EPS_FLOOR  # (B, C)
                 x = np.log(np.maximum(x, np.float32(0.0)) + eps[:, None, :])
+                if self.slice_smoothing is not None:  # on fold j's own slices
+                    fold_t = np.where(self.train[j] >= 0, self.t.reshape(-1)[self.train[j]], 0)
+                    fold_count = (self.train[j] >= 0).sum(-1)
+                    x = smooth_compact(self.slice_smoothing, x, cols, fold_t, fold_count, np)
                 if self.spike_cap:
                     x = cap_samples(x, self.spike_cap, xp=np)
             m = self.terms[j][:, :, rows][..., cols]  # (P, 3, q_j, n_train)
@@ -131,6 +138,7 @@ class HeldOutEntry:
             "log_eps": float(self.log_eps),
             "res_log_eps": float(self.res_log_eps),
             "spike_cap": cap,
+            "slice_smoothing": smoothing_to_json(self.slice_smoothing),
         }
 
     @classmethod
@@ -144,6 +152,7 @@ class HeldOutEntry:
             log_eps=meta["log_eps"],
             res_log_eps=meta["res_log_eps"],
             spike_cap=None if cap is None else tuple(cap),
+            slice_smoothing=smoothing_from_json(meta.get("slice_smoothing")),
         )
 
     @staticmethod
@@ -247,6 +256,7 @@ def build_entry(meas, alpha_deg: float, names, cfgs, k: int) -> HeldOutEntry:
         log_eps=float(cfgs[0].log_eps),
         res_log_eps=float(Config().log_eps),
         spike_cap=cfgs[0].spike_cap if log_samples else None,
+        slice_smoothing=cfgs[0].slice_smoothing if log_samples else None,
     )
 
 

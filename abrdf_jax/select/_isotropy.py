@@ -47,6 +47,7 @@ from .._errors import InputError
 from .._grouping import group_arrays
 from .._memo import BoundedMemo
 from .._protocol import LUMA
+from .._smoothing import neighbours, noise_level
 from ._chi2 import chi2_critical, chi2_sf
 
 if TYPE_CHECKING:  # JAX pytrees; one material's test runs in numpy on their fields
@@ -67,7 +68,6 @@ MIN_EFFECT = 0.02
 #: noise keeps one standard deviation in log space down to samples 1000x darker than the mean
 #: (the pipeline's 1 % would damp the noise of dark samples and unbalance the pooled estimate).
 LOG_EPS = 1e-4
-_MAD_TO_SIGMA = 1.4826
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,16 +115,6 @@ class IsotropyReport:
         return out
 
 
-def _interp_weights(t: np.ndarray) -> np.ndarray:
-    """Weight ``wr`` of the right neighbour when each sample of a periodic slice (parameters
-    ``t``, sorted) is linearly interpolated from its two neighbours (``wl = 1 − wr``)."""
-    two_pi = 2 * np.pi
-    tl = np.concatenate([t[-1:] - two_pi, t[:-1]])  # left neighbours, periodic
-    tr = np.concatenate([t[1:], t[:1] + two_pi])  # right neighbours
-    span = np.where(tr - tl > 0, tr - tl, 1.0)
-    return (t - tl) / span
-
-
 def _log_luminance(y, valid, log_eps: float, xp=None):
     """``ln(Y + ε)`` of slice values ``y`` ``(B, S, nmax, 3)``, ``ε = log_eps · mean |Y|`` per material.
 
@@ -140,40 +130,16 @@ def _log_luminance(y, valid, log_eps: float, xp=None):
 def _noise(logl, t: np.ndarray, count: np.ndarray, rows, xp=None):
     """Noise ``σ`` ``(B,)``: ``1.4826 · median |r|`` of the normalised residuals ``r`` of every
     sample of the slices ``rows`` against the linear interpolation of its two neighbours (a unit
-    independent noise gives residuals of unit variance); ``nan`` when no slice has 3 samples."""
+    independent noise gives residuals of unit variance; the estimator of
+    :func:`abrdf_jax._smoothing.noise_level`, one copy); ``nan`` when no slice has 3 samples."""
     xp = xp or _jnp()
     rows = [s for s in rows if count[s] >= 3]
     if not rows:
         return xp.full((logl.shape[0],), np.nan, logl.dtype)
-    ss, ks, lefts, rights, wl, wr = _neighbours(t, count, tuple(rows))
-    wl, wr = xp.asarray(wl, logl.dtype), xp.asarray(wr, logl.dtype)
-    r = (logl[:, ss, ks] - (wl * logl[:, ss, lefts] + wr * logl[:, ss, rights])) / xp.sqrt(
-        1.0 + wl**2 + wr**2
-    )
-    return _MAD_TO_SIGMA * xp.median(xp.abs(r), axis=1)
-
-
-def _neighbours(t: np.ndarray, count: np.ndarray, rows: tuple):
-    """Indices ``(slice, sample, left, right)`` and weights ``(wl, wr)`` of every sample of the
-    slices ``rows`` and its two neighbours: from the layout alone, so cached by it (a folder of
-    one layout tests every file with the same ones)."""
-    t = np.asarray(t, np.float64)
-    key = (t.shape, t.tobytes(), np.asarray(count).tobytes(), rows)
-    return _NEIGHBOURS.get(key, lambda: _build_neighbours(t, count, rows))
-
-
-def _build_neighbours(t: np.ndarray, count: np.ndarray, rows: tuple):
-    ss, ks, lefts, rights, wls, wrs = [], [], [], [], [], []
-    for s in rows:
-        n = int(count[s])
-        wr = _interp_weights(t[s, :n])
-        ss.append(np.full(n, s)), ks.append(np.arange(n))
-        lefts.append((np.arange(n) - 1) % n), rights.append((np.arange(n) + 1) % n)
-        wls.append(1.0 - wr), wrs.append(wr)
-    return tuple(np.concatenate(a) for a in (ss, ks, lefts, rights, wls, wrs))
-
-
-_NEIGHBOURS = BoundedMemo(64)
+    counts = np.where(np.isin(np.arange(len(count)), rows), count, 0)  # the other slices: none
+    left, right, wl, wr, valid = neighbours(np.asarray(t, np.float64), counts, np)
+    nb = (left, right, wl.astype(logl.dtype), wr.astype(logl.dtype), valid)
+    return noise_level(logl[..., None], nb, xp)
 
 
 def _axial_sums(logl, count: np.ndarray, xp=None):

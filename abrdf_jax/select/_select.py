@@ -64,7 +64,13 @@ from .._params import Config, Params
 from .._coords import pair_coordinates
 from .._folds import held_out_directions, log_rms, sample_folds
 from .._grid import centre_vectors
-from .._pipeline import _cap_centres, capped_samples, prepare, subspace_values
+from .._pipeline import (
+    _cap_centres,
+    capped_samples,
+    prepare,
+    smoothed_samples,
+    subspace_values,
+)
 from .._values import measurement_eps, value_space
 from .._rbf import fit_rbf
 from .._measurements import Measurements, Samples
@@ -119,8 +125,8 @@ def _cv_core(data: dict, configs: tuple, params: Params):
     eps = jax.vmap(lambda m: vs.eps(m, cfg0.log_eps))(train) if vs.is_log else None
 
     def fold_values(m, e):
-        # what the pipeline's RBF fits (spike cap included: _pipeline.fit_inputs)
-        enc = capped_samples(vs.encode_samples(m, e), cfg0, vs)
+        # what the pipeline's RBF fits (slice smoothing and spike cap: _pipeline.fit_inputs)
+        enc = capped_samples(smoothed_samples(vs.encode_samples(m, e), cfg0, vs), cfg0, vs)
         vals = _group_subspaces(enc, configs, params, lambda v: vs.encode_subspace(v, e))
         return _cap_centres(vals, m, vs)
 
