@@ -229,3 +229,15 @@ def test_an_image_over_the_budget_is_refused_in_a_folder_and_decoded(tmp_path, m
     with open_source(tmp_path / "cap") as src:
         with pytest.raises(InputError, match=r"cap/a\.png: file declares \d+ bytes.*budget of 100"):
             src.read("a.png")
+
+
+def test_the_command_line_refuses_a_hostile_archive_in_one_line(tmp_path, capsys):
+    """``abrdf-jax btf import`` of a zip with a '../' member: exit 2, one line naming the archive
+    and the member, no store."""
+    from abrdf_jax.cli import main
+
+    archive = _zip_with(tmp_path / "cap.zip", "../../evil.png", _png8())
+    assert main(["btf", "import", str(archive), "-o", str(tmp_path / "store")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cap.zip: member '../../evil.png' is a path with '..'" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cap.zip"]

@@ -48,8 +48,13 @@ def size_budget() -> int:
     return value
 
 
-def _mib(n: int) -> str:
-    return f"{n / (1 << 20):.4g} MiB"
+_UNITS = (("TiB", 40), ("GiB", 30), ("MiB", 20))
+
+
+def _human(n: int) -> str:
+    """``n`` bytes in TiB, GiB or MiB (the largest unit that leaves at least 1; else MiB)."""
+    unit, shift = next(((u, s) for u, s in _UNITS if n >= 1 << s), _UNITS[-1])
+    return f"{n / (1 << shift):.4g} {unit}"
 
 
 def check_size(n_bytes: int, what: str, where, budget: int | None = None) -> None:
@@ -57,8 +62,8 @@ def check_size(n_bytes: int, what: str, where, budget: int | None = None) -> Non
     budget = size_budget() if budget is None else budget
     if n_bytes > budget:
         raise located(
-            f"{what} declares {n_bytes} bytes ({_mib(n_bytes)}), over the size budget of "
-            f"{budget} bytes ({_mib(budget)}; raise it with {BUDGET_ENV})",
+            f"{what} declares {n_bytes} bytes ({_human(n_bytes)}), over the size budget of "
+            f"{budget} bytes ({_human(budget)}; raise it with {BUDGET_ENV})",
             where,
         )
 
@@ -96,7 +101,7 @@ def read_member(zf: zipfile.ZipFile, name: str, where) -> bytes:
         data = f.read(budget + 1)
     if len(data) > budget:
         raise located(
-            f"member {name!r} inflates past the size budget of {budget} bytes ({_mib(budget)}; "
+            f"member {name!r} inflates past the size budget of {budget} bytes ({_human(budget)}; "
             f"raise it with {BUDGET_ENV})",
             where,
         )
