@@ -53,6 +53,7 @@ _EXPORTS = {
     ),
     "_params": ("Config", "Params", "PRESETS", "preset"),
     "_arrays": ("check_finite",),
+    "_finite": ("require_finite",),
     "_pipeline": ("infer_budget", "reconstruct", "reconstruct_batch", "solve_info"),
     "_operator": ("ReconstructionOperator", "compile_operator"),
     "_host_operator": ("compile_numpy_operator",),

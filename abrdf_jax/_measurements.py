@@ -9,38 +9,13 @@ entries are samples and which are padding.
 import dataclasses
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._errors import InputError, non_finite
+from ._errors import InputError
+from ._finite import check_concrete, concrete
 from ._slices import KINDS, PROTOCOL_ALPHA_DEG, slice_angles
-
-
-def _concrete(x):
-    """``x`` as numpy when its values are known (not a tracer inside jit/vmap/grad), else None."""
-    if isinstance(x, jax.core.Tracer) or x is None:
-        return None
-    try:
-        return np.asarray(x)
-    except Exception:  # noqa: BLE001 - an abstract or opaque leaf: nothing to check here
-        return None
-
-
-def _check_finite_field(owner: str, name: str, x) -> None:
-    """InputError naming ``owner.name`` and the first bad index when concrete values are NaN/inf
-    (a NaN sample would otherwise spread over the whole reconstructed table)."""
-    arr = _concrete(x)
-    if arr is None or arr.dtype.kind not in "fc":
-        return
-    found = non_finite(arr)
-    if found is not None:
-        count, first = found
-        raise InputError(
-            f"{owner}.{name} holds {count} NaN or infinite value(s) (first at index "
-            f"{first}); every sample must be finite (drop or repair the bad samples first)"
-        )
 
 
 class Samples(eqx.Module):
@@ -67,7 +42,7 @@ class Samples(eqx.Module):
         if np.shape(self.rgb) != (*n, 3):
             raise InputError(f"Samples.rgb has shape {np.shape(self.rgb)}, expected {(*n, 3)}")
         for name in ("theta_i", "phi_i", "theta_v", "phi_v", "rgb"):
-            _check_finite_field("Samples", name, getattr(self, name))
+            check_concrete(getattr(self, name), f"Samples.{name}")
 
     def __len__(self) -> int:
         return int(np.shape(self.theta_i)[0])
@@ -110,9 +85,9 @@ class Measurements(eqx.Module):
     def __check_init__(self):
         # Concrete values only (inside a transformation they are tracers; the CLI and the
         # readers check files before): finite slices, counts in [0, nmax].
-        _check_finite_field("Measurements", "t", self.t)
-        _check_finite_field("Measurements", "y", self.y)
-        count = _concrete(self.count)
+        check_concrete(self.t, "Measurements.t")
+        check_concrete(self.y, "Measurements.y")
+        count = concrete(self.count)
         nmax = np.shape(self.t)[-1] if np.ndim(self.t) else 0
         if count is not None and count.size and (count.min() < 0 or count.max() > nmax):
             raise InputError(

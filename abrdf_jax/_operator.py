@@ -40,6 +40,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ._errors import InputError
+from ._finite import check_concrete
 from ._grid import _centre_target_index, centre_layout, keep_centres, ubo_target_vectors
 from ._measurements import Measurements
 from ._params import Config, Params
@@ -169,9 +170,14 @@ class ReconstructionOperator(eqx.Module):
             rounding whatever the batch.
 
         Raises:
-            InputError: for a shape or a measurement layout that does not fit the template, or
-                an ``out`` of another shape or dtype.
+            InputError: for a shape or a measurement layout that does not fit the template, an
+                ``out`` of another shape or dtype, or NaN/inf in numpy ``values``. JAX arrays
+                are not checked here (the hot path: ``benchmarks/finite_check.py``); a
+                :class:`Measurements` was checked when made; where values may be bad, call
+                ``op(abrdf_jax.require_finite(values))``, which also works inside a ``jit``.
         """
+        if isinstance(values, np.ndarray):  # host values: checked in numpy, no device sync
+            check_concrete(values, "values")
         x, lead, full = self._inputs(values)
         x = x.astype(self.dtype)
         if out is None:

@@ -15,6 +15,7 @@ from jaxtyping import Array, Float
 
 from ._coords import pair_coordinates
 from ._errors import InputError
+from ._finite import when_traced
 from ._grid import centre_layout, centre_vectors, keep_centres, ubo_target_vectors
 from ._grouping import group_slices
 from ._measurements import Measurements, Samples, stack_measurements
@@ -235,9 +236,13 @@ def reconstruct(
 
     Returns:
         The ABRDF table ``(81, 81, 3)`` (illumination, view, RGB), or ``(q, 3)`` at ``targets``.
+
+    Raises:
+        InputError: NaN or infinite sample values (when they are concrete; inside a ``jit`` the
+            compiled call raises a ``RuntimeError`` with the same message, :mod:`abrdf_jax._finite`).
     """
     meas, config, params = prepare(samples, config, params)
-    return _reconstruct_jit(meas, config, params, targets)
+    return _reconstruct_jit(_finite_when_traced(meas), config, params, targets)
 
 
 def reconstruct_batch(
@@ -259,6 +264,9 @@ def reconstruct_batch(
 
     Returns:
         Tables of shape ``(B, 81, 81, 3)``.
+
+    Raises:
+        InputError: as :func:`reconstruct` (non-finite samples: at once, or at run time in a jit).
     """
     if isinstance(samples, Measurements):
         meas = samples
@@ -277,7 +285,18 @@ def reconstruct_batch(
                 "a batch mixes isotropic (102) and anisotropic (204) measurements; split it"
             )
         meas = stack_measurements(meas_list)
-    return _reconstruct_batch_jit(meas, config, params, targets, guard)
+    return _reconstruct_batch_jit(_finite_when_traced(meas), config, params, targets, guard)
+
+
+def _finite_when_traced(meas: Measurements) -> Measurements:
+    """``meas`` whose ``t`` and ``y`` carry a run-time finiteness check when they are traced (a
+    user's ``jit``): a NaN sample raises instead of spreading over the table. Concrete values
+    were checked when the :class:`Measurements` was made."""
+    if not isinstance(meas.y, jax.core.Tracer) and not isinstance(meas.t, jax.core.Tracer):
+        return meas  # (replace() would run the concrete checks once more)
+    return meas.replace(
+        t=when_traced(meas.t, "Measurements.t"), y=when_traced(meas.y, "Measurements.y")
+    )
 
 
 def solve_info(

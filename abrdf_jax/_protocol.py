@@ -14,6 +14,13 @@ UBO_COUNTS = (1, 6, 12, 18, 20, 24)
 PROTOCOL_PAIRS = ((30.0, 30.0), (30.0, 75.0), (75.0, 30.0), (75.0, 75.0))
 PROTOCOL_COUNTS = (25, 25, 26, 26)
 PROTOCOL_ALPHA_DEG = 15.0
+#: The slice offset α a command accepts, degrees, open at both ends. α and α + 360 are the same
+#: slices; at α = 0 the axial slice (φv = φi − α) has light and view at one azimuth, so at the
+#: equal-elevation pairs they coincide along the whole slice (the camera shadows the light) and
+#: both slice crossings lie there; at α = 180 the axial slice lies in the mirror plane and both
+#: crossings on the specular peak; α in (180, 360) is −α, the same slices with light and view
+#: swapped. Hence 0 < α < 180 (the protocol's 15 inside).
+ALPHA_RANGE = (0.0, 180.0)
 KINDS = ("axial", "diagonal")
 #: Luminance weights of linear RGB (PROTOCOL.md, metrics item 1: the exposure's Y).
 LUMA = (0.2126, 0.7152, 0.0722)

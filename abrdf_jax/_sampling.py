@@ -7,9 +7,11 @@ public entry point (budget and pairs from a :class:`Config`, α from :class:`Par
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from ._errors import InputError
+from ._finite import require_finite, when_traced
 from ._grid import ring_indices
 from ._measurements import Measurements
 from ._params import Config, Params
@@ -105,15 +107,22 @@ def sample(
         params: gives α (differentiable: the sample values follow α).
         as_measurements: return the grouped :class:`Measurements` (JAX, differentiable) instead
             of flat :class:`Samples`.
+
+    Raises:
+        InputError: a table, a model's values or α holding NaN or infinity (when concrete;
+            inside a ``jit`` the compiled call raises a ``RuntimeError``, :mod:`abrdf_jax._finite`).
     """
     config = config or Config()
     params = params or Params.default(config)
+    alpha = require_finite(params.alpha, "sample: params.alpha")
     if callable(source) and not hasattr(source, "shape"):
         dtype = params.alpha.dtype
-        meas = sample_model(source, config.counts, params.alpha, config.pairs, dtype=dtype)
+        meas = sample_model(source, config.counts, alpha, config.pairs, dtype=dtype)
+        if isinstance(meas.y, jax.core.Tracer):  # concrete: refused by Measurements itself
+            meas = meas.replace(y=when_traced(meas.y, "sample: the model's values"))
     else:
-        arr = jnp.asarray(source)
-        meas = sample_table(arr, config.counts, params.alpha, config.pairs, dtype=arr.dtype)
+        arr = require_finite(jnp.asarray(source), "sample: the source table")
+        meas = sample_table(arr, config.counts, alpha, config.pairs, dtype=arr.dtype)
     if as_measurements:
         return meas
     return meas.to_samples(alpha_deg=params.alpha_deg)

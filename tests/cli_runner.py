@@ -27,6 +27,40 @@ def run_module(module: str, *args, cwd, timeout: int = 300):
     )
 
 
+_MAIN_CASES = r"""
+import json, sys
+from abrdf_jax.cli import main
+report = []
+for argv, _ in json.loads(sys.argv[1]):
+    try:
+        code = main(argv)
+    except SystemExit as e:  # not expected: main returns the status
+        code = ("SystemExit", e.code)
+    report.append([argv, code, "jax" in sys.modules])
+print(json.dumps(report))
+"""
+
+
+def run_main_cases(cases, cwd, timeout: int = 120):
+    """Run ``abrdf_jax.cli.main(argv)`` for each ``(argv, _)`` of ``cases`` in turn in one fresh
+    interpreter in ``cwd``: ``([argv, exit status, whether jax is imported after it], ...)``
+    and the interpreter's stderr (how the tests prove that a path imports no JAX)."""
+    import json
+
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run(
+        [sys.executable, "-c", _MAIN_CASES, json.dumps(cases)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1]), proc.stderr
+
+
 def assert_cli_table(table, samples, config, params):
     """A table the CLI wrote equals the float64 pipeline's on the same samples.
 

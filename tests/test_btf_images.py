@@ -411,7 +411,7 @@ def test_cli_import(capture, tmp_path):
     assert f"{victim}: cannot read as an image" in lines[0]
     assert not (tmp_path / "s2").exists()
     bad = _cli(src, "-o", tmp_path / "s3", "--light-offset", "inf")
-    assert bad.returncode == 2 and "--light-offset must be a finite angle" in bad.stderr
+    assert bad.returncode == 2 and "--light-offset (degrees) must be a finite number" in bad.stderr
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the store written by the CLI opens without a warning
         assert btf.ChunkedStore.open(tmp_path / "s").attrs["angles"]["azimuth"] == "cw"

@@ -185,6 +185,7 @@ def test_in_process_errors(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     io.write_table(tmp_path / "t.npz", _table(0))
     (tmp_path / "m.csv").write_text("theta_i,phi_i,theta_v,phi_v,r,g,b\n30,15,30,0,1,1,1\n")
+    (tmp_path / "p.json").write_text("{}")  # --params must exist (tests/test_cli_args.py)
     cases = [
         (["reconstruct", "m.csv", "-o", "out.png"], "out.png"),  # unknown table extension
         (["sample", "t.npz", "-o", "meas.txt"], "meas.txt"),  # not a CSV
@@ -193,7 +194,6 @@ def test_in_process_errors(tmp_path, capsys, monkeypatch):
         (["reconstruct", "m.csv", "t.npz", "-o", "t.npz"], "t.npz"),  # several inputs need a folder
         (["reconstruct", "m.csv", "-o", "x.npz", "--format", "exr"], "--format"),
         (["demo", "-o", "fig.gif"], "fig.gif"),
-        (["demo", "--materials", "0"], "--materials"),
         # --preset, --model NAME and --params each fix the model: one at a time
         (
             ["reconstruct", "m.csv", "-o", "x.npz", "--preset", "paper", "--model", "iso"],
@@ -219,7 +219,7 @@ def test_in_process_errors(tmp_path, capsys, monkeypatch):
             argv,
             err,
         )
-    assert listing(tmp_path) == ["m.csv", "t.npz"]
+    assert listing(tmp_path) == ["m.csv", "p.json", "t.npz"]
     # A usage error is argparse's (exit 2); -v shows tracebacks.
     assert main(["reconstruct", "m.csv"]) == 2
     assert "-o/--output" in capsys.readouterr().err

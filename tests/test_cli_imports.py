@@ -6,15 +6,13 @@ runs them in turn and reports, after each, whether ``jax`` is in ``sys.modules``
 """
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from abrdf_jax import _names
 from abrdf_jax.cli import build_parser
+from cli_runner import run_main_cases
 
 REPO = Path(__file__).resolve().parents[1]
 HEADER = "theta_i,phi_i,theta_v,phi_v,r,g,b"
@@ -70,33 +68,9 @@ NO_JAX_CASES = [
     (["reconstruct", "bad.csv", "-o", "rec.npz", "--model", "iso", "--prior", "default"], 2),
 ]
 
-_SCRIPT = r"""
-import json, sys
-from abrdf_jax.cli import main
-report = []
-for argv, _ in json.loads(sys.argv[1]):
-    try:
-        code = main(argv)
-    except SystemExit as e:  # not expected: main returns the status
-        code = ("SystemExit", e.code)
-    report.append([argv, code, "jax" in sys.modules])
-print(json.dumps(report))
-"""
-
 
 def _run(cases, cwd):
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run(
-        [sys.executable, "-c", _SCRIPT, json.dumps(cases)],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert proc.returncode == 0, proc.stderr
-    return json.loads(proc.stdout.strip().splitlines()[-1]), proc.stderr
+    return run_main_cases(cases, cwd)
 
 
 def test_help_and_input_errors_import_no_jax(tmp_path):
@@ -152,7 +126,8 @@ def test_subcommands_import_only_the_shared_module():
             ):  # "from . import x", "from .x import y"
                 targets = [node.module] if node.module else [a.name for a in node.names]
                 allowed = {
-                    "_common.py": {"_record", "_learned", "_outputs"},
+                    "_common.py": {"_record", "_learned", "_outputs", "_args"},
+                    "_args.py": set(),
                     "_outputs.py": set(),
                     "_record.py": set(),
                     "_learned.py": set(),

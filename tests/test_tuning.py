@@ -274,15 +274,15 @@ def test_param_file_round_trip(tmp_path):
         ('{"format": "other"}', "not an abrdf_jax parameter file"),
         (
             '{"format": "abrdf_jax.params/1", "config": {"kernel": "nope"}, "params": {}}',
-            "bad config",
+            r"field 'config': Config.kernel must be one of",
         ),
         (
             '{"format": "abrdf_jax.params/1", "config": {}, "params": {"alpha_deg": 15, "widths": [1, 1, 1], "reg": 0.1}}',
-            "4 entries",
+            r"field 'params.widths': expected a list of 4 numbers, got 3 entries",
         ),
         (
             '{"format": "abrdf_jax.params/1", "config": {}, "params": {"alpha_deg": 15, "widths": [1, 1, -1, 1], "reg": 0.1}}',
-            "out of range",
+            r"field 'params.widths\[2\]': -1, expected a width > 0",
         ),
     ],
 )

@@ -57,8 +57,8 @@ def generate_btf(
     Returns:
         ``{"measurements": path, "reference": path or None, "maps": path or None}``.
     """
+    btf = procedural_btf(size, seed)  # checks size and seed before the folder is made
     root = make_folder(out_dir)
-    btf = procedural_btf(size, seed)
     attrs = dict(source="procedural", generator="abrdf_jax.btf.procedural_btf")
     attrs.update(generator_version=GENERATOR_VERSION, size=btf.size, seed=int(seed))
     n, shape = btf.n_texels, (btf.size, btf.size)

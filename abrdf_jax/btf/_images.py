@@ -32,6 +32,7 @@ import numpy as np
 
 from .._errors import InputError, located, require
 from ..io._exr import read_rgb_exr
+from ..io._untrusted import check_archive, check_size, read_member
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # PNG colour type -> channels (grey, RGB, grey + alpha, RGBA); 3 (palette) is never 16-bit
@@ -39,6 +40,8 @@ _PNG_CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}
 # Pillow modes read as 8-bit code values (converted to RGB: grey repeated, palette looked up,
 # alpha dropped); others (CMYK, 32-bit integer or float) are refused
 _PILLOW_MODES = ("RGB", "RGBA", "L", "LA", "P", "PA", "1")
+# bytes a pixel takes once decoded (float32 RGB): what the size budget bounds
+_DECODED_BYTES = 12
 
 
 @lru_cache(maxsize=None)
@@ -58,7 +61,8 @@ def _decode_pillow(data: bytes, name: str) -> tuple[np.ndarray, str]:
     """An 8-bit PNG or JPEG image: linear RGB and ``"8-bit sRGB"``."""
     Image = _pillow()
     try:
-        with Image.open(io.BytesIO(data)) as im:
+        with Image.open(io.BytesIO(data)) as im:  # reads the header only
+            check_size(im.width * im.height * _DECODED_BYTES, "image (decoded)", name)
             if im.mode not in _PILLOW_MODES:
                 raise located(
                     f"image mode {im.mode} is not supported; expected RGB, RGBA or grey", name
@@ -127,16 +131,19 @@ def _decode_png16(data: bytes, name: str) -> tuple[np.ndarray, str]:
         elif kind == b"IEND":
             break
         pos += 12 + n
+    if header is None:
+        raise located("PNG has no IHDR chunk (corrupt?)", name)
     w, h, _, colour, _, _, interlace = header
     channels = _PNG_CHANNELS.get(colour)
     if channels is None or interlace:
         what = "interlaced" if interlace else f"colour type {colour}"
         raise located(f"16-bit PNG, {what}, is not supported; save it non-interlaced", name)
-    try:
-        raw = zlib.decompress(b"".join(idat))
+    stride = w * channels * 2
+    check_size(w * h * _DECODED_BYTES, "image (decoded)", name)  # before inflating anything
+    try:  # inflate at most what the header declares (+1 byte to see a longer stream)
+        raw = zlib.decompressobj().decompress(b"".join(idat), h * (stride + 1) + 1)
     except zlib.error as e:
         raise located(f"PNG pixel data is corrupt: {e}", name) from e
-    stride = w * channels * 2
     if len(raw) != h * (stride + 1):
         raise located(f"PNG pixel data has {len(raw)} bytes, expected {h * (stride + 1)}", name)
     rows = np.frombuffer(raw, np.uint8).reshape(h, stride + 1)
@@ -225,6 +232,7 @@ class _Folder(Source):
 
     def read(self, name: str) -> bytes:
         try:
+            check_size((self.path / name).stat().st_size, "file", self.label(name))
             return (self.path / name).read_bytes()
         except OSError as e:
             raise located(f"cannot read: {e.strerror or e}", self.label(name)) from e
@@ -241,6 +249,11 @@ class _Zip(Source):
             self.zf = zipfile.ZipFile(path)
         except (zipfile.BadZipFile, OSError) as e:
             raise located(f"cannot read as a zip archive: {e}", path) from e
+        try:
+            check_archive(self.zf, path)  # every member's name and declared size, up front
+        except InputError:
+            self.zf.close()
+            raise
 
     def names(self) -> list[str]:
         return [i.filename for i in self.zf.infolist() if not i.is_dir()]
@@ -250,7 +263,7 @@ class _Zip(Source):
 
     def read(self, name: str) -> bytes:
         try:
-            return self.zf.read(name)
+            return read_member(self.zf, name, self.path)
         except (zipfile.BadZipFile, zlib.error, OSError, RuntimeError, NotImplementedError) as e:
             # BadZipFile: a CRC mismatch; RuntimeError: encrypted; NotImplementedError: method
             raise located(f"cannot read from the zip archive: {e}", self.label(name)) from e

@@ -25,6 +25,17 @@ from ._outputs import (  # noqa: F401 - the outputs' checks and policy, used thr
     refused_store,
 )
 from ._outputs import output_lock as _output_lock
+from ._args import (  # noqa: F401 - the arguments' validators, used through this module
+    ALPHA_RANGE,
+    alpha_deg,
+    degrees,
+    existing,
+    finite,
+    integer,
+    int_in,
+    output_path,
+    positive,
+)
 
 PROG = "abrdf-jax"
 #: Format tag of the model record written beside a reconstruction (``OUT.model.json``).
@@ -101,74 +112,6 @@ def budget_flags(p, anisotropic: bool = True) -> None:
     g.add_argument("--isotropic", action="store_true", help="use only the diagonal slices (iso102)")
     if anisotropic:
         g.add_argument("--anisotropic", action="store_true", help="use all 8 slices (aniso204)")
-
-
-def positive(name: str):
-    """An argparse ``type=`` for an integer ``>= 1``, named ``name`` in its message."""
-
-    def parse(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if v < 1:
-            raise argparse.ArgumentTypeError(f"{name} must be at least 1, got {v}")
-        return v
-
-    return parse
-
-
-def int_in(name: str, low: int, high: int):
-    """An argparse ``type=`` for an integer in ``[low, high]``, named ``name`` in its message."""
-
-    def parse(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if not low <= v <= high:
-            raise argparse.ArgumentTypeError(f"{name} must be in [{low}, {high}], got {v}")
-        return v
-
-    return parse
-
-
-#: The slice offset α a command accepts, degrees, open at both ends. α and α + 360 are the same
-#: slices; at α = 0 the axial slice (φv = φi − α) has light and view at one azimuth, so at the
-#: equal-elevation pairs they coincide along the whole slice (the camera shadows the light) and
-#: both slice crossings lie there; at α = 180 the axial slice lies in the mirror plane and both
-#: crossings on the specular peak; α in (180, 360) is −α, the same slices with light and view
-#: swapped. Hence 0 < α < 180 (the protocol's 15 inside).
-ALPHA_RANGE = (0.0, 180.0)
-
-
-def finite(name: str, low: float | None = None, high: float | None = None, open_low=True):
-    """An argparse ``type=`` for a finite number, optionally in ``(low, high)`` (``[low, ...``
-    with ``open_low=False``), named ``name`` in its message with the allowed range."""
-    lo = "" if low is None else ("(" if open_low else "[") + f"{low:g}"
-    hi = "" if high is None else f"{high:g})"
-    allowed = f"in {lo or '(-inf'}, {hi or 'inf)'}" if low is not None or high is not None else ""
-
-    def parse(text):
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"{name} must be a number{' ' + allowed if allowed else ''}, got {text!r}"
-            ) from None
-        bad_low = low is not None and (v <= low if open_low else v < low)
-        if not math.isfinite(v) or bad_low or (high is not None and v >= high):
-            raise argparse.ArgumentTypeError(
-                f"{name} must be a finite number{' ' + allowed if allowed else ''}, got {text!r}"
-            )
-        return v
-
-    return parse
-
-
-def alpha_deg(text):
-    """The ``--alpha`` ``type=``: a slice offset in degrees inside :data:`ALPHA_RANGE`."""
-    return finite("--alpha (slice offset, degrees)", *ALPHA_RANGE)(text)
 
 
 def say(message: str) -> None:
@@ -405,16 +348,25 @@ def measurements_for(item: Measured, config):
     return group_arrays(item.samples, item.alpha, pairs=config.pairs)[0]
 
 
-def params_for(budget: str, alpha_deg: float, preset: str = "recommended", params_file=None):
+def check_params_file(path) -> None:
+    """A bad parameter file (``--params``) fails here, before any input is read (no JAX)."""
+    if path is not None:
+        from ..io._paramfile import read_params_file
+
+        read_params_file(path)
+
+
+def params_for(budget: str, alpha: float, preset: str = "recommended", params_file=None):
     """Config and params: from a fitted parameter file (``--params``) or ``abrdf_jax.preset``.
 
-    A parameter file supplies the configuration, widths and λ; α stays the measurement's own
-    (it says where the samples lie), and the file's budget must match the data's.
+    A parameter file supplies the configuration, widths and λ; α (``alpha``, degrees) stays the
+    measurement's own (it says where the samples lie), and the file's budget must match the
+    data's.
     """
     import abrdf_jax as aj
 
     if params_file is not None:
-        from ..tuning import load_params
+        from ..io._paramfile import load_params
 
         config, params, _ = load_params(params_file)
         if config.budget != budget:
@@ -423,9 +375,9 @@ def params_for(budget: str, alpha_deg: float, preset: str = "recommended", param
                 f"{params_file}: parameters were fitted for {config.budget}, but the "
                 f"measurement is {budget}; fit for {budget} or pass --{flag}"
             )
-        return config, params.with_alpha_deg(alpha_deg)
+        return config, params.with_alpha_deg(alpha)
     config = aj.preset(preset, budget)
-    return config, aj.Params.default(config, alpha_deg=alpha_deg)
+    return config, aj.Params.default(config, alpha_deg=alpha)
 
 
 # --------------------------------------------------------------------------------------------

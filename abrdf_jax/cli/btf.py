@@ -14,10 +14,8 @@
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -163,6 +161,7 @@ def cmd_reconstruct(args) -> int:
             f"--preset {args.preset} and --params {args.params} both fix the "
             "configuration; give one"
         )
+    common.check_params_file(args.params)  # before any work, without JAX
     _init_distributed(args)
     from abrdf_jax import btf
 
@@ -212,23 +211,6 @@ def cmd_reconstruct(args) -> int:
         count = btf.write_exr_pairs(store, args.exr_dir, progress=not args.quiet)
         print(f"{args.exr_dir}: {count} EXR images in {time.perf_counter() - t0:.1f} s")
     return 0
-
-
-def _degrees(flag: str):
-    """An argparse ``type=`` for a finite angle in degrees, named ``flag`` in its message."""
-
-    def parse(text):
-        try:
-            v = float(text)
-        except ValueError:
-            v = math.nan
-        if not math.isfinite(v):
-            raise argparse.ArgumentTypeError(
-                f"{flag} must be a finite angle in degrees, got {text!r}"
-            )
-        return v
-
-    return parse
 
 
 def cmd_import(args) -> int:
@@ -316,13 +298,18 @@ def register(sub) -> None:
         bsub, "generate", cmd_generate, HELP["generate"], DESCRIPTION["generate"], writes=True
     )
     add = common.adder(g, HELP)
-    add("-o", "--output", required=True, metavar="DIR")
+    add("-o", "--output", required=True, type=common.output_path, metavar="DIR")
     add("--size", required=True, type=common.positive("--size"), metavar="N")
-    add("--seed", type=int, default=0, metavar="S")
+    add("--seed", type=common.integer("--seed", 0), default=0, metavar="S")
     add("--chunk", **chunk)
     add("--no-reference", action="store_true")
     add("--reference-dtype", choices=STORE_DTYPES, default=STORE_DTYPES[0])
-    add("--exr-dir", metavar="DIR", help="also write the measurements as one EXR per sample pair")
+    add(
+        "--exr-dir",
+        type=common.output_path,
+        metavar="DIR",
+        help="also write the measurements as one EXR per sample pair",
+    )
     add("--overwrite", action="store_true", help="replace a different BTF in DIR")
     add("-q", "--quiet", action="store_true")
 
@@ -337,13 +324,25 @@ def register(sub) -> None:
     add = common.adder(r, HELP)
     what = "a measurement store, a generated BTF folder, or an image capture (a folder or zip of "
     what += "per-pair images, imported first to OUT.measurements)"
-    add("input", metavar="MEAS_DIR", help=what)
-    add("-o", "--output", required=True, metavar="OUT", help="output store folder")
+    add("input", type=common.existing("file or folder"), metavar="MEAS_DIR", help=what)
+    add(
+        "-o",
+        "--output",
+        required=True,
+        type=common.output_path,
+        metavar="OUT",
+        help="output store folder",
+    )
     add("--chunk", **chunk)
-    add("--exr-dir", metavar="DIR", help="also export one EXR image per direction pair")
+    add(
+        "--exr-dir",
+        type=common.output_path,
+        metavar="DIR",
+        help="also export one EXR image per direction pair",
+    )
     add("--dtype", choices=STORE_DTYPES, default=STORE_DTYPES[0])
     add("--preset", choices=PRESETS)
-    add("--params", metavar="PARAMS.json", type=Path)
+    add("--params", metavar="PARAMS.json", type=common.existing("file"))
     common.budget_flags(r, anisotropic=False)
     add("--backend", choices=BTF_BACKENDS, default=BTF_BACKENDS[0])
     add("--model", choices=BTF_MODELS, default=BTF_MODELS[0])
@@ -354,15 +353,16 @@ def register(sub) -> None:
     d("--distributed", action="store_true")
     d("--coordinator", metavar="HOST:PORT")
     d("--num-processes", type=common.positive("--num-processes"), metavar="N")
-    d("--process-id", type=int, metavar="K")
+    d("--process-id", type=common.integer("--process-id", 0), metavar="K")
     add("-q", "--quiet", action="store_true")
 
     i = common.command(
         bsub, "import", cmd_import, HELP["import"], DESCRIPTION["import"], writes=True
     )
     add = common.adder(i, HELP)
-    add("input", metavar="IMAGES", help="a folder (any sub-folder) or a .zip archive of images")
-    add("-o", "--output", required=True, metavar="STORE")
+    images = "a folder (any sub-folder) or a .zip archive of images"
+    add("input", type=common.existing("file or folder"), metavar="IMAGES", help=images)
+    add("-o", "--output", required=True, type=common.output_path, metavar="STORE")
     add("--chunk", **chunk)
     add(
         "--alpha",
@@ -371,15 +371,20 @@ def register(sub) -> None:
         help="slice offset (default: pairs.json or estimated)",
     )
     add("--azimuth", choices=AZIMUTHS, default=AZIMUTHS[0])
-    add("--light-offset", type=_degrees("--light-offset"), default=0.0, metavar="DEG")
+    add("--light-offset", type=common.degrees("--light-offset"), default=0.0, metavar="DEG")
     add("--overwrite", action="store_true", help="replace a different store at STORE")
     add("-q", "--quiet", action="store_true")
 
     e = common.command(bsub, "export", cmd_export, HELP["export"], writes=True)
     add = common.adder(e, HELP)
-    add("input", metavar="STORE")
-    add("--exr-dir", metavar="DIR")
-    add("--zarr", metavar="OUT.zarr", help="an .npy ABRDF store -> a zarr v3 group")
+    add("input", type=common.existing("folder"), metavar="STORE")
+    add("--exr-dir", type=common.output_path, metavar="DIR")
+    add(
+        "--zarr",
+        type=common.output_path,
+        metavar="OUT.zarr",
+        help="an .npy ABRDF store -> a zarr v3 group",
+    )
     add("--overwrite", action="store_true", help="replace an existing OUT.zarr")
     add("--float32", action="store_true")
     add("--no-compression", action="store_true")
@@ -387,8 +392,8 @@ def register(sub) -> None:
 
     v = common.command(bsub, "evaluate", cmd_evaluate, HELP["evaluate"], writes=True)
     add = common.adder(v, HELP)
-    add("rec", metavar="REC")
-    add("ref", metavar="REF")
+    add("rec", type=common.existing("folder"), metavar="REC")
+    add("ref", type=common.existing("folder"), metavar="REF")
     add("--png", metavar="MAP.png")
     add("--json", action="store_true")
     add("-q", "--quiet", action="store_true")

@@ -132,13 +132,11 @@ def register(sub) -> None:
     add = common.adder(
         common.command(sub, "demo", run, HELP["help"], HELP["description"], writes=True), HELP
     )
-    add("-o", "--output", default="abrdf_demo.png", metavar="FIGURE.png")
-    add("--materials", type=int, metavar="N")
+    add("-o", "--output", default="abrdf_demo.png", type=common.output_path, metavar="FIGURE.png")
+    add("--materials", type=common.positive("--materials"), metavar="N")
 
 
 def run(args) -> int:
-    if args.materials is not None and args.materials < 1:
-        raise InputError(f"--materials must be at least 1, got {args.materials}")
     common.announce_replace(Path(args.output))
     path = run_demo(args.output, n_materials=args.materials, stream=sys.stdout)
     print(f"figure: {path}")

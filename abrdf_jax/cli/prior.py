@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .._errors import InputError
 from .._names import BUDGETS, PRIOR_CHANNELS, PRIOR_INPUT_SUFFIXES
 from . import _common as common
 
@@ -45,10 +44,6 @@ HELP = {
 
 def _train(args) -> int:
     out = common.check_output_file(Path(args.output), (".npz",), "prior file")
-    if args.lam is not None and not args.lam >= 0:
-        raise InputError(f"--lam must be >= 0, got {args.lam}")
-    if args.eps is not None and not args.eps > 0:
-        raise InputError(f"--eps must be > 0, got {args.eps}")
     from ..prior import DEFAULT_EPS, read_training_tables, select_prior, train_prior
     from ..prior._select import DEFAULT_KS, DEFAULT_LAMS
 
@@ -129,14 +124,14 @@ def register(sub) -> None:
 
     t = common.command(gsub, "train", _train, HELP["train"], writes=True)
     add = common.adder(t, HELP)
-    add("tables", nargs="+", metavar="TABLES")
+    add("tables", nargs="+", type=common.existing("file"), metavar="TABLES")
     add("-o", "--output", required=True, metavar="PRIOR.npz")
     add("--components", type=common.positive("--components"), metavar="K")
-    add("--lam", type=float, metavar="L")
+    add("--lam", type=common.finite("--lam", 0.0, open_low=False), metavar="L")
     add("--channels", choices=PRIOR_CHANNELS, default="shared")
-    add("--eps", type=float)
+    add("--eps", type=common.finite("--eps", 0.0))
     add("--split", metavar="NAME")
-    add("--folds", type=int, default=6)
+    add("--folds", type=common.integer("--folds", 2), default=6)
     add("--budget", choices=BUDGETS, default=BUDGETS[0])
     add("-q", "--quiet", action="store_true")
 

@@ -74,7 +74,7 @@ def register(sub) -> None:
     add("--format", choices=FORMATS)
     add("-q", "--quiet", action="store_true")
     add("--preset", choices=PRESETS)
-    add("--params", metavar="PARAMS.json", type=Path)
+    add("--params", metavar="PARAMS.json", type=common.existing("file"))
     add("--model", metavar="MODEL")
     add("--tol", type=common.finite("--tol", 0.0, open_low=False), metavar="FRAC")
     add("--noise", type=common.finite("--noise", 0.0, open_low=False), metavar="SIGMA")
@@ -306,6 +306,7 @@ def run(args) -> int:
     targets = _targets(files, out, folder_mode, args.format)
     check_model_arguments(args)
     prior = common.prior_source(args)  # a bad prior file fails here, before any work
+    common.check_params_file(args.params)  # and a bad parameter file
     # One writer of the output (and its model record) at a time; a killed one's lock is taken
     # over and its temporary files removed (docs/stability.md, "Faults").
     record = out.parent / ((out.name if folder_mode else out.stem) + ".model.json")

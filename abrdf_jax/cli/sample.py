@@ -10,6 +10,7 @@ is only known on the UBO grid).
 
 from __future__ import annotations
 
+import argparse
 import math
 from pathlib import Path
 
@@ -66,12 +67,12 @@ def register(sub) -> None:
     add("-o", "--output", required=True, metavar="MEAS.csv")
     add("--budget", choices=BUDGETS)
     add("--alpha", type=common.alpha_deg, metavar="DEG")
-    add("--per-slice", metavar="N[,N...]")
-    add("--pairs", metavar="TI/TV[,...]")
-    add("--jitter", metavar="DEG")
-    add("--noise", metavar="FRAC")
-    add("--gap", metavar="DEG")
-    add("--seed", metavar="S")
+    add("--per-slice", type=_TYPES["--per-slice"], metavar="N[,N...]")
+    add("--pairs", type=_TYPES["--pairs"], metavar="TI/TV[,...]")
+    add("--jitter", type=_TYPES["--jitter"], metavar="DEG")
+    add("--noise", type=_TYPES["--noise"], metavar="FRAC")
+    add("--gap", type=_TYPES["--gap"], metavar="DEG")
+    add("--seed", type=_TYPES["--seed"], metavar="S")
 
 
 # --------------------------------------------------------------------------------------------
@@ -79,32 +80,9 @@ def register(sub) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def _number(flag: str, text: str) -> float:
-    """A finite number ``>= 0`` given to ``flag``."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise InputError(f"{flag} must be a number, got {text!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise InputError(f"{flag} must be a finite number >= 0, got {text!r}")
-    return v
-
-
-def _count(flag: str, text: str, minimum: int) -> int:
-    """An integer ``>= minimum`` given to ``flag``."""
-    try:
-        v = int(text.strip())
-    except ValueError:
-        raise InputError(f"{flag} must be an integer, got {text!r}") from None
-    if v < minimum:
-        raise InputError(f"{flag} must be at least {minimum}, got {v}")
-    return v
-
-
 def _per_slice(text: str):
     """One count for every slice (an int) or one per pair (a list) from ``--per-slice``."""
-    parts = text.split(",")
-    counts = [_count("--per-slice", p, 1) for p in parts]
+    counts = [common.positive("--per-slice")(p.strip()) for p in text.split(",")]
     return counts[0] if len(counts) == 1 else counts
 
 
@@ -114,42 +92,47 @@ def _pairs(text: str) -> list[tuple[float, float]]:
     for item in text.split(","):
         halves = item.split("/")
         if len(halves) != 2:
-            raise InputError(f"--pairs: {item!r} is not an elevation pair THETA_I/THETA_V")
+            raise argparse.ArgumentTypeError(f"{item!r} is not an elevation pair THETA_I/THETA_V")
         try:
             pair = tuple(float(h) for h in halves)
         except ValueError:
-            raise InputError(f"--pairs: {item!r} is not an elevation pair of numbers") from None
+            raise argparse.ArgumentTypeError(
+                f"{item!r} is not an elevation pair of numbers"
+            ) from None
         if not all(math.isfinite(t) and 0 <= t < 90 for t in pair):
-            raise InputError(f"--pairs: elevations must lie in [0, 90) degrees, got {item!r}")
+            raise argparse.ArgumentTypeError(
+                f"elevations must lie in [0, 90) degrees, got {item!r}"
+            )
         pairs.append(pair)
     if len(set(pairs)) != len(pairs):
-        raise InputError(f"--pairs: an elevation pair is given twice in {text!r}")
+        raise argparse.ArgumentTypeError(f"an elevation pair is given twice in {text!r}")
     return pairs
 
 
-#: flag -> parser of its text into the keyword's value.
-_PARSERS = {
+#: flag -> its argparse ``type=`` (each value checked while the command line is parsed).
+_TYPES = {
     "--per-slice": _per_slice,
     "--pairs": _pairs,
-    "--jitter": lambda t: _number("--jitter", t),
-    "--noise": lambda t: _number("--noise", t),
-    "--gap": lambda t: _number("--gap", t),
-    "--seed": lambda t: _count("--seed", t, 0),
+    "--jitter": common.finite("--jitter", 0.0, open_low=False),
+    "--noise": common.finite("--noise", 0.0, open_low=False),
+    "--gap": common.finite("--gap", 0.0, open_low=False),
+    "--seed": common.integer("--seed", 0),
 }
-assert _PARSERS.keys() == CAPTURE_FLAGS.keys()
+assert _TYPES.keys() == CAPTURE_FLAGS.keys()
 
 
 def capture_options(args) -> dict[str, object]:
     """``{flag: value}`` of the capture flags given (empty: the protocol's ideal samples).
 
     Raises:
-        InputError: naming the flag, on a malformed or out-of-range value.
+        InputError: naming --per-slice, when its counts do not match the pairs (each value is
+            checked by its ``type=`` while parsing).
     """
     given = {}
-    for flag, parse in _PARSERS.items():
-        text = getattr(args, flag.lstrip("-").replace("-", "_"))
-        if text is not None:
-            given[flag] = parse(text)
+    for flag in _TYPES:
+        value = getattr(args, flag.lstrip("-").replace("-", "_"))
+        if value is not None:
+            given[flag] = value
     counts = given.get("--per-slice")
     if isinstance(counts, list):
         n_pairs = len(given["--pairs"]) if "--pairs" in given else 4  # the protocol's four
@@ -158,8 +141,6 @@ def capture_options(args) -> dict[str, object]:
                 f"--per-slice gives {len(counts)} counts for {n_pairs} elevation pairs; give "
                 "one count, or one per pair"
             )
-    if given and args.alpha is not None and not math.isfinite(args.alpha):
-        raise InputError(f"--alpha must be a finite number, got {args.alpha}")
     return given
 
 

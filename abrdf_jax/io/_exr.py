@@ -15,6 +15,7 @@ import numpy as np
 
 from .._errors import InputError, located, require
 from ._atomic import atomic_write
+from ._untrusted import check_size
 
 
 def _openexr():
@@ -40,6 +41,9 @@ def read_rgb_exr(
     stream = hasattr(path, "read")
     source = path if stream else str(path)
     path = name or (path if stream else Path(path))
+    _check_declared_size(OpenEXR, source, path, shape)
+    if stream:
+        source.seek(0)
     try:
         parts = OpenEXR.File(source, separate_channels=True).parts
     except Exception as e:  # noqa: BLE001 - the library raises RuntimeError, IndexError, ...
@@ -71,6 +75,30 @@ def read_rgb_exr(
             )
         planes.append(px.astype(np.float32))
     return np.stack(planes, axis=-1)
+
+
+def _check_declared_size(OpenEXR, source, path, shape) -> None:
+    """Read the header only and refuse an image whose declared pixels exceed the size budget
+    (or, with ``shape``, are not that size) before the library allocates them."""
+    try:
+        parts = OpenEXR.File(source, header_only=True).parts
+    except Exception:  # noqa: BLE001 - reported by the full read, with the library's reason
+        return
+    for part in parts:
+        header = part.header
+        try:
+            (x0, y0), (x1, y1) = (np.asarray(c, np.int64) for c in header["dataWindow"])
+            channels = len(header.get("channels", ())) or 1
+        except (KeyError, TypeError, ValueError):
+            return  # no usable window: the full read reports it
+        w, h = int(x1 - x0 + 1), int(y1 - y0 + 1)
+        if w < 1 or h < 1:
+            raise located(f"EXR header declares an empty data window ({w}x{h})", path)
+        if shape is not None and (h, w) != tuple(shape):
+            raise located(
+                f"EXR image is {w}x{h} (width x height), expected {shape[1]}x{shape[0]}", path
+            )
+        check_size(w * h * max(channels, 3) * 4, f"EXR image {w}x{h}", path)
 
 
 def write_rgb_exr(

@@ -25,6 +25,7 @@ import numpy as np
 from ._atomic import _check_readable, atomic_write
 from .._errors import InputError, located
 from ._exr import read_rgb_exr, write_rgb_exr
+from ._untrusted import check_archive
 
 #: Shape of an ABRDF table on the UBO2003 grid.
 TABLE_SHAPE = (81, 81, 3)
@@ -92,6 +93,7 @@ def _read_npz(path: Path) -> np.ndarray:
     member = NPZ_KEY + ".npy"
     try:
         with zipfile.ZipFile(path) as zf:
+            check_archive(zf, path)
             names = zf.namelist()
             if member not in names:
                 held = ", ".join(n.removesuffix(".npy") for n in names) or "nothing"

@@ -26,6 +26,7 @@ import numpy as np
 
 from .._errors import InputError, located
 from ..io._atomic import _check_readable, atomic_write
+from ..io._untrusted import check_npz
 
 #: The file format this version writes and reads.
 PRIOR_FORMAT = "abrdf_jax.prior/1"
@@ -70,6 +71,7 @@ def read_prior_file(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dic
     path = Path(path)
     _check_readable(path)
     try:
+        check_npz(path)  # member names, sizes and array headers, before anything is inflated
         with zipfile.ZipFile(path) as zf:
             bad = zf.testzip()  # every member's CRC: a truncated or flipped file fails here
             if bad is not None:

@@ -14,6 +14,7 @@ import numpy as np
 from .._errors import InputError, located
 from .._names import PRIOR_INPUT_SUFFIXES
 from ..io._atomic import _check_readable
+from ..io._untrusted import check_npz
 from ..io._atomic import file_sha256 as _file_sha256
 
 SUFFIXES = PRIOR_INPUT_SUFFIXES
@@ -26,12 +27,15 @@ def _table_sha256(table: np.ndarray) -> str:
 def _npz_stack(path: Path, split: str | None):
     """A stack ``abrdf`` ``(N, 81, 81, 3)`` (with optional ``names``, ``split``), or ``None``."""
     try:
+        check_npz(path)  # member names, sizes and array headers, before anything is inflated
         with np.load(path, allow_pickle=False) as z:
             if "abrdf" not in z.files or z["abrdf"].ndim != 4:
                 return None
             stack = np.asarray(z["abrdf"])
             names = [str(n) for n in z["names"]] if "names" in z.files else None
             splits = [str(s) for s in z["split"]] if "split" in z.files else None
+    except InputError:
+        raise
     except Exception as e:  # noqa: BLE001 - zipfile/numpy errors: read_table reports them
         del e
         return None
