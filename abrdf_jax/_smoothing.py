@@ -50,22 +50,23 @@ _TWO_PI = 2.0 * np.pi
 
 
 def neighbours(t, count, xp=None):
-    """``(left, right, wl, wr, valid)`` of every slot of a padded slice layout.
+    """``(left, right, wl, wr, valid, slice_of)`` of every slot of one padded slice layout.
 
     Args:
-        t: slice parameters ``(..., S, nmax)`` (radians, sorted within each slice).
-        count: valid samples per slice ``(..., S)``.
+        t: slice parameters ``(S, nmax)`` (radians, sorted within each slice).
+        count: valid samples per slice ``(S,)``.
 
     Returns:
-        Neighbour indices ``(..., S, nmax)`` (periodic within the first ``count`` slots), the
-        interpolation weights of the left and right neighbour, and ``valid``: the slot is a
-        sample of a slice with at least 3 samples (only those are smoothed and enter ``σ̂``).
+        Six arrays over the flat slots ``s · nmax + k`` (``(S · nmax,)`` each): the flat index of
+        each slot's left and right neighbour (periodic within the first ``count`` slots of its
+        slice), their interpolation weights, ``valid`` (the slot is a sample of a slice with at
+        least 3 samples: only those are smoothed and enter ``σ̂``) and the slot's slice.
     """
     if xp is None:
         import jax.numpy as xp
-    nmax = t.shape[-1]
-    k = xp.arange(nmax)
-    n = xp.asarray(count)[..., None]
+    s, nmax = t.shape
+    n = xp.asarray(count)[:, None]
+    k = xp.arange(nmax, dtype=n.dtype)[None, :]  # one integer type and rank (strict promotion)
     n1 = xp.maximum(n, 1)
     left = (k - 1) % n1
     right = (k + 1) % n1
@@ -73,98 +74,113 @@ def neighbours(t, count, xp=None):
     tr = xp.take_along_axis(t, right, axis=-1) + xp.where(k == n - 1, _TWO_PI, 0.0)
     span = tr - tl
     ok = span > 0
-    wr = xp.where(ok, (t - tl) / xp.where(ok, span, 1.0), 0.5)
+    wr = xp.where(ok, (t - tl) / xp.where(ok, span, 1.0), 0.5).astype(t.dtype)
     valid = (k < n) & (n >= 3)
-    return left, right, (1.0 - wr).astype(t.dtype), wr.astype(t.dtype), valid
+    slices = xp.arange(s, dtype=n.dtype)[:, None]
+    base = slices * nmax
+    slice_of = xp.broadcast_to(slices, (s, nmax))
+    parts = (left + base, right + base, 1.0 - wr, wr, valid, slice_of)
+    return tuple(a.reshape(-1) for a in parts)
+
+
+def compact(nb, index, xp=None):
+    """:func:`neighbours` restricted to the slots ``index`` ``(n,)`` (the valid samples, the
+    compiled operator's input order), neighbour indices into that order."""
+    if xp is None:
+        import jax.numpy as xp
+    left, right, wl, wr, valid, slice_of = nb
+    n = index.shape[0]
+    if xp is np:
+        inv = np.zeros(left.shape[0], np.int64)
+        inv[index] = np.arange(n)
+    else:
+        inv = xp.zeros(left.shape[0], xp.int32).at[index].set(xp.arange(n, dtype=xp.int32))
+    return inv[left[index]], inv[right[index]], wl[index], wr[index], valid[index], slice_of[index]
 
 
 def residuals(z, nb, xp=None):
-    """``r_k = z_k − (w_l z_{k−1} + w_r z_{k+1})`` of values ``z`` ``(..., S, nmax, C)``
-    (0 at slots that are not ``valid``)."""
+    """``r_k = z_k − (w_l z_{k−1} + w_r z_{k+1})`` of values ``z`` ``(..., n, C)`` on the slots of
+    ``nb`` (0 at slots that are not ``valid``)."""
     if xp is None:
         import jax.numpy as xp
-    left, right, wl, wr, valid = nb
-    lead = (1,) * (z.ndim - 1 - left.ndim)  # the layout may be shared by a batch of values
-    zl = xp.take_along_axis(z, left.reshape(*lead, *left.shape, 1), axis=-2)
-    zr = xp.take_along_axis(z, right.reshape(*lead, *right.shape, 1), axis=-2)
-    r = z - (wl[..., None] * zl + wr[..., None] * zr)
-    return xp.where(valid[..., None], r, 0.0)
+    left, right, wl, wr, valid, _ = nb
+    r = z - (_column(wl, z) * z[..., left, :] + _column(wr, z) * z[..., right, :])
+    return xp.where(_column(valid, z), r, 0.0)
+
+
+def _column(a, z):
+    """Per-slot ``a`` ``(n,)`` shaped to broadcast against values ``z`` ``(..., n, C)`` (explicit
+    ranks: no implicit rank promotion)."""
+    return a.reshape(*(1,) * (z.ndim - 2), a.shape[0], 1)
 
 
 def noise_level(z, nb, xp=None):
     """``σ̂`` ``(...)``: ``1.4826 · median |r| / sqrt(1 + w_l² + w_r²)`` over the valid slots and
-    every channel of each material (``nan`` when no slice has 3 samples)."""
+    every channel of values ``z`` ``(..., n, C)`` (``nan`` when no slice has 3 samples)."""
     if xp is None:
         import jax.numpy as xp
-    _, _, wl, wr, valid = nb
-    r = residuals(z, nb, xp) / xp.sqrt(1.0 + wl**2 + wr**2)[..., None]
-    r = xp.where(valid[..., None], xp.abs(r), np.nan)
-    flat = r.reshape(*r.shape[:-3], -1)
-    return _MAD_TO_SIGMA * xp.nanmedian(flat, axis=-1)
+    _, _, wl, wr, valid, _ = nb
+    r = residuals(z, nb, xp) / _column(xp.sqrt(1.0 + wl**2 + wr**2), z)
+    r = xp.where(_column(valid, z), xp.abs(r), np.nan)
+    return _MAD_TO_SIGMA * xp.nanmedian(r.reshape(*r.shape[:-2], -1), axis=-1)
 
 
-def weights(setting, z, t, count, nb=None, xp=None):
+def weights(setting, z, count, nb, xp=None):
     """``β_s`` per material and slice ``(..., S)`` of a ``Config.slice_smoothing`` setting.
 
     Args:
         setting: a fixed ``β`` (float) or the rule ``(β_max, floor, scale)`` (module docstring).
-        z: the values the slices interpolate ``(..., S, nmax, C)``.
-        t, count: their slice parameters ``(..., S, nmax)`` and counts ``(..., S)``.
-        nb: :func:`neighbours` of ``t`` and ``count`` when already computed.
+        z: the values the slices interpolate, ``(..., n, C)`` on the slots of ``nb``.
+        count: samples per slice ``(S,)``.
+        nb: :func:`neighbours` (or :func:`compact`) of the layout.
 
     Returns:
         ``(β, σ̂)``: the weights and the noise level ``(...)`` (``nan`` for a fixed ``β``).
     """
     if xp is None:
         import jax.numpy as xp
-    shape = z.shape[:-2]
+    lead = z.shape[:-2]
     if not isinstance(setting, tuple):
-        return xp.full(shape, setting, z.dtype), xp.full(shape[:-1], np.nan, z.dtype)
+        beta = xp.full((*lead, count.shape[0]), setting, z.dtype)
+        return beta, xp.full(lead, np.nan, z.dtype)
     beta_max, floor, scale = setting
-    nb = neighbours(t, count, xp) if nb is None else nb
     sigma = noise_level(z, nb, xp)
     s2 = xp.where(xp.isfinite(sigma), sigma, 0.0)[..., None] ** 2
     spacing = 2.0 * np.pi / xp.maximum(xp.asarray(count), 1).astype(z.dtype)
-    q = (spacing / SPACING_0) ** 2
+    q = ((spacing / SPACING_0) ** 2).reshape(*(1,) * len(lead), -1)
     noise2 = xp.maximum(s2 - (floor * q) ** 2, 0.0)
     beta = beta_max * noise2 / (noise2 + (scale * q) ** 2)
     return beta.astype(z.dtype), sigma
 
 
 def smooth(z, beta, nb, xp=None):
-    """One shrink ``z ← z − β_s r`` with ``β`` per material and slice ``(..., S)``."""
+    """One shrink ``z ← z − β_s r`` of ``z`` ``(..., n, C)``, ``β`` per slice ``(..., S)``."""
     if xp is None:
         import jax.numpy as xp
-    return z - xp.asarray(beta, z.dtype)[..., None, None] * residuals(z, nb, xp)
+    b = xp.asarray(beta, z.dtype)[..., nb[5]]  # each slot's slice
+    return z - b[..., None] * residuals(z, nb, xp)
 
 
 def smooth_slices(setting, z, t, count, xp=None):
-    """``(smoothed z, β, σ̂)`` for a ``Config.slice_smoothing`` setting (``None``: unchanged,
-    ``β`` and ``σ̂`` then ``None``)."""
+    """``(smoothed z, β, σ̂)`` of padded values ``z`` ``(..., S, nmax, C)`` (one layout ``t``
+    ``(S, nmax)``, ``count`` ``(S,)``) for a ``Config.slice_smoothing`` setting (``None``:
+    unchanged, ``β`` and ``σ̂`` then ``None``)."""
     if setting is None:
         return z, None, None
     nb = neighbours(t, count, xp)
-    beta, sigma = weights(setting, z, t, count, nb, xp)
-    return smooth(z, beta, nb, xp), beta, sigma
+    flat = z.reshape(*z.shape[:-3], -1, z.shape[-1])
+    beta, sigma = weights(setting, flat, count, nb, xp)
+    return smooth(flat, beta, nb, xp).reshape(z.shape), beta, sigma
 
 
 def smooth_compact(setting, z, index, t, count, xp=None):
-    """:func:`smooth_slices` of compact values ``z`` ``(B, n_in, C)`` (the valid samples in the
-    order ``index`` of the flat ``(S · nmax)`` layout ``t`` ``(S, nmax)``, ``count`` ``(S,)``):
-    the compiled operator's and the numpy operator entry's form. Returns the smoothed ``z``."""
-    if xp is None:
-        import jax.numpy as xp
+    """The smoothing of compact values ``z`` ``(B, n_in, C)`` (the valid samples in the order
+    ``index`` of the flat ``(S · nmax)`` layout ``t`` ``(S, nmax)``, ``count`` ``(S,)``): the
+    compiled operator's and the numpy operator entry's form, without the padded layout."""
     if setting is None:
         return z
-    b, _, c = z.shape
-    s, nmax = t.shape
-    if xp is np:
-        full = np.zeros((b, s * nmax, c), z.dtype)
-        full[:, index, :] = z
-    else:
-        full = xp.zeros((b, s * nmax, c), z.dtype).at[:, index, :].set(z)
-    full = smooth_slices(setting, full.reshape(b, s, nmax, c), t, count, xp)[0]
-    return full.reshape(b, s * nmax, c)[:, index, :]
+    nb = compact(neighbours(t, count, xp), index, xp)
+    return smooth(z, weights(setting, z, count, nb, xp)[0], nb, xp)
 
 
 def smoothing_to_json(setting):
@@ -192,7 +208,7 @@ def smoothing_report(setting, y, t, count, log_eps: float) -> dict | None:
     eps = log_eps * mean + np.finfo(np.float32).tiny ** 0.5
     z = np.where(mask[..., None], np.log(np.maximum(y, 0.0) + eps), 0.0)
     nb = neighbours(t, count, np)
-    beta, sigma = weights(setting, z, t, count, nb, np)
+    beta, sigma = weights(setting, z.reshape(-1, z.shape[-1]), count, nb, np)
     beta = np.where(count >= 3, beta, 0.0)
     sigma = float(sigma)
     return {

@@ -209,6 +209,8 @@ def test_every_capture_kind_in_one_folder_call(tmp_path, iso):
         used = record[k]["measurement"]
         assert used["n_used"] == used["n_samples"]
         assert used["noise_log"] is not None and used["alpha_se_deg"] >= 0
+        smoothing = record[k]["smoothing"]  # the slice smoothing's noise and weight per slice
+        assert len(smoothing["beta"]) == 2 * len(used["pairs"]) and smoothing["noise_log"] > 0
     assert record["offubo"]["measurement"]["pairs"] == [list(p) for p in OFF_UBO]
     assert len(record["extra"]["measurement"]["pairs"]) == 6
     assert record["gap"]["measurement"]["gaps"]

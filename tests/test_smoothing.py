@@ -58,8 +58,8 @@ def test_short_slices_and_padding_are_untouched():
     out = smooth_slices(0.5, z, t, count, np)[0]
     np.testing.assert_array_equal(out[1], z[1])  # fewer than 3 samples: not a slice to smooth
     np.testing.assert_array_equal(out[2, 12:], 0.0)
-    left, right, _, _, valid = neighbours(t, count, np)
-    assert left[2, 0] == 11 and right[2, 11] == 0 and not valid[2, 12:].any()
+    left, right, _, _, valid, slice_of = neighbours(t, count, np)  # flat slots s · 20 + k
+    assert left[40] == 51 and right[51] == 40 and not valid[52:].any() and slice_of[45] == 2
 
 
 @pytest.fixture(scope="module")

@@ -137,9 +137,9 @@ def _noise(logl, t: np.ndarray, count: np.ndarray, rows, xp=None):
     if not rows:
         return xp.full((logl.shape[0],), np.nan, logl.dtype)
     counts = np.where(np.isin(np.arange(len(count)), rows), count, 0)  # the other slices: none
-    left, right, wl, wr, valid = neighbours(np.asarray(t, np.float64), counts, np)
-    nb = (left, right, wl.astype(logl.dtype), wr.astype(logl.dtype), valid)
-    return noise_level(logl[..., None], nb, xp)
+    left, right, wl, wr, valid, slice_of = neighbours(np.asarray(t, np.float64), counts, np)
+    nb = (left, right, wl.astype(logl.dtype), wr.astype(logl.dtype), valid, slice_of)
+    return noise_level(logl.reshape(*logl.shape[:-2], -1, 1), nb, xp)
 
 
 def _axial_sums(logl, count: np.ndarray, xp=None):
