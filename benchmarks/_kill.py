@@ -5,8 +5,9 @@ A :class:`Command` is a CLI run (``python -m abrdf_jax.cli ARGS``) with the outp
 check of what a killed run leaves (every output absent, or complete and valid) and a digest of
 the finished result. :func:`kill_points` runs it once uninterrupted (the reference; a second,
 warm run times the kill window), then for each seeded kill point starts it in a fresh output
-folder, kills it with SIGKILL at a moment drawn between its start and the warm run's end (half
-of the points inside the window where outputs appear), checks what the killed run left, reruns
+folder, kills it with SIGKILL at a moment drawn between its start and the warm run's end, or
+(every other point) as soon as a drawn number of its pieces (tables, chunks) is on disk, checks
+what the killed run left, reruns
 it to completion (``Command.rerun``: with ``--resume`` where the command has it) and checks that
 the result equals the reference bit for bit, that no temporary file
 (:func:`abrdf_jax.io.is_temp`) nor lock file (``.NAME.lock``) is left, and that
@@ -69,7 +70,9 @@ class Point:
     """One kill point and what came of it."""
 
     index: int
-    at: float  # seconds after the start at which SIGKILL was sent (the draw)
+    at: float  # seconds after the start at which SIGKILL is sent at the latest (the draw)
+    target: int = 0  # > 0: SIGKILL as soon as this many pieces are on disk (a progress point)
+    sent: float | None = None  # seconds after the start at which SIGKILL was sent
     killed: bool = False  # False: the run ended by itself before the moment came
     pieces: int = 0  # pieces on disk after the kill
     temps: int = 0  # temporary files the killed run left
@@ -96,7 +99,8 @@ class Report:
     def failed(self) -> list[str]:
         out = list(self.problems)
         for p in self.points:
-            out += [f"kill point {p.index} (at {p.at:.3f} s): {m}" for m in p.problems]
+            when = f"at piece {p.target}" if p.target else f"at {p.at:.3f} s"
+            out += [f"kill point {p.index} ({when}): {m}" for m in p.problems]
         return out
 
 
@@ -236,11 +240,17 @@ def kill_points(
     lo = first if first is not None else 0.0
     out, fresh = None, True
     for k in range(n):
-        # half the points anywhere in the run, half where its outputs appear
+        # half the points at a time anywhere in the run; half at a progress point: as soon as
+        # a drawn number of pieces is on disk (times would mostly miss the short window where
+        # a run's outputs appear), or, for a single output, at a time inside that window
         at = float(rng.uniform(0.0, warm_s) if k % 2 == 0 else rng.uniform(lo, warm_s))
+        target = 0
+        if k % 2 and report.total_pieces > 1:
+            at, target = timeout, int(rng.integers(1, report.total_pieces))
         if fresh:
             out = _fresh(root / f"k{k:03d}")
-        p = _kill_once(cmd, out, root, cache, k, at, () if fresh else cmd.rerun, timeout)
+        extra = () if fresh else cmd.rerun
+        p = _kill_once(cmd, out, root, cache, Point(k, at, target), extra, timeout)
         report.points.append(p)
         last = k == n - 1 or not chain or not p.killed
         if last and not p.problems:
@@ -249,8 +259,10 @@ def kill_points(
         fresh = last
         if say is not None:
             state = "killed" if p.killed else "ended first"
+            when = f"at piece {target}" if target else f"at {at:.2f} s"
+            when += f" (sent at {p.sent:.2f} s)" if p.sent is not None else ""
             say(
-                f"{cmd.name}: point {k + 1}/{n} at {at:.2f} s: {state}, {p.pieces} piece(s) on "
+                f"{cmd.name}: point {k + 1}/{n} {when}: {state}, {p.pieces} piece(s) on "
                 f"disk, {p.temps} temp(s){', lock' if p.lock else ''}"
                 + (f"; rerun {p.rerun_s:.1f} s" if last else "; killed again next")
                 + (f"; PROBLEMS: {p.problems}" if p.problems else "")
@@ -266,18 +278,21 @@ def _fresh(out: Path) -> Path:
     return out
 
 
-def _kill_once(cmd, out, root, cache, k, at, extra, timeout) -> Point:
-    """Run ``cmd`` (with ``extra`` arguments) into ``out`` and SIGKILL it ``at`` seconds after
-    its start; check what it left."""
-    log = root / f"k{k:03d}.log"
-    p = Point(k, at)
+def _kill_once(cmd, out, root, cache, p: Point, extra, timeout) -> Point:
+    """Run ``cmd`` (with ``extra`` arguments) into ``out`` and SIGKILL it ``p.at`` seconds after
+    its start, or once ``p.target`` pieces are on disk; check what it left."""
+    log = root / f"k{p.index:03d}.log"
+    need = cmd.pieces(out) + p.target  # pieces a chained rerun finds are not its progress
     t0 = time.perf_counter()
     child = _start([*cmd.argv(out), *extra], root, cache, log)
     try:
-        while child.poll() is None and time.perf_counter() - t0 < at:
+        while child.poll() is None and time.perf_counter() - t0 < p.at:
+            if p.target and cmd.pieces(out) >= need:
+                break
             time.sleep(POLL)
         if child.poll() is None:
             child.send_signal(signal.SIGKILL)
+            p.sent = time.perf_counter() - t0
         rc = child.wait(timeout=timeout)
     finally:
         if child.poll() is None:

@@ -7,8 +7,9 @@ points per command); with ``--only`` the other commands' rows are kept from the 
 
 Each command runs once uninterrupted (the reference, cold: its compilation cache folder starts
 empty) and once more (warm: the kill window), then for each kill point in a fresh output folder:
-started, killed with SIGKILL at a moment drawn (seeded) between its start and the warm run's end
-(every other point inside the window where its outputs appear), checked (every output absent, or
+started, killed with SIGKILL at a moment drawn (seeded) between its start and the warm run's end,
+or (every other point) as soon as a drawn number of its pieces (tables, chunks) is on disk,
+checked (every output absent, or
 complete and valid), rerun to completion (``reconstruct`` with ``--resume``; ``fit``'s points are
 chained, :data:`CHAINED`) and checked again:
 the result bit-identical to the reference, no temporary or lock file left, the record valid

@@ -27,8 +27,8 @@ WAIT = 300.0  # seconds: the longest one run may take on a loaded machine
 def _run(cmd, root, seed):
     report = kill_points(cmd, root, POINTS, seed, chain=True, timeout=WAIT)
     summary = [
-        f"{'killed' if p.killed else 'ended first'} at {p.at:.2f} s with {p.pieces} of "
-        f"{report.total_pieces} piece(s) on disk"
+        f"{'killed' if p.killed else 'ended first'} (at piece {p.target} or {p.at:.2f} s) "
+        f"with {p.pieces} of {report.total_pieces} piece(s) on disk"
         for p in report.points
     ]
     assert not report.failed, f"seed {seed}: " + "\n".join(report.failed)
