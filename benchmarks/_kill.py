@@ -54,6 +54,8 @@ class Command:
             with the reference's (what is meant to vary, a date or a duration, left out).
         pieces: ``pieces(out)``: how many pieces (tables, chunks) are on disk: where a kill fell.
         rerun: extra arguments of the rerun after a kill (``("--resume",)``).
+        kept: ``kept(output)``: how many pieces the rerun says it kept from the killed runs
+            (from its printed summary), so a report shows that resuming was exercised.
     """
 
     name: str
@@ -63,6 +65,7 @@ class Command:
     digest: Callable[[Path], dict[str, bytes]]
     pieces: Callable[[Path], int]
     rerun: tuple = ()
+    kept: Callable[[str], int] = lambda said: 0
 
 
 @dataclass
@@ -78,6 +81,7 @@ class Point:
     temps: int = 0  # temporary files the killed run left
     lock: bool = False  # its lock file left
     rerun_s: float = 0.0
+    kept: int | None = None  # pieces the rerun to completion kept (its own summary)
     problems: list[str] = field(default_factory=list)
 
 
@@ -254,7 +258,7 @@ def kill_points(
         report.points.append(p)
         last = k == n - 1 or not chain or not p.killed
         if last and not p.problems:
-            p.rerun_s, problems = _finish(cmd, out, root, cache, k, want, timeout)
+            p.rerun_s, p.kept, problems = _finish(cmd, out, root, cache, k, want, timeout)
             p.problems += problems
         fresh = last
         if say is not None:
@@ -264,7 +268,7 @@ def kill_points(
             say(
                 f"{cmd.name}: point {k + 1}/{n} {when}: {state}, {p.pieces} piece(s) on "
                 f"disk, {p.temps} temp(s){', lock' if p.lock else ''}"
-                + (f"; rerun {p.rerun_s:.1f} s" if last else "; killed again next")
+                + (f"; rerun {p.rerun_s:.1f} s, kept {p.kept}" if last else "; killed again next")
                 + (f"; PROBLEMS: {p.problems}" if p.problems else "")
             )
     report.cache_temps = len(leftovers(cache)[0]) if cache.exists() else 0
@@ -310,13 +314,13 @@ def _kill_once(cmd, out, root, cache, p: Point, extra, timeout) -> Point:
     return p
 
 
-def _finish(cmd, out, root, cache, k, want, timeout) -> tuple[float, list[str]]:
+def _finish(cmd, out, root, cache, k, want, timeout) -> tuple[float, int, list[str]]:
     """The rerun to completion: the same result as the reference, nothing left over."""
     rc, seconds, tail = _complete(
         [*cmd.argv(out), *cmd.rerun], root, cache, root / f"k{k:03d}.rerun.log", timeout
     )
     if rc != 0:
-        return seconds, [f"the rerun failed (rc {rc}): {tail}"]
+        return seconds, 0, [f"the rerun failed (rc {rc}): {tail}"]
     problems = [f"after the rerun: {m}" for m in cmd.check(out)]
     problems += _compare(cmd.digest(out), want)
     temps, locks = leftovers(out)
@@ -325,4 +329,4 @@ def _finish(cmd, out, root, cache, k, want, timeout) -> tuple[float, list[str]]:
     problems += [
         f"after the rerun: {p.name} is missing" for p in cmd.outputs(out) if not p.exists()
     ]
-    return seconds, problems
+    return seconds, cmd.kept(tail), problems

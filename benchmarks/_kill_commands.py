@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +77,12 @@ def _array_bytes(a: np.ndarray) -> bytes:
     return f"{a.dtype.str}{a.shape}".encode() + np.ascontiguousarray(a).tobytes()
 
 
+def _said(pattern: str, text: str) -> int:
+    """The number the last match of ``pattern`` (any of its groups) found in ``text``, or 0."""
+    found = [g for m in re.finditer(pattern, text) for g in m.groups() if g]
+    return int(found[-1]) if found else 0
+
+
 def _json(path: Path, problems: list[str]):
     """The JSON document in ``path``, or ``None`` with the reason appended to ``problems``."""
     try:
@@ -141,6 +148,7 @@ def reconstruct_dir(captures: Path) -> Command:
         digest=_digest_folder,
         pieces=lambda out: len(_tables(out / "R")),
         rerun=("--resume",),
+        kept=lambda said: _said(r"(\d+) kept \(--resume\)|all (\d+) tables are complete", said),
     )
 
 
@@ -194,6 +202,7 @@ def btf_reconstruct(source: Path, chunk: int) -> Command:
         check=_check_store,
         digest=_digest_store,
         pieces=lambda out: len(_markers(out / "R")),
+        kept=lambda said: _said(r"chunks computed, (\d+) already done", said),
     )
 
 

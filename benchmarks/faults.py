@@ -70,19 +70,21 @@ def _row(r: Report) -> str:
     temps = sum(p.temps for p in r.points)
     locks = sum(p.lock for p in r.points)
     reruns = [p.rerun_s for p in r.points if p.rerun_s]
+    said = [p.kept for p in r.points if p.kept is not None]
+    kept = sum(k > 0 for k in said) if said or not r.points else "-"  # "-": not recorded
     rerun = f"{min(reruns):.1f}-{max(reruns):.1f}" if reruns else "-"
     first = "-" if r.first_piece_s is None else f"{r.first_piece_s:.1f}"
     return (
         f"| {r.command} | {len(r.points)} | {killed} | {len(r.points) - killed} | {with_pieces} "
         f"| {r.total_pieces} | {temps} | {locks} | {r.reference_s:.1f} | {r.warm_s:.1f} | {first} "
-        f"| {rerun} | {r.cache_temps} | {len(r.failed)} |"
+        f"| {rerun} | {kept} | {r.cache_temps} | {len(r.failed)} |"
     )
 
 
 HEADER = (
     "| command | points | killed | ended first | killed mid-output | pieces | temps left by "
-    "kills | locks left by kills | reference s | warm s | first piece s | rerun s | cache temps "
-    "| problems |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+    "kills | locks left by kills | reference s | warm s | first piece s | rerun s | reruns that kept "
+    "pieces | cache temps | problems |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
 )
 
 
@@ -98,8 +100,10 @@ def report_md(reports: list[Report], metas: list[dict]) -> str:
         "*temps/locks left by kills*: what the killed runs left, all removed by the reruns "
         "(a problem otherwise). *reference s*: the uninterrupted run with an empty cache folder; "
         "*warm s*: the second one (the kill window); *rerun s*: the reruns to completion after "
-        "a kill. *cache temps*: temporary files left in the compilation/operator cache (removed "
-        "after an hour by the next run that uses the cache).",
+        "a kill; *reruns that kept pieces*: of those, the ones that kept tables or chunks of "
+        "the killed runs (`reconstruct --resume`: the tables its model record listed). *cache "
+        "temps*: temporary files left in the compilation/operator cache (removed after an hour "
+        "by the next run that uses the cache).",
         "",
         "Runs:",
         "",
