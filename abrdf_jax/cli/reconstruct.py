@@ -48,7 +48,8 @@ HELP = {
     "held-out error) or a fixed model: " + ", ".join(MODELS),
     "--tol": f"tolerance of the automatic choice, relative (default {MODEL_TOL:g})",
     "--resume": "folder mode: keep the tables of an earlier (interrupted) run that are complete "
-    "and named in its model record; reconstruct only the others",
+    "and named in its model record; reconstruct only the others (the same tables, bit for bit, "
+    "as one uninterrupted run)",
     "--cache-dir": common.CACHE_DIR_HELP,
     "--prior": "the prior of --model prior and of the automatic choice: a prior file ('abrdf-jax "
     "prior train') or 'default' (the built-in prior, trained on the package's own analytic "
