@@ -5,7 +5,8 @@ A :class:`Command` is a CLI run (``python -m abrdf_jax.cli ARGS``) with the outp
 check of what a killed run leaves (every output absent, or complete and valid) and a digest of
 the finished result. :func:`kill_points` runs it once uninterrupted (the reference; a second,
 warm run times the kill window), then for each seeded kill point starts it in a fresh output
-folder, kills it with SIGKILL at a moment drawn between its start and the warm run's end, or
+folder, kills it with SIGKILL at a moment drawn between its start and its expected end (the
+median of the latest uninterrupted warm runs: the machine's load changes), or
 (every other point) as soon as a drawn number of its pieces (tables, chunks) is on disk, checks
 what the killed run left, reruns
 it to completion (``Command.rerun``: with ``--resume`` where the command has it) and checks that
@@ -76,6 +77,7 @@ class Point:
     at: float  # seconds after the start at which SIGKILL is sent at the latest (the draw)
     target: int = 0  # > 0: SIGKILL as soon as this many pieces are on disk (a progress point)
     sent: float | None = None  # seconds after the start at which SIGKILL was sent
+    ran: float = 0.0  # seconds from the start to the end of the run (killed or not)
     killed: bool = False  # False: the run ended by itself before the moment came
     pieces: int = 0  # pieces on disk after the kill
     temps: int = 0  # temporary files the killed run left
@@ -241,13 +243,15 @@ def kill_points(
         return report
     report.problems += [f"second run: {m}" for m in _compare(cmd.digest(warm), want)]
     rng = np.random.default_rng(seed)
-    lo = first if first is not None else 0.0
-    out, fresh = None, True
+    lo = (first if first is not None else 0.0) / warm_s  # where outputs start, as a fraction
+    out, fresh, whole = None, True, [warm_s]  # whole: durations of uninterrupted warm runs
     for k in range(n):
         # half the points at a time anywhere in the run; half at a progress point: as soon as
         # a drawn number of pieces is on disk (times would mostly miss the short window where
-        # a run's outputs appear), or, for a single output, at a time inside that window
-        at = float(rng.uniform(0.0, warm_s) if k % 2 == 0 else rng.uniform(lo, warm_s))
+        # a run's outputs appear), or, for a single output, at a time inside that window. The
+        # run's length follows the machine's load: the latest uninterrupted runs' median.
+        span = float(np.median(whole[-5:]))
+        at = span * float(rng.uniform(0.0, 1.0) if k % 2 == 0 else rng.uniform(lo, 1.0))
         target = 0
         if k % 2 and report.total_pieces > 1:
             at, target = timeout, int(rng.integers(1, report.total_pieces))
@@ -256,6 +260,8 @@ def kill_points(
         extra = () if fresh else cmd.rerun
         p = _kill_once(cmd, out, root, cache, Point(k, at, target), extra, timeout)
         report.points.append(p)
+        if fresh and not p.killed and not p.problems:
+            whole.append(p.ran)
         last = k == n - 1 or not chain or not p.killed
         if last and not p.problems:
             p.rerun_s, p.kept, problems = _finish(cmd, out, root, cache, k, want, timeout)
@@ -298,6 +304,7 @@ def _kill_once(cmd, out, root, cache, p: Point, extra, timeout) -> Point:
             child.send_signal(signal.SIGKILL)
             p.sent = time.perf_counter() - t0
         rc = child.wait(timeout=timeout)
+        p.ran = time.perf_counter() - t0
     finally:
         if child.poll() is None:
             child.kill()

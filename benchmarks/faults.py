@@ -7,15 +7,14 @@ points per command); with ``--only`` the other commands' rows are kept from the 
 
 Each command runs once uninterrupted (the reference, cold: its compilation cache folder starts
 empty) and once more (warm: the kill window), then for each kill point in a fresh output folder:
-started, killed with SIGKILL at a moment drawn (seeded) between its start and the warm run's end,
-or (every other point) as soon as a drawn number of its pieces (tables, chunks) is on disk,
-checked (every output absent, or
-complete and valid), rerun to completion (``reconstruct`` with ``--resume``; ``fit``'s points are
-chained, :data:`CHAINED`) and checked again:
-the result bit-identical to the reference, no temporary or lock file left, the record valid
-(:mod:`benchmarks._kill`, the harness ``tests/test_kill.py`` runs with a few points). A kill
-point whose run ended before its moment came is counted apart ("ended first"); it is still
-checked. Exit status 1 when any check failed.
+started, killed with SIGKILL at a moment drawn (seeded) between its start and its expected end
+(the latest uninterrupted warm runs' median) or, every other point, as soon as a drawn number
+of its pieces (tables, chunks) is on disk; checked (every output absent, or complete and
+valid), rerun to completion (``reconstruct`` with ``--resume``; ``fit``'s points are chained,
+:data:`CHAINED`) and checked again: the result bit-identical to the reference, no temporary or
+lock file left, the record valid (:mod:`benchmarks._kill`, the harness ``tests/test_kill.py``
+runs with a few points). A kill point whose run ended before its moment came is counted apart
+("ended first"); it is still checked. Exit status 1 when any check failed.
 """
 
 from __future__ import annotations
