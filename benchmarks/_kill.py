@@ -266,6 +266,8 @@ def kill_points(
         if last and not p.problems:
             p.rerun_s, p.kept, problems = _finish(cmd, out, root, cache, k, want, timeout)
             p.problems += problems
+            if p.pieces == 0 and not problems:  # nothing to keep: the rerun was a whole run
+                whole.append(p.rerun_s)
         fresh = last
         if say is not None:
             state = "killed" if p.killed else "ended first"

@@ -10,10 +10,9 @@ empty) and once more (warm: the kill window), then for each kill point in a fres
 started, killed with SIGKILL at a moment drawn (seeded) between its start and its expected end
 (the latest uninterrupted warm runs' median) or, every other point, as soon as a drawn number
 of its pieces (tables, chunks) is on disk; checked (every output absent, or complete and
-valid), rerun to completion (``reconstruct`` with ``--resume``; ``fit``'s points are chained,
-:data:`CHAINED`) and checked again: the result bit-identical to the reference, no temporary or
-lock file left, the record valid (:mod:`benchmarks._kill`, the harness ``tests/test_kill.py``
-runs with a few points). A kill point whose run ended before its moment came is counted apart
+valid), rerun to completion (``reconstruct`` with ``--resume``) and checked again: the result
+bit-identical to the reference, no temporary or lock file left, the record valid
+(:mod:`benchmarks._kill`, the harness ``tests/test_kill.py`` runs with a few points). A kill point whose run ended before its moment came is counted apart
 ("ended first"); it is still checked. Exit status 1 when any check failed.
 """
 
@@ -39,11 +38,6 @@ SIZES = {
 }
 SEED = 16
 NAMES = ("reconstruct", "btf", "fit")
-#: Commands whose kill points are chained (each kills the rerun of the one before, only a
-#: chain's last run goes to completion; ``benchmarks._kill.kill_points(chain=True)``): ``fit``
-#: keeps nothing of a killed run, so a chained point tests what an independent one does (and
-#: the leftovers of the kill before), at half the cost: one fit run takes over a minute here.
-CHAINED = ("fit",)
 
 
 def commands(inputs: Path, size: dict) -> dict:
@@ -143,7 +137,7 @@ def main(argv=None) -> int:
             t0, load_before = time.perf_counter(), _load()
             cmd = make()
             print(f"{cmd.name}: reference run, then {n} kill points (load {load_before})")
-            r = kill_points(cmd, tmp / name, n, args.seed + k, chain=name in CHAINED, say=_say)
+            r = kill_points(cmd, tmp / name, n, args.seed + k, say=_say)
             failed = failed or bool(r.failed)
             print(HEADER.splitlines()[0] + "\n" + _row(r), flush=True)
             meta = {
