@@ -27,7 +27,7 @@ from __future__ import annotations
 import hashlib
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -85,11 +85,82 @@ def layout_key(meas: Measurements) -> str:
     return h.hexdigest()
 
 
-def _batches(members: Sequence[int], size: int) -> Iterator[tuple[list[int], list[int]]]:
-    """``(members, padded)``: chunks of ``size``, the last one padded with its last member."""
-    for start in range(0, len(members), size):
-        chunk = list(members[start : start + size])
-        yield chunk, chunk + [chunk[-1]] * (size - len(chunk))
+def _batches(
+    members: Sequence[int], slots: Sequence[int], size: int
+) -> Iterator[tuple[list[int], list[int], list[int]]]:
+    """``(chunk, padded, rows)``: the members whose slot (their place in the whole job's group)
+    falls in one batch of ``size``; the batch, each member at row ``slot % size`` and the other
+    rows copies of the chunk's last member (their tables are dropped); the members' rows."""
+    by_batch: dict[int, dict[int, int]] = {}
+    for k, slot in zip(members, slots):
+        by_batch.setdefault(slot // size, {})[slot % size] = k
+    for b in sorted(by_batch):
+        at = by_batch[b]
+        rows = sorted(at)
+        chunk = [at[r] for r in rows]
+        yield chunk, [at.get(r, chunk[-1]) for r in range(size)], rows
+
+
+class Done(NamedTuple):
+    """A measurement of the job that an earlier, interrupted run already reconstructed (what a
+    folder run's model record keeps of it: :func:`job_keys`)."""
+
+    layout: str | None  # its layout_key where an operator applies
+    group: str  # group_id of the group it was reconstructed in
+    order: int  # its place in the whole job
+    width: int  # its slices' length (t.shape[-1])
+
+
+def group_id(group: tuple) -> str:
+    """A short digest of a group key (``("operator", layout)`` or ``("pipeline", pairs,
+    centre_azimuths)``): what a model record keeps."""
+    return hashlib.sha256(repr(group).encode()).hexdigest()[:16]
+
+
+def _plan(meas, config, min_group, done, order, only) -> dict[str, dict]:
+    """The groups of the whole job (``meas`` and the measurements ``done`` before): ``{group_id:
+    {"kind", "members" (indices into meas), "slots" (their places among the job's group),
+    "width" (the group's longest slices)}}``. A layout is an operator group when the job holds
+    at least ``min_group`` measurements of it, whichever of them are left to do."""
+    done = list(done or ())
+    order = list(range(len(meas))) if order is None else list(order)
+    keys = [layout_key(m) if only or operator_applies(config, m) else None for m in meas]
+    sizes = Counter(keys)
+    sizes.update(Counter(d.layout for d in done if d.layout is not None))
+    plan: dict[str, dict] = {}
+    for k, (m, key) in enumerate(zip(meas, keys)):
+        fast = key is not None and (only or sizes[key] >= min_group)
+        group = ("operator", key) if fast else ("pipeline", m.pairs, m.centre_azimuths)
+        g = plan.setdefault(group_id(group), {"kind": group[0], "members": [], "width": 0})
+        g["members"].append(k)
+        g["width"] = max(g["width"], int(np.shape(m.t)[-1]))
+    for gid, g in plan.items():
+        before = [d for d in done if d.group == gid]
+        g["width"] = max([g["width"], *(d.width for d in before)])
+        ranks = sorted([*(d.order for d in before), *(order[k] for k in g["members"])])
+        place = {o: i for i, o in enumerate(ranks)}
+        g["slots"] = [place[order[k]] for k in g["members"]]
+    return plan
+
+
+def job_keys(
+    meas: Sequence["Measurements"],
+    config: Config,
+    *,
+    min_group: int = OPERATOR_MIN_GROUP,
+    done=(),
+    order: Sequence[int] | None = None,
+) -> list[dict]:
+    """What :func:`reconstruct_many` with the same arguments makes of each measurement, for a
+    record that a resumed run reads back as :class:`Done`: ``{"layout", "group", "width"}``."""
+    only = getattr(config, "operator_only", False)
+    out: list[dict] = [{} for _ in meas]
+    for gid, g in _plan(meas, config, min_group, done, order, only).items():
+        for k in g["members"]:
+            m = meas[k]
+            key = layout_key(m) if only or operator_applies(config, m) else None
+            out[k] = {"layout": key, "group": gid, "width": int(np.shape(m.t)[-1])}
+    return out
 
 
 def _pad_slices(meas: "Measurements", nmax: int) -> "Measurements":
@@ -112,6 +183,8 @@ def reconstruct_many(
     batch: int | None = None,
     min_group: int = OPERATOR_MIN_GROUP,
     before_jax: Callable[[], None] | None = None,
+    done: Sequence[Done] = (),
+    order: Sequence[int] | None = None,
 ) -> Iterator[tuple[list[int], np.ndarray, str]]:
     """Reconstruct measurements that share ``config`` and ``params`` (module docstring).
 
@@ -126,6 +199,11 @@ def reconstruct_many(
             (:data:`OPERATOR_MIN_GROUP`).
         before_jax: called before the pipeline's first JAX work (e.g. to turn on a
             compilation cache); the operator path leaves JAX to ``operator``.
+        done: the measurements of the same job (settings) that an interrupted run already
+            reconstructed (a resumed folder run's kept tables, :class:`Done`); ``order``:
+            each measurement's place in the whole job (default: ``0, 1, ...``). Each
+            measurement then takes the path, the batch row and the slice padding it takes in one
+            uninterrupted run over all of them, and gets the same bits.
 
     Yields:
         ``(indices, tables, path)``: positions in ``meas``, their ``(len(indices), 81, 81, 3)``
@@ -145,19 +223,14 @@ def reconstruct_many(
             template, params = as_jax(template, params)
             return compile_operator(config, params, template)
 
-    keys = [layout_key(m) if only or operator_applies(config, m) else None for m in meas]
-    sizes = Counter(keys)
-    groups: dict[tuple, list[int]] = {}
-    for k, (m, key) in enumerate(zip(meas, keys)):
-        fast = key is not None and (only or sizes[key] >= min_group)
-        group = ("operator", key) if fast else ("pipeline", m.pairs, m.centre_azimuths)
-        groups.setdefault(group, []).append(k)
-    for key, members in groups.items():
-        if key[0] == "operator":
+    plan = _plan(meas, config, min_group, done, order, only)
+    for gid, g in plan.items():
+        members, slots = g["members"], g["slots"]
+        if g["kind"] == "operator":
             op = operator(config, params, meas[members[0]])
-            for chunk, padded in _batches(members, batch or OPERATOR_BATCH):
+            for chunk, padded, rows in _batches(members, slots, batch or OPERATOR_BATCH):
                 y = np.stack([np.asarray(meas[k].y) for k in padded])
-                yield chunk, np.asarray(op(y))[: len(chunk)], "operator"
+                yield chunk, np.asarray(op(y))[rows], "operator"
         else:
             if before_jax is not None:
                 before_jax()
@@ -165,12 +238,13 @@ def reconstruct_many(
             from ._pipeline import reconstruct_batch
 
             jparams = as_jax(meas[members[0]], params)[1]
-            nmax = max(meas[k].t.shape[-1] for k in members)
-            # always the full batch, also for a group of one: XLA's rounding depends on the
-            # batch shape, and a resumed run must give the same bits as an uninterrupted one
-            for chunk, padded in _batches(members, batch or PIPELINE_BATCH):
+            nmax = g["width"]  # the longest slices of the whole job's group
+            # always the full batch, also for a group of one, and every measurement at its own
+            # place in it: XLA's and BLAS's rounding depend on the batch shape and on the row,
+            # and a resumed run must give the same bits as an uninterrupted one
+            for chunk, padded, rows in _batches(members, slots, batch or PIPELINE_BATCH):
                 stack = stack_measurements(
                     [_pad_slices(as_jax(meas[k], None)[0], nmax) for k in padded]
                 )
-                tables = reconstruct_batch(stack, config, jparams)
-                yield chunk, np.asarray(tables)[: len(chunk)], "pipeline"
+                tables = np.asarray(reconstruct_batch(stack, config, jparams))
+                yield chunk, tables[rows], "pipeline"

@@ -49,6 +49,44 @@ def test_operator_groups_match_the_pipeline_and_ignore_the_batch_size():
     np.testing.assert_allclose(few[0][1], tables, rtol=0, atol=2e-3 * expected.max())
 
 
+def test_a_resumed_group_gets_the_batch_rows_and_bits_of_the_whole_run():
+    """The command line's numpy operator (one GEMM per batch) rounds a table by its row in the
+    batch: a resumed run (some tables kept, ``done``) puts each table at its row of the whole
+    run (``order``) and gets its bits (issue 16; found by ``tests/test_kill.py``)."""
+    from abrdf_jax import _cache
+    from abrdf_jax._config import default_values
+
+    config = aj.preset("recommended", "iso102")
+    params = default_values(config, 15.0)
+    meas = [
+        _meas(n, noise=0.01, seed=k) for k, n in enumerate([*NAMES, *NAMES, *NAMES[:2]])
+    ]  # 12 of one layout
+    entry, _ = _cache.cached_entry(None, meas[0], config, params)
+
+    def operator(c, p, template):
+        return entry.apply
+
+    run = dict(operator=operator, batch=8, min_group=12)
+    whole = {}
+    for idx, tables, path in _engine.reconstruct_many(meas, config, params, **run):
+        assert path == "operator"
+        whole.update(zip(idx, tables))
+    keys = _engine.job_keys(meas, config, min_group=12)
+    kept = [0, 2, 3, 9, 10]  # 7 left: fewer than min_group, yet the operator's, at their rows
+    done = [_engine.Done(keys[k]["layout"], keys[k]["group"], k, keys[k]["width"]) for k in kept]
+    rest = [k for k in range(12) if k not in kept]
+    parts = _engine.reconstruct_many(
+        [meas[k] for k in rest], config, params, done=done, order=rest, **run
+    )
+    got = {}
+    for idx, tables, path in parts:
+        assert path == "operator"
+        got.update((rest[i], t) for i, t in zip(idx, tables))
+    assert sorted(got) == rest
+    for k in rest:
+        np.testing.assert_array_equal(got[k], whole[k], err_msg=f"measurement {k}")
+
+
 def test_pipeline_groups_pad_the_last_batch_and_compile_once(monkeypatch):
     """Dense captures (spike-capped) and nonlinear rules take the pipeline; 5 measurements in
     batches of 2 trace it once (the last batch is padded to the same shape)."""

@@ -136,6 +136,32 @@ def test_each_solver_finds_a_known_optimum(solver):
     assert 1 <= res.steps <= res.evaluations == len(res.history)
 
 
+def test_a_fit_without_progress_hook_has_no_host_callback_and_the_same_result():
+    """``progress=None`` (``abrdf-jax fit -q``) compiles the solve without the progress callback,
+    so JAX's persistent compilation cache can keep it (a program with a host callback is never
+    stored); the fit is the same, bit for bit, without the evaluation count."""
+    from abrdf_jax.tuning import _fitting
+
+    space = tuning.ParamSpace(widths="per_dim", reg=True, alpha=True)
+    prob = _Quadratic(config=aj.Config(), space=space)
+    p0 = aj.Params(jnp.deg2rad(15.0), jnp.full(4, 1.0), jnp.asarray(1e-2))
+    data = {"scale": jnp.asarray(3.0)}
+    hooked = tuning.fit(prob, data, p0, solver="bfgs", max_steps=20)
+    quiet = tuning.fit(prob, data, p0, solver="bfgs", max_steps=20, progress=None)
+    assert quiet.evaluations is None and quiet.history == [] and hooked.evaluations >= 1
+    for a, b in zip(
+        jax.tree_util.tree_leaves(hooked.theta), jax.tree_util.tree_leaves(quiet.theta)
+    ):
+        np.testing.assert_array_equal(a, b)
+    assert quiet.loss_final == hooked.loss_final and quiet.steps == hooked.steps
+    theta0 = space.init(p0)
+    lo, hi = space.bounds(theta0)
+    for hook, has in ((True, True), (False, False)):
+        static = (prob, "bfgs", 20, 1e-4, 1e-6, hook)
+        text = _fitting._solve_jit.lower(*static, theta0, dict(data, base=p0), lo, hi).as_text()
+        assert ("callback" in text) == has
+
+
 class _Broken(AbstractProblem):
     def residuals(self, theta, data):
         return jnp.sqrt(theta["log_widths"] - 100.0)  # NaN everywhere in the domain

@@ -440,3 +440,6 @@ from ._learned import (  # noqa: E402, F401
     prior_choice,
     prior_source,
 )
+
+# The caches of a run (``--cache-dir``): their own module, used through this one
+from ._caches import CACHE_DIR_HELP, Caches, compilation_cache  # noqa: E402, F401

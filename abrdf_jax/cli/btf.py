@@ -175,6 +175,8 @@ def cmd_reconstruct(args) -> int:
         meas = _import_capture(src, out, args, btf)
     else:
         meas = btf.ChunkedStore.open(btf.measurement_store_of(src))
+    # a rerun (after an interruption, say) loads what this run compiles
+    common.compilation_cache(args.cache_dir, common.warn)
     import jax
 
     if args.exr_dir and jax.process_count() > 1:
@@ -349,6 +351,7 @@ def register(sub) -> None:
     add("--format", choices=STORE_FORMATS, default=STORE_FORMATS[0])
     add("--devices", type=common.positive("--devices"), metavar="N")
     add("--overwrite", action="store_true", help="replace an output store of other settings")
+    add("--cache-dir", metavar="DIR", help=common.CACHE_DIR_HELP)
     d = common.adder(r.add_argument_group(HELP["hosts"]), HELP)
     d("--distributed", action="store_true")
     d("--coordinator", metavar="HOST:PORT")

@@ -43,9 +43,10 @@ HELP = {
     "--steps": "solver iterations (default 20)",
     "--preset": "the configuration to tune: a " + common.preset_help(DEFAULT_PRESET),
     "--widths": "free widths: one per onion coordinate (per_dim, default), one shared, or none "
-    "(fixed)",
+    "free (fixed)",
     "--fixed-reg": "keep the regularisation at its default",
-    "--quiet": "no progress lines",
+    "--quiet": "no progress lines; the fit is then compiled without its progress hook, so JAX's "
+    "compilation cache keeps it and a rerun does not compile it again",
     "--folds": "leave one elevation pair out (default) or every 4th sample of each slice",
     "--materials": "'merl-train' (MERL train split, needs the data folder) or NAME,NAME,... "
     "(built-in materials; see 'abrdf-jax materials')",
@@ -53,6 +54,7 @@ HELP = {
     "--fixed-alpha": "do not tune alpha",
     "--loss": "residuals: CIELAB differences (sum of squares = sum of dE76^2, default), log, or "
     "both",
+    "--cache-dir": common.CACHE_DIR_HELP,
     "--data": "data folder (default: $ABRDF_DATA or ../shared/data)",
 }
 
@@ -69,7 +71,9 @@ def _fit_and_save(
     import abrdf_jax as aj
     from .. import tuning
 
-    opts = dict(solver=args.solver, max_steps=args.steps, progress=not args.quiet)
+    # -q: no progress hook, so the compiled fit has no host callback and JAX's compilation cache
+    # stores it (a rerun loads it); with progress lines every run compiles the fit again
+    opts = dict(solver=args.solver, max_steps=args.steps, progress=None if args.quiet else True)
     res = tuning.fit(problem, data, params, **opts)
     if not res.ok:
         raise InputError(f"fit {res.status}: {res.message}; nothing written to {out}")
@@ -104,6 +108,9 @@ def cmd_fit_self(args) -> int:
     if not src.exists():
         raise InputError(f"{src}: file not found")
     item = common.plan(io.read_samples_csv(src), common.forced_budget(args), args.alpha, src)
+    # JAX's compilation cache: a rerun (the same fit again, or after an interruption) loads what
+    # this one compiles instead of compiling for seconds
+    common.compilation_cache(args.cache_dir, common.warn)
     from .. import tuning  # imports JAX: only once the input is known good
 
     config = aj.preset(args.preset, item.budget)
@@ -152,6 +159,7 @@ def _population_data(names: str, dtype, data_dir):
 
 def cmd_fit_population(args) -> int:
     out = common.check_json_output(Path(args.output))
+    common.compilation_cache(args.cache_dir, common.warn)  # as in cmd_fit_self
     import jax
     import jax.numpy as jnp
 
@@ -201,6 +209,7 @@ def register(sub) -> None:
         add("--widths", choices=WIDTH_MODES, default=WIDTH_MODES[0])
         add("--fixed-reg", action="store_true")
         add("-q", "--quiet", action="store_true")
+        add("--cache-dir", metavar="DIR")
         return add
 
     s = common.command(fsub, "self", cmd_fit_self, HELP["self"], writes=True)

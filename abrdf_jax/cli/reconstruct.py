@@ -48,10 +48,9 @@ HELP = {
     "held-out error) or a fixed model: " + ", ".join(MODELS),
     "--tol": f"tolerance of the automatic choice, relative (default {MODEL_TOL:g})",
     "--resume": "folder mode: keep the tables of an earlier (interrupted) run that are complete "
-    "and named in its model record; reconstruct only the others",
-    "--cache-dir": "cache folder of compiled code and built operators, or 'off' (default "
-    "$ABRDF_JAX_CACHE_DIR, else ~/.cache/abrdf_jax; ABRDF_JAX_NO_CACHE=1 turns it off; "
-    "see 'abrdf-jax cache')",
+    "and named in its model record; reconstruct only the others (the same tables, bit for bit, "
+    "as one uninterrupted run)",
+    "--cache-dir": common.CACHE_DIR_HELP,
     "--prior": "the prior of --model prior and of the automatic choice: a prior file ('abrdf-jax "
     "prior train') or 'default' (the built-in prior, trained on the package's own analytic "
     "materials; what --model prior uses without --prior). With --model auto, --prior adds the "
@@ -118,7 +117,7 @@ def check_model_arguments(args) -> None:
             raise InputError(f"--model {fixed} {why}")
 
 
-def choose(item: common.Measured, args, forced: str | None, caches: "_Caches") -> dict:
+def choose(item: common.Measured, args, forced: str | None, caches: "common.Caches") -> dict:
     """The model for one measurement (see :func:`abrdf_jax.cli._common.model_choice`).
 
     A fixed model, a preset and an automatic choice left with one candidate need no JAX
@@ -226,7 +225,7 @@ def _auto_choice(item, s, prior) -> dict:
 
 
 def choose_all(
-    items: list[common.Measured], args, forced: str | None, caches: "_Caches"
+    items: list[common.Measured], args, forced: str | None, caches: "common.Caches"
 ) -> list[dict]:
     """:func:`choose` for every input, with a progress bar when there are several."""
     quiet = args.quiet or len(items) < 2
@@ -327,7 +326,7 @@ def folder_settings(args) -> dict:
 
 
 def _run(args, files, targets, out, folder_mode, prior) -> int:
-    args.resumed = []
+    args.resumed, args.all_files = [], files
     if args.overwrite and not folder_mode:
         raise InputError("--overwrite is for an output folder; an output file is always replaced")
     args.settings = folder_settings(args) if folder_mode else None
@@ -344,54 +343,18 @@ def _run(args, files, targets, out, folder_mode, prior) -> int:
             return 0
     # Read and check every input before computing or writing anything.
     forced = common.forced_budget(args)
-    caches: list[_Caches] = []
+    caches: list[common.Caches] = []
     items = common.read_inputs(
-        files, forced, args.alpha, before=lambda: caches.append(_Caches(args.cache_dir))
+        files,
+        forced,
+        args.alpha,
+        before=lambda: caches.append(common.Caches(args.cache_dir, common.warn)),
     )
     caches[0].prior = prior
     choices = choose_all(items, args, forced, caches[0])
     if folder_mode:
         return _reconstruct_folder(items, choices, targets, out, args, caches[0])
     return _reconstruct_one(items[0], choices[0], out, args, caches[0])
-
-
-class _Caches:
-    """The caches of this run (``--cache-dir``, ``$ABRDF_JAX_CACHE_DIR``,
-    ``ABRDF_JAX_NO_CACHE``; docs/cache.md): the store of built operators, and JAX's persistent
-    compilation cache, turned on only when the run needs JAX (:meth:`numerics`): a warm run
-    whose operators are all stored imports no JAX. A folder that cannot be used is a warning
-    and a run without it, never a failure."""
-
-    def __init__(self, override):
-        from .. import _cache
-
-        self.folder = _cache.cache_dir(override)
-        self.store = None
-        if self.folder is not None:
-            self.store = _cache.OperatorStore(self.folder, warn=common.warn)
-        self._numerics = False
-        self.prior = None  # the run's prior (abrdf_jax._prior_operator.PriorSource), if any
-
-    def numerics(self) -> None:
-        """Before the first JAX work of the run: JAX's compilation cache on (once)."""
-        if not self._numerics:
-            from .. import _cache
-
-            self._numerics = True
-            _cache.enable_compilation_cache(self.folder, warn=common.warn)
-
-    def operator(self, config, params, template):
-        """The operator of ``config``, ``params`` and ``template``'s layout
-        (:mod:`abrdf_jax._engine`): from the store (no JAX), else built (a matrix built in
-        float64, stored as float32) and stored."""
-        from .. import _cache
-
-        if getattr(config, "operator_only", False):  # the prior-only model's own entries
-            return config.operator(params, template, self.store, common.warn, self.numerics)
-        entry, _ = _cache.cached_entry(
-            self.store, template, config, params, common.warn, before_build=self.numerics
-        )
-        return entry.apply
 
 
 def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, caches) -> int:
@@ -422,6 +385,33 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, cache
     return 0
 
 
+def _settings_key(record: dict) -> str:
+    """What, besides the slice layout, one operator depends on: a record entry's configuration,
+    parameters and slice offset."""
+    import json
+
+    return json.dumps([record.get("config"), record.get("params")], sort_keys=True)
+
+
+def _kept(kept: list[dict], place: dict[str, int]) -> dict[str, list]:
+    """``{settings: [Done, ...]}`` of the tables a ``--resume`` run keeps (their record's
+    ``batch`` entry and place in the job): :func:`abrdf_jax._engine.reconstruct_many` gives each
+    table it makes the path, batch row and padding it gets in one uninterrupted run, hence the
+    same bits. (Entries of records written before ``batch`` count nothing.)"""
+    from .._engine import Done
+
+    out: dict[str, list] = {}
+    for choice in kept:
+        rec = choice["record"]
+        b = rec.get("batch")
+        if isinstance(b, dict) and rec.get("input") in place:
+            done = Done(
+                b.get("layout"), b.get("group"), place[rec["input"]], int(b.get("width", 0))
+            )
+            out.setdefault(_settings_key(rec), []).append(done)
+    return out
+
+
 def _reconstruct_folder(
     items, choices: list[dict], targets: list[Path], out: Path, args, caches
 ) -> int:
@@ -433,9 +423,11 @@ def _reconstruct_folder(
 
     from .. import io
     from .._arrays import check_finite
-    from .._engine import reconstruct_many
+    from .._engine import job_keys, reconstruct_many
 
     out.mkdir(exist_ok=True)
+    place = {str(f): k for k, f in enumerate(args.all_files)}  # each input's place in the job
+    kept = _kept(args.resumed, place)
     groups: dict[tuple, list[int]] = {}
     for k, (item, choice) in enumerate(zip(items, choices)):
         key = (item.budget, item.alpha, choice["config"])  # what one call must share
@@ -465,8 +457,12 @@ def _reconstruct_folder(
             params = choices[members[0]]["params"]
             meas = [common.measurements_for(items[k], config) for k in members]
             common.warn_guard(items[members[0]].path, meas[0], config, params, args.params)
+            job = dict(done=kept.get(_settings_key(choices[members[0]]["record"]), ()))
+            job["order"] = [place[str(items[k].path)] for k in members]
+            for k, keys in zip(members, job_keys(meas, config, **job)):
+                choices[k]["record"]["batch"] = keys  # what a --resume run reads (_kept)
             for idx, tables, path in reconstruct_many(
-                meas, config, params, operator=caches.operator, before_jax=caches.numerics
+                meas, config, params, operator=caches.operator, before_jax=caches.numerics, **job
             ):
                 paths[path] += len(idx)
                 futures, records = [], []

@@ -12,7 +12,7 @@ from .._lazy import lazy_exports
 
 # public name -> private module that defines it (the one place this package's API is listed)
 _EXPORTS = {
-    "_atomic": ("atomic_write",),
+    "_atomic": ("atomic_write", "is_temp"),
     "_csv": ("CSV_COLUMNS", "read_sample_columns", "read_samples_csv", "write_samples_csv"),
     "_tables": ("NPZ_KEY", "TABLE_SHAPE", "read_table", "write_table"),
     "_merl": (

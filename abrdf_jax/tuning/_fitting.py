@@ -16,7 +16,10 @@ name      algorithm                                    library
 The whole solve is one compiled program (the solver's loop is a ``lax.while_loop``), compiled
 ahead of time once per (problem, solver, step budget, data shapes): new data or starting values
 never recompile, and the compile time is reported apart from the solve time. Progress comes from
-a host callback in the objective (one line per evaluation batch, or a user callback). A fit that
+a host callback in the objective (one line per evaluation batch, or a user callback).
+``progress=None`` compiles the program without that callback: JAX never stores a program with a
+host callback in its persistent compilation cache, so only such a fit is loaded from the cache by
+the next process (``abrdf-jax fit -q``); it does not count evaluations. A fit that
 produces non-finite parameters or loss ends with ``status="diverged"`` and returns the starting
 parameters, never NaN. A fit that ends above its starting loss keeps the starting parameters,
 and that and any free parameter left at a bound of its space are listed in
@@ -56,7 +59,8 @@ class FitResult:
             point reached by the solver), ``"diverged"`` (non-finite loss or parameters) or
             ``"failed"`` (the solver reported another failure).
         loss_initial, loss_final: the objective (half the mean squared residual) before and after.
-        steps: solver iterations; evaluations: objective evaluations seen by the progress hook.
+        steps: solver iterations; evaluations: objective evaluations seen by the progress hook
+            (``None`` with ``progress=None``: no hook).
         seconds: wall time of the solve; compile_seconds: of its compilation.
         history: the objective at every evaluation, in order.
         solver: the solver's name; message: the solver's own result text.
@@ -70,7 +74,7 @@ class FitResult:
     loss_initial: float
     loss_final: float
     steps: int
-    evaluations: int
+    evaluations: int | None
     seconds: float
     compile_seconds: float
     solver: str
@@ -112,24 +116,25 @@ def _report(value):
         f(v)
 
 
-def _objective(problem: AbstractProblem, theta, data, least_squares: bool):
+def _objective(problem: AbstractProblem, hook: bool, theta, data, least_squares: bool):
     r = problem.residuals(theta, data)
     loss = 0.5 * jnp.mean(r * r)
-    jax.debug.callback(_report, loss)
+    if hook:  # static: without it the program has no host callback and can be cached
+        jax.debug.callback(_report, loss)
     return r if least_squares else loss
 
 
-def _solve(problem, solver_name, max_steps, rtol, atol, theta0, data, lo, hi):
+def _solve(problem, solver_name, max_steps, rtol, atol, hook, theta0, data, lo, hi):
     """The whole solve; returns (theta, steps, status code, loss at theta0, loss at theta)."""
     initial = problem.loss(theta0, data)
     run, _ = _SOLVERS[solver_name]
-    objective = functools.partial(_objective, problem)  # (theta, data, least_squares)
+    objective = functools.partial(_objective, problem, hook)  # (theta, data, least_squares)
     theta, steps, code = run(objective, theta0, data, max_steps, rtol, atol, lo, hi)
     final = problem.loss(theta, data)
     return theta, steps, code, initial, final
 
 
-_solve_jit = jax.jit(_solve, static_argnums=(0, 1, 2, 3, 4))
+_solve_jit = jax.jit(_solve, static_argnums=(0, 1, 2, 3, 4, 5))
 
 
 def fit(
@@ -154,7 +159,10 @@ def fit(
         max_steps: iteration budget of the solver.
         rtol, atol: the solver's tolerances (jaxopt uses ``atol`` on the gradient norm).
         progress: ``True`` prints the objective at each evaluation batch to stderr; a callable
-            receives every objective value instead.
+            receives every objective value instead; ``False`` counts the evaluations only;
+            ``None``: no host callback in the compiled program (so JAX's persistent
+            compilation cache, when on, stores it and the next process loads it), no
+            ``history`` and ``evaluations=None``.
 
     Returns:
         A :class:`FitResult`.
@@ -179,7 +187,7 @@ def fit(
                 f"  fit[{solver}] eval {len(history):4d}  loss {v:.6g}", file=sys.stderr, flush=True
             )
 
-    static = (problem, solver, max_steps, float(rtol), float(atol))
+    static = (problem, solver, max_steps, float(rtol), float(atol), progress is not None)
     t0 = time.perf_counter()
     compiled = _solve_jit.lower(*static, theta0, data, lo, hi).compile()
     t_compile = time.perf_counter() - t0
@@ -223,7 +231,7 @@ def fit(
         loss_initial=loss0,
         loss_final=final,
         steps=int(steps),
-        evaluations=len(history),
+        evaluations=None if progress is None else len(history),
         seconds=seconds,
         compile_seconds=t_compile,
         solver=solver,
