@@ -21,6 +21,7 @@ from ._outputs import (  # noqa: F401 - the outputs' checks and policy, used thr
     announce_replace,
     check_json_output,
     check_output_file,
+    check_output_folder,
     folder_settings_check,
     refused_store,
 )

@@ -14,7 +14,6 @@ reconstructed in batches.
 from __future__ import annotations
 
 import math
-import os
 import time
 from pathlib import Path
 
@@ -246,11 +245,7 @@ def _targets(files: list[Path], out: Path, folder_mode: bool, fmt: str | None) -
     ext = "." + (fmt or TABLE_SUFFIXES[0].lstrip("."))
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: several inputs need an output folder, but this is a file")
-    if not out.exists() and not out.parent.is_dir():
-        raise InputError(f"{out}: parent folder {out.parent} does not exist")
-    where = out if out.exists() else out.parent
-    if not os.access(where, os.W_OK | os.X_OK):
-        raise InputError(f"{out}: folder {where} is not writable")
+    common.check_output_folder(out)
     stems: dict[str, Path] = {}
     for f in files:
         if f.stem in stems:
