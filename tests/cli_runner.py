@@ -13,10 +13,28 @@ def run_cli(*args, cwd, timeout: int = 300):
     return run_module("abrdf_jax.cli", *args, cwd=cwd, timeout=timeout)
 
 
-def run_module(module: str, *args, cwd, timeout: int = 300):
-    """``python -m MODULE ARGS`` in ``cwd`` with this checkout first on the path."""
+def _env() -> dict:
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def start_cli(*args, cwd) -> subprocess.Popen:
+    """``python -m abrdf_jax.cli ARGS`` started in ``cwd`` (text pipes), not waited for: for
+    processes that must run at the same time."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "abrdf_jax.cli", *map(str, args)],
+        cwd=cwd,
+        env=_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def run_module(module: str, *args, cwd, timeout: int = 300):
+    """``python -m MODULE ARGS`` in ``cwd`` with this checkout first on the path."""
+    env = _env()
     return subprocess.run(
         [sys.executable, "-m", module, *map(str, args)],
         cwd=cwd,
@@ -57,12 +75,10 @@ def run_phases(phases: list[dict], cwd, timeout: int = 600) -> dict:
     """
     import json
 
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     done = subprocess.run(
         [sys.executable, __file__, json.dumps(phases)],
         cwd=cwd,
-        env=env,
+        env=_env(),
         capture_output=True,
         text=True,
         timeout=timeout,
