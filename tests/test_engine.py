@@ -9,7 +9,7 @@ import pytest
 
 import abrdf_jax as aj
 from abrdf_jax import _engine, _pipeline, io, materials
-from abrdf_jax.cli import main, reconstruct
+from abrdf_jax.cli import _inputs, main, reconstruct
 
 NAMES = ("ggx-plastic", "lambert-clay", "ward-brushed-steel", "rough-fabric", "ashikhmin-satin")
 
@@ -164,3 +164,30 @@ def test_cache_off_or_unusable_still_reconstructs(tmp_path, capsys, where):
     err = capsys.readouterr().err
     assert ("without the compilation cache" in err) == (where == "file")
     assert io.read_table(out).shape == (81, 81, 3)
+
+
+def test_a_folder_read_in_blocks_gives_the_same_tables_and_checks_every_file_first(
+    tmp_path, monkeypatch
+):
+    """A folder larger than ``BLOCK`` files is checked whole, then read again block by block
+    (bounded memory, docs/stability.md "Load"): the same tables and record as one block, and a
+    bad file in the last block still fails the run before anything is written."""
+    src = _folder(tmp_path)
+    monkeypatch.setattr(_engine, "PIPELINE_BATCH", 2)  # the same batch shapes in both runs
+    whole = tmp_path / "whole"
+    assert main(["reconstruct", str(src), "-o", str(whole), "-q"]) == 0
+    monkeypatch.setattr(_inputs, "BLOCK", 2)  # 5 files: blocks of 2, 2 and 1
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(src), "-o", str(out), "-q"]) == 0
+    for p in whole.iterdir():
+        assert (out / p.name).read_bytes() == p.read_bytes(), p.name
+
+    def entries(name):
+        doc = json.loads((tmp_path / f"{name}.model.json").read_text())
+        return [{k: v for k, v in e.items() if k != "seconds"} for e in doc["inputs"]]
+
+    assert entries("out") == entries("whole")
+    (src / "m9.csv").write_text("theta_i,phi_i,theta_v,phi_v,r,g,b\n30,0,30,x,1,1,1\n")
+    bad = tmp_path / "bad"
+    assert main(["reconstruct", str(src), "-o", str(bad), "-q"]) == 2
+    assert not bad.exists() and not (tmp_path / "bad.model.json").exists()

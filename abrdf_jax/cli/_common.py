@@ -26,6 +26,7 @@ from ._outputs import (  # noqa: F401 - the outputs' checks and policy, used thr
     refused_store,
 )
 from ._outputs import output_lock as _output_lock
+from ._progress import BigFile, progress, stage  # noqa: F401 - used through this module
 
 PROG = "abrdf-jax"
 #: Format tag of the model record written beside a reconstruction (``OUT.model.json``).
@@ -181,15 +182,6 @@ def warn(message: str) -> None:
     say(f"warning: {message}")
 
 
-def progress(total: int, desc: str, disable: bool):
-    """A ``tqdm`` progress bar over files, on stderr."""
-    from tqdm import tqdm
-
-    return tqdm(
-        total=total, desc=desc, unit="file", file=sys.stderr, disable=disable, dynamic_ncols=True
-    )
-
-
 # --------------------------------------------------------------------------------------------
 # Outputs and inputs
 # --------------------------------------------------------------------------------------------
@@ -337,9 +329,9 @@ def _noise(meas) -> float | None:
     return round(sigma, 6) if math.isfinite(sigma) else None
 
 
-def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measured:
+def plan(samples, forced, alpha, where: Path, warn: bool = True) -> Measured:
     """Group one measurement into slices (once, numpy: no JAX) and decide its budget and slice
-    offset α."""
+    offset α; ``warn``: say what of it is left out."""
     from .._grouping import group_arrays
 
     try:
@@ -351,37 +343,10 @@ def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measu
         raise InputError(f"{where}: --anisotropic needs axial slices, but the file has none")
     used = _used(meas, report, len(samples), weak)
     used["noise_log"] = _noise(meas)
-    _warn_used(used, where)
+    if warn:
+        _warn_used(used, where)
     budget = forced or ("aniso204" if meas.has_axial else "iso102")
     return Measured(where, samples, meas, budget, report["alpha_deg"], used)
-
-
-def read_inputs(files: list[Path], forced: str | None, alpha: float | None, before=None):
-    """Read, then plan every input (numpy: no JAX; ``before()`` runs in between); one bad file
-    fails the run before any work, naming them all."""
-    from .. import io
-
-    read, bad = [], []
-    for f in files:
-        try:
-            read.append((f, io.read_sample_columns(f)))
-        except InputError as e:
-            bad.append((f, str(e)))
-    items = []
-    if before is not None and not bad:
-        before()
-    for f, samples in read if not bad else ():
-        try:
-            items.append(plan(samples, forced, alpha, f))
-        except InputError as e:
-            bad.append((f, str(e)))
-    if bad:
-        others = ", ".join(str(f) for f, _ in bad[1:4]) + (", ..." if len(bad) > 4 else "")
-        more = f" (also bad: {others}; nothing was written)" if len(bad) > 1 else ""
-        raise InputError(bad[0][1] + more)
-    for item in items:
-        warn_negative(item.path, item.samples)
-    return items
 
 
 def measurements_for(item: Measured, config):
@@ -466,6 +431,7 @@ def warn_guard(path: Path, meas, config, params, params_file) -> None:
 # The model record (``OUT.model.json``): its own module, used through this one
 from ._record import (  # noqa: E402, F401
     MODEL_FORMAT,
+    compact,
     describe,
     model_choice,
     save_model_record,

@@ -20,6 +20,7 @@ from pathlib import Path
 from .._errors import InputError
 from .._names import MODEL_TOL, MODELS, PRESETS, TABLE_SUFFIXES
 from . import _common as common
+from . import _inputs
 
 #: Threads writing the finished tables while the next batch computes.
 WRITERS = 2
@@ -212,11 +213,9 @@ def _auto_choice(item, s, prior) -> dict:
     return common.model_choice(item.path, s.name, s.config, s.params, "auto", s.reason, extra)
 
 
-def choose_all(
-    items: list[common.Measured], args, forced: str | None, caches: "_Caches"
-) -> list[dict]:
+def choose_all(items, args, forced: str | None, caches: "_Caches", quiet=False) -> list[dict]:
     """:func:`choose` for every input, with a progress bar when there are several."""
-    quiet = args.quiet or len(items) < 2
+    quiet = quiet or args.quiet or len(items) < 2
     with common.progress(len(items), "select model", quiet) as bar:
         if _automatic(args):
             out = _auto_choices(items, args, forced, caches, on_done=bar.update)
@@ -324,14 +323,16 @@ def _run(args, files, targets, out, folder_mode, prior) -> int:
     # Read and check every input before computing or writing anything.
     forced = common.forced_budget(args)
     caches: list[_Caches] = []
-    items = common.read_inputs(
-        files, forced, args.alpha, before=lambda: caches.append(_Caches(args.cache_dir))
-    )
+    before = lambda: caches.append(_Caches(args.cache_dir))  # noqa: E731
+    blocks = _inputs.input_blocks(files, targets, forced, args.alpha, before, args.quiet)
     caches[0].prior = prior
-    choices = choose_all(items, args, forced, caches[0])
     if folder_mode:
-        return _reconstruct_folder(items, choices, targets, out, args, caches[0])
-    return _reconstruct_one(items[0], choices[0], out, args, caches[0])
+        return _reconstruct_folder(blocks, len(files), out, args, caches[0], forced)
+    ((items, _),) = blocks
+    with common.stage(items[0], "choosing the model", args.quiet):
+        choices = choose_all(items, args, forced, caches[0])
+    with common.stage(items[0], f"reconstructing with {choices[0]['name']}", args.quiet):
+        return _reconstruct_one(items[0], choices[0], out, args, caches[0])
 
 
 class _Caches:
@@ -401,13 +402,12 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, cache
     return 0
 
 
-def _reconstruct_folder(
-    items, choices: list[dict], targets: list[Path], out: Path, args, caches
-) -> int:
+def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced) -> int:
     """Every input through :func:`abrdf_jax._engine.reconstruct_many` (operator groups and
-    padded pipeline batches), each batch's tables written by a small thread pool while the next
-    batch computes, the folder's model record rewritten (atomically) after every batch: an
-    interrupted run keeps every table it finished, and the record lists only those."""
+    padded pipeline batches), block by block (:func:`_inputs.input_blocks`), each batch's tables
+    written by a small thread pool while the next batch computes, the folder's model record
+    rewritten (atomically) after every batch: an interrupted run keeps every table it
+    finished, and the record lists only those. Memory: one block and ~2 KiB a finished file."""
     from concurrent.futures import ThreadPoolExecutor
 
     from .. import io
@@ -415,15 +415,11 @@ def _reconstruct_folder(
     from .._engine import reconstruct_many
 
     out.mkdir(exist_ok=True)
-    groups: dict[tuple, list[int]] = {}
-    for k, (item, choice) in enumerate(zip(items, choices)):
-        key = (item.budget, item.alpha, choice["config"])  # what one call must share
-        groups.setdefault(key, []).append(k)
     failed: list[str] = []
-    done = list(args.resumed)  # records of the outputs a --resume run kept
-    paths = {"operator": 0, "pipeline": 0}
+    done = [common.compact(c) for c in args.resumed]  # records of the outputs --resume kept
+    paths, models, budgets = {"operator": 0, "pipeline": 0}, [], set()
     with (
-        common.progress(len(items), "reconstruct", args.quiet) as bar,
+        common.progress(n_files, "reconstruct", args.quiet) as bar,
         ThreadPoolExecutor(max_workers=WRITERS) as pool,
     ):
         pending: list = []  # (futures, records) of the batch being written
@@ -433,48 +429,56 @@ def _reconstruct_folder(
             for futures, records in pending:
                 for f in futures:
                     f.result()  # a write error ends the run (nothing partial: atomic writes)
-                done.extend(records)
+                done.extend(map(common.compact, records))
             pending.clear()
             # the record of a big folder is large: rewritten at most every RECORD_EVERY s
             if final or time.perf_counter() - saved[0] >= RECORD_EVERY:
                 common.save_model_record(out, done, True, args.settings)
                 saved[0] = time.perf_counter()
 
-        for (_, _, config), members in groups.items():
-            params = choices[members[0]]["params"]
-            meas = [common.measurements_for(items[k], config) for k in members]
-            common.warn_guard(items[members[0]].path, meas[0], config, params, args.params)
-            for idx, tables, path in reconstruct_many(
-                meas, config, params, operator=caches.operator, before_jax=caches.numerics
-            ):
-                paths[path] += len(idx)
-                futures, records = [], []
-                for j, table in zip(idx, tables):
-                    k = members[j]
-                    try:
-                        check_finite(table, str(items[k].path))
-                    except InputError as e:  # never written; the other materials still are
-                        failed.append(str(e))
-                        continue
-                    # atomic, not fsync-ed: --resume reads every table it keeps (docs/cache.md)
-                    futures.append(pool.submit(io.write_table, targets[k], table, durable=False))
-                    choices[k]["record"]["engine"] = path
-                    records.append(choices[k])
-                settle()  # the previous batch's files are complete before the record names them
-                pending.append((futures, records))
-                bar.update(len(idx))
+        for items, targets in blocks:
+            bar.set_description("select model")
+            choices = choose_all(items, args, forced, caches, quiet=True)
+            bar.set_description("reconstruct")
+            models += [c["record"]["model"] for c in choices]
+            budgets |= {c["config"].budget for c in choices}
+            groups: dict[tuple, list[int]] = {}
+            for k, (item, choice) in enumerate(zip(items, choices)):
+                key = (item.budget, item.alpha, choice["config"])  # what one call must share
+                groups.setdefault(key, []).append(k)
+            for (_, _, config), members in groups.items():
+                params = choices[members[0]]["params"]
+                meas = [common.measurements_for(items[k], config) for k in members]
+                common.warn_guard(items[members[0]].path, meas[0], config, params, args.params)
+                for idx, tables, path in reconstruct_many(
+                    meas, config, params, operator=caches.operator, before_jax=caches.numerics
+                ):
+                    paths[path] += len(idx)
+                    futures, records = [], []
+                    for j, table in zip(idx, tables):
+                        k = members[j]
+                        try:
+                            check_finite(table, str(items[k].path))
+                        except InputError as e:  # never written; the other materials still are
+                            failed.append(str(e))
+                            continue
+                        # atomic, not fsync-ed: --resume reads every table it keeps (docs/cache.md)
+                        job = pool.submit(io.write_table, targets[k], table, durable=False)
+                        futures.append(job)
+                        choices[k]["record"]["engine"] = path
+                        records.append(choices[k])
+                    settle()  # the previous batch's files are complete before the record names them
+                    pending.append((futures, records))
+                    bar.update(len(idx))
         settle(final=True)
-    budgets = ", ".join(sorted({c["config"].budget for c in choices}))
-    n = len(items) + len(args.resumed)
+    n = n_files + len(args.resumed)
     engines = ", ".join(f"{v} by the {k}" for k, v in paths.items() if v)
     kept = f", {len(args.resumed)} kept (--resume)" if args.resumed else ""
     print(
-        f"{out}: wrote {len(items) - len(failed)} tables{kept} ({budgets}; {engines}; models "
-        f"{common.summary(choices)})"
+        f"{out}: wrote {n_files - len(failed)} tables{kept} ({', '.join(sorted(budgets))}; "
+        f"{engines}; models {common.summary(models)})"
     )
-    print(
-        f"model record: {common.save_model_record(out, done, True, args.settings)}"
-    )  # all of them
+    print(f"model record: {common.save_model_record(out, done, True, args.settings)}")
     for msg in failed:
         common.say(f"error: {msg}")
     if failed:
