@@ -212,6 +212,11 @@ def markdown(p: dict) -> str:
     ]
     for k in ("small_progress", "csv"):
         lines += [f"- {what[k]}:", "", "```", *r[k]["progress"], "```", ""]
+    lines += [
+        "A folder run's second bar is one bar, labelled 'select model' while a block's models are "
+        "chosen and 'reconstruct' while its tables are computed and written: the 'select model' "
+        "line above is that bar while the models were chosen.",
+    ]
     return "\n".join(lines)
 
 
@@ -219,9 +224,15 @@ def main(argv=None, log=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="1,000 files and a 2 MiB CSV")
     ap.add_argument("--out", type=Path, default=RESULTS, help="results folder")
+    ap.add_argument("--report", action="store_true", help="rewrite the .md from the stored JSON")
     args = ap.parse_args(argv)
     log = log or (lambda s: print(s, flush=True))
     mode = "quick" if args.quick else "full"
+    suffix = "_quick" if args.quick else ""
+    if args.report:
+        payload = json.loads((args.out / f"load{suffix}.json").read_text())
+        (args.out / f"load{suffix}.md").write_text(markdown(payload))
+        return payload
     argv_text = shlex.join(
         ["python", "-m", "benchmarks.load", *(sys.argv[1:] if argv is None else argv)]
     )
@@ -238,7 +249,6 @@ def main(argv=None, log=None) -> dict:
         payload |= run_all(Path(tmp), SIZES[mode], log)
     payload["seconds"] = time.perf_counter() - t0
     payload["load_average_after"] = _load()
-    suffix = "_quick" if args.quick else ""
     args.out.mkdir(parents=True, exist_ok=True)
     md = markdown(payload)
     (args.out / f"load{suffix}.md").write_text(md)

@@ -191,3 +191,25 @@ def test_a_folder_read_in_blocks_gives_the_same_tables_and_checks_every_file_fir
     bad = tmp_path / "bad"
     assert main(["reconstruct", str(src), "-o", str(bad), "-q"]) == 2
     assert not bad.exists() and not (tmp_path / "bad.model.json").exists()
+
+
+def test_long_stages_say_so_and_quick_ones_do_not(tmp_path, monkeypatch, capsys):
+    """Progress on long work (docs/stability.md, "Load"): a folder shows a bar while its files
+    are read; one file says when its reading is large and when a stage runs long (here every
+    file is large and every stage long), and ``-q`` or a quick stage says nothing."""
+    from abrdf_jax.cli import _progress
+
+    src = _folder(tmp_path, 2)
+    assert main(["reconstruct", str(src), "-o", str(tmp_path / "out")]) == 0
+    assert "read: 100%" in capsys.readouterr().err
+    one = ["reconstruct", str(src / "m0.csv"), "-o", str(tmp_path / "r.npz")]
+    assert main(one) == 0
+    assert "m0.csv: choosing the model" not in capsys.readouterr().err  # quick: nothing
+    monkeypatch.setattr(_progress, "BIG_FILE_BYTES", 0)
+    monkeypatch.setattr(_progress, "SLOW_STAGE_S", 0.0)
+    assert main(one) == 0
+    err = capsys.readouterr().err
+    for said in ("reading", "choosing the model (102 samples) ...", "choosing the model: done in"):
+        assert said in err, err
+    assert main([*one, "-q"]) == 0
+    assert "abrdf-jax: " not in capsys.readouterr().err.replace("abrdf-jax: replacing", "")
