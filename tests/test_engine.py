@@ -9,7 +9,7 @@ import pytest
 
 import abrdf_jax as aj
 from abrdf_jax import _engine, _pipeline, io, materials
-from abrdf_jax.cli import _inputs, main, reconstruct
+from abrdf_jax.cli import _common, main, reconstruct
 
 NAMES = ("ggx-plastic", "lambert-clay", "ward-brushed-steel", "rough-fabric", "ashikhmin-satin")
 
@@ -176,7 +176,7 @@ def test_a_folder_read_in_blocks_gives_the_same_tables_and_checks_every_file_fir
     monkeypatch.setattr(_engine, "PIPELINE_BATCH", 2)  # the same batch shapes in both runs
     whole = tmp_path / "whole"
     assert main(["reconstruct", str(src), "-o", str(whole), "-q"]) == 0
-    monkeypatch.setattr(_inputs, "BLOCK", 2)  # 5 files: blocks of 2, 2 and 1
+    monkeypatch.setattr(_common, "BLOCK", 2)  # 5 files: blocks of 2, 2 and 1
     out = tmp_path / "out"
     assert main(["reconstruct", str(src), "-o", str(out), "-q"]) == 0
     for p in whole.iterdir():
@@ -200,6 +200,7 @@ def test_long_stages_say_so_and_quick_ones_do_not(tmp_path, monkeypatch, capsys)
     from abrdf_jax.cli import _progress
 
     src = _folder(tmp_path, 2)
+    monkeypatch.setattr(_progress, "READ_BAR_DELAY", 0.0)  # shown at once, not after 1 s
     assert main(["reconstruct", str(src), "-o", str(tmp_path / "out")]) == 0
     assert "read: 100%" in capsys.readouterr().err
     one = ["reconstruct", str(src / "m0.csv"), "-o", str(tmp_path / "r.npz")]

@@ -26,6 +26,7 @@ from ._outputs import (  # noqa: F401 - the outputs' checks and policy, used thr
     refused_store,
 )
 from ._outputs import output_lock as _output_lock
+from . import _progress
 from ._progress import BigFile, progress, stage  # noqa: F401 - used through this module
 
 PROG = "abrdf-jax"
@@ -347,6 +348,58 @@ def plan(samples, forced, alpha, where: Path, warn: bool = True) -> Measured:
         _warn_used(used, where)
     budget = forced or ("aniso204" if meas.has_axial else "iso102")
     return Measured(where, samples, meas, budget, report["alpha_deg"], used)
+
+
+#: A folder run holds the inputs of at most this many files (~20 KiB each) at once: a larger
+#: folder is checked whole, then read again block by block (docs/stability.md, "Load").
+BLOCK = 1024
+
+
+def read_inputs(files, forced, alpha, before=None, quiet=True, keep=True, warn=True):
+    """Read, then plan every input (numpy: no JAX; ``before()`` runs in between); one bad file
+    fails the run before any work, naming them all. ``keep=False``: check, keep nothing;
+    ``warn=False``: no warning (:func:`input_blocks`'s passes)."""
+    from .. import io
+
+    read, bad, items = [], [], []
+    with progress(len(files), "read", quiet or len(files) < 2, _progress.READ_BAR_DELAY) as bar:
+        for f in files:
+            try:
+                with BigFile(f, quiet):
+                    samples = io.read_sample_columns(f)
+                if keep:
+                    read.append((f, samples))
+                elif plan(samples, forced, alpha, f, warn) and warn:  # checked, then dropped
+                    warn_negative(f, samples)
+            except InputError as e:
+                bad.append((f, str(e)))
+            bar.update(1)
+    if before is not None and not bad:
+        before()
+    for f, samples in read if not bad else ():
+        try:
+            items.append(plan(samples, forced, alpha, f, warn))
+        except InputError as e:
+            bad.append((f, str(e)))
+    if bad:
+        others = ", ".join(str(f) for f, _ in bad[1:4]) + (", ..." if len(bad) > 4 else "")
+        more = f" (also bad: {others}; nothing was written)" if len(bad) > 1 else ""
+        raise InputError(bad[0][1] + more)
+    for item in items if warn else ():
+        warn_negative(item.path, item.samples)
+    return items
+
+
+def input_blocks(files, targets, forced, alpha, before, quiet):
+    """``(items, targets)`` of at most :data:`BLOCK` files each, in order; every input is read
+    and checked first (above ``BLOCK`` files the blocks are read again: bounded memory)."""
+    if len(files) <= BLOCK:
+        return [(read_inputs(files, forced, alpha, before, quiet), targets)]
+    read_inputs(files, forced, alpha, before, quiet, keep=False)
+    return (
+        (read_inputs(files[i : i + BLOCK], forced, alpha, warn=False), targets[i : i + BLOCK])
+        for i in range(0, len(files), BLOCK)
+    )
 
 
 def measurements_for(item: Measured, config):

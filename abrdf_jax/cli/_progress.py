@@ -20,12 +20,23 @@ BIG_FILE_BYTES = 8 << 20
 SLOW_STAGE_S = 5.0
 
 
-def progress(total: int, desc: str, disable: bool):
-    """A ``tqdm`` progress bar over files, on stderr."""
+#: The bar over a folder's files being read shows only after this many seconds (a quick read,
+#: or a bad file found at once, prints no bar).
+READ_BAR_DELAY = 1.0
+
+
+def progress(total: int, desc: str, disable: bool, delay: float = 0.0):
+    """A ``tqdm`` progress bar over files, on stderr (shown after ``delay`` seconds)."""
     from tqdm import tqdm
 
     return tqdm(
-        total=total, desc=desc, unit="file", file=sys.stderr, disable=disable, dynamic_ncols=True
+        total=total,
+        desc=desc,
+        unit="file",
+        file=sys.stderr,
+        disable=disable,
+        dynamic_ncols=True,
+        delay=delay,
     )
 
 

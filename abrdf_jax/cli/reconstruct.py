@@ -20,7 +20,6 @@ from pathlib import Path
 from .._errors import InputError
 from .._names import MODEL_TOL, MODELS, PRESETS, TABLE_SUFFIXES
 from . import _common as common
-from . import _inputs
 
 #: Threads writing the finished tables while the next batch computes.
 WRITERS = 2
@@ -324,7 +323,7 @@ def _run(args, files, targets, out, folder_mode, prior) -> int:
     forced = common.forced_budget(args)
     caches: list[_Caches] = []
     before = lambda: caches.append(_Caches(args.cache_dir))  # noqa: E731
-    blocks = _inputs.input_blocks(files, targets, forced, args.alpha, before, args.quiet)
+    blocks = common.input_blocks(files, targets, forced, args.alpha, before, args.quiet)
     caches[0].prior = prior
     if folder_mode:
         return _reconstruct_folder(blocks, len(files), out, args, caches[0], forced)
@@ -404,7 +403,7 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, cache
 
 def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced) -> int:
     """Every input through :func:`abrdf_jax._engine.reconstruct_many` (operator groups and
-    padded pipeline batches), block by block (:func:`_inputs.input_blocks`), each batch's tables
+    padded pipeline batches), block by block (:func:`common.input_blocks`), each batch's tables
     written by a small thread pool while the next batch computes, the folder's model record
     rewritten (atomically) after every batch: an interrupted run keeps every table it
     finished, and the record lists only those. Memory: one block and ~2 KiB a finished file."""
