@@ -40,6 +40,7 @@ import abrdf_jax as aj
 from abrdf_jax import io, materials
 
 from ._common import RESULTS, machine, write_json
+from .cli import CACHE_ENV, _load
 
 REPO = Path(__file__).resolve().parents[1]
 SEED = 16
@@ -50,11 +51,6 @@ SIZES = {
     "full": {"small": 1000, "large": 10_000, "per_slice": 23_500},
     "quick": {"small": 100, "large": 1000, "per_slice": 2350},
 }
-CACHE_ENV = "ABRDF_JAX_CACHE_DIR"
-
-
-def _load() -> list[float]:
-    return [round(x, 2) for x in os.getloadavg()]
 
 
 def write_folder(folder: Path, n: int, seed: int = SEED) -> Path:
