@@ -172,11 +172,11 @@ def test_a_folder_read_in_blocks_gives_the_same_tables_and_checks_every_file_fir
     """A folder larger than ``BLOCK`` files is checked whole, then read again block by block
     (bounded memory, docs/stability.md "Load"): the same tables and record as one block, and a
     bad file in the last block still fails the run before anything is written."""
-    src = _folder(tmp_path)
+    src = _folder(tmp_path, 3)
     monkeypatch.setattr(_engine, "PIPELINE_BATCH", 2)  # the same batch shapes in both runs
     whole = tmp_path / "whole"
     assert main(["reconstruct", str(src), "-o", str(whole), "-q"]) == 0
-    monkeypatch.setattr(_common, "BLOCK", 2)  # 5 files: blocks of 2, 2 and 1
+    monkeypatch.setattr(_common, "BLOCK", 2)  # 3 files: blocks of 2 and 1
     out = tmp_path / "out"
     assert main(["reconstruct", str(src), "-o", str(out), "-q"]) == 0
     for p in whole.iterdir():
