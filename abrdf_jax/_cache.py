@@ -31,11 +31,11 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import InputError
-from ._compilation_cache import XLA, Warn, default_warn, os_reason, prune, touch
+from ._compilation_cache import XLA, Warn, default_warn, prune, touch
 from ._compilation_cache import disable_compilation_cache as disable_compilation_cache
 from ._compilation_cache import enable_compilation_cache as enable_compilation_cache
 from ._operator_entry import OperatorEntry, digest
-from .io._atomic import atomic_write
+from .io._atomic import atomic_write, write_cause
 
 CACHE_ENV = "ABRDF_JAX_CACHE_DIR"
 NO_CACHE_ENV = "ABRDF_JAX_NO_CACHE"
@@ -292,7 +292,7 @@ class OperatorStore:
             with atomic_write(self.path(key), "wb") as f:
                 np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
         except (OSError, InputError) as e:  # read-only, full, not a folder: atomic_write says which
-            why = os_reason(e.__cause__ or e) if isinstance(e, InputError) else os_reason(e)
+            why = write_cause(e)
             self._warn_once(
                 "write",
                 f"cannot write the operator cache {self.folder} ({why}); running without it",

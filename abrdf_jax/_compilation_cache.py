@@ -18,7 +18,8 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 
-from .io._atomic import atomic_write
+from ._errors import InputError
+from .io._atomic import atomic_write, write_cause
 
 XLA = "xla"
 #: Bound of ``xla/``: least recently used entries past it are removed when the cache is enabled.
@@ -114,7 +115,7 @@ def enable_compilation_cache(folder: Path | None, warn: Warn = default_warn) -> 
         jax.config.update("jax_compilation_cache_dir", str(xla))
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-        _atomic_jax_cache(xla)
+        _atomic_jax_cache(xla, warn)
         prune(xla, "*-cache", XLA_MAX_BYTES)
     except Exception as e:  # noqa: BLE001 - an unknown option in another JAX: run without it
         warn(
@@ -140,7 +141,7 @@ def disable_compilation_cache() -> None:
         cc.reset_cache()
 
 
-def _atomic_jax_cache(path: Path) -> bool:
+def _atomic_jax_cache(path: Path, warn: Warn = default_warn) -> bool:
     """Put a cache object with atomic writes in JAX's place; ``False``: JAX's own is kept.
 
     JAX's file cache writes an entry in place (``Path.write_bytes``), so a process reading it
@@ -148,7 +149,9 @@ def _atomic_jax_cache(path: Path) -> bool:
     killed process is never rewritten (``put`` skips existing files). This one writes a temporary
     file and renames it, and replaces an entry on ``put`` (JAX only puts after a failed read or
     a miss). Same file names as JAX's (``KEY-cache``). It uses JAX internals, checked here: in a
-    JAX without them the config above (JAX's own cache) stays in place.
+    JAX without them the config above (JAX's own cache) stays in place. A write that fails (disk
+    full, a file-size limit) is one ``warn`` line, and the process stores nothing more (JAX would
+    print a multi-line warning for each entry).
     """
     try:
         from jax._src import compilation_cache as cc
@@ -165,6 +168,7 @@ def _atomic_jax_cache(path: Path) -> bool:
     class AtomicFileCache(CacheInterface):
         def __init__(self, folder: Path):
             self._path = folder
+            self._failed = False
 
         def get(self, key: str) -> bytes | None:
             path = self._path / f"{key}-cache"
@@ -176,9 +180,18 @@ def _atomic_jax_cache(path: Path) -> bool:
             return data
 
         def put(self, key: str, value: bytes) -> None:
-            # not fsync-ed: an entry lost or cut short by a crash is recompiled and replaced
-            with atomic_write(self._path / f"{key}-cache", "wb", durable=False) as f:
-                f.write(value)
+            if self._failed:
+                return
+            try:
+                # not fsync-ed: an entry lost or cut short by a crash is recompiled and replaced
+                with atomic_write(self._path / f"{key}-cache", "wb", durable=False) as f:
+                    f.write(value)
+            except (OSError, InputError) as e:  # the temporary file is gone (atomic_write)
+                self._failed = True
+                warn(
+                    f"cannot write the compilation cache {self._path} ({write_cause(e)}); "
+                    "compiled functions of this run are not stored"
+                )
 
     with cc._cache_initialized_mutex:
         cc._cache = AtomicFileCache(path)

@@ -144,6 +144,7 @@ OTHER_SCRIPTS = """other benchmark scripts:
   python -m benchmarks.captures [--quick]        real captures through the CLI: dense, jitter, noise, geometry
   python -m benchmarks.spike_cap [--quick]       how Config.spike_cap was chosen (MERL train, five capture kinds)
   python -m benchmarks.faults [--quick]          killed at any point: SIGKILL reconstruct DIR, btf reconstruct, fit; rerun, compare
+  python -m benchmarks.load [--quick]            10,000 files and a 20 MiB CSV: peak memory, files/s, progress
 """
 
 

@@ -13,10 +13,28 @@ def run_cli(*args, cwd, timeout: int = 300):
     return run_module("abrdf_jax.cli", *args, cwd=cwd, timeout=timeout)
 
 
-def run_module(module: str, *args, cwd, timeout: int = 300):
-    """``python -m MODULE ARGS`` in ``cwd`` with this checkout first on the path."""
+def _env() -> dict:
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def start_cli(*args, cwd) -> subprocess.Popen:
+    """``python -m abrdf_jax.cli ARGS`` started in ``cwd`` (text pipes), not waited for: for
+    processes that must run at the same time."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "abrdf_jax.cli", *map(str, args)],
+        cwd=cwd,
+        env=_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def run_module(module: str, *args, cwd, timeout: int = 300):
+    """``python -m MODULE ARGS`` in ``cwd`` with this checkout first on the path."""
+    env = _env()
     return subprocess.run(
         [sys.executable, "-m", module, *map(str, args)],
         cwd=cwd,
@@ -77,3 +95,61 @@ def assert_cli_table(table, samples, config, params):
     meas, _ = aj.group_slices(samples, params.alpha_deg, dtype=np.float64)
     expected = np.asarray(aj.reconstruct(meas, config, params.astype(np.float64)))
     np.testing.assert_allclose(table, expected, rtol=0, atol=1e-3 * float(expected.max()))
+
+
+def run_phases(phases: list[dict], cwd, timeout: int = 600) -> dict:
+    """Run many ``abrdf-jax`` commands in ONE subprocess (JAX imported and functions compiled
+    once), phase after phase; returns ``{phase: {job: {"rc", "stderr", "stdout", "seconds"}}}``.
+
+    Each phase is ``{"name", "jobs": [[job, argv], ...], "fsize": bytes or None}``; with
+    ``fsize`` the child lowers its soft ``RLIMIT_FSIZE`` to it first (so that phase comes last)
+    with ``SIGXFSZ`` ignored, as CPython itself does: a write past the limit then fails with
+    ``EFBIG`` instead of killing the process. Every command runs through ``abrdf_jax.cli.main``
+    with its own captured stdout and stderr, as ``python -m abrdf_jax.cli ARGV`` would.
+    """
+    import json
+
+    done = subprocess.run(
+        [sys.executable, __file__, json.dumps(phases)],
+        cwd=cwd,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.splitlines()[-1])
+
+
+def _phases_child(phases: list[dict]) -> dict:
+    import contextlib
+    import io
+    import json
+    import resource
+    import signal
+    import time
+
+    from abrdf_jax.cli import main
+
+    results, cwd = {}, os.getcwd()
+    for phase in phases:
+        if phase.get("fsize") is not None:
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+            hard = resource.getrlimit(resource.RLIMIT_FSIZE)[1]
+            resource.setrlimit(resource.RLIMIT_FSIZE, (phase["fsize"], hard))
+        got = results[phase["name"]] = {}
+        for name, argv in phase["jobs"]:
+            err, out = io.StringIO(), io.StringIO()
+            os.chdir(cwd)
+            t0 = time.perf_counter()
+            with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+                rc = main(list(map(str, argv)))
+            got[name] = {"rc": rc, "stderr": err.getvalue(), "stdout": out.getvalue()}
+            got[name]["seconds"] = time.perf_counter() - t0
+    return json.dumps(results)
+
+
+if __name__ == "__main__":
+    import json
+
+    print(_phases_child(json.loads(sys.argv[1])))

@@ -111,8 +111,8 @@ def test_materials_listing_imports_no_jax(tmp_path):
 
 def test_subcommands_import_only_the_shared_module():
     """Arrows point into cli/_common only (which holds cli/_record, the model record,
-    cli/_outputs, the output checks and overwrite policy, cli/_caches, --cache-dir, and
-    cli/_learned, the prior-only model): no
+    cli/_outputs, the output checks and overwrite policy, cli/_caches, --cache-dir,
+    cli/_learned, the prior-only model, and cli/_progress, the progress bars and lines): no
     subcommand imports another, nor the package's __init__ (checked on the source: relative
     imports inside abrdf_jax/cli)."""
     import ast
@@ -127,10 +127,18 @@ def test_subcommands_import_only_the_shared_module():
             ):  # "from . import x", "from .x import y"
                 targets = [node.module] if node.module else [a.name for a in node.names]
                 allowed = {
-                    "_common.py": {"_record", "_learned", "_outputs", "_args", "_caches"},
+                    "_common.py": {
+                        "_record",
+                        "_learned",
+                        "_outputs",
+                        "_args",
+                        "_caches",
+                        "_progress",
+                    },
                     "_args.py": set(),
                     "_outputs.py": set(),
                     "_caches.py": set(),
+                    "_progress.py": set(),
                     "_record.py": set(),
                     "_learned.py": set(),
                 }.get(path.name, {"_common"})

@@ -9,7 +9,7 @@ import pytest
 
 import abrdf_jax as aj
 from abrdf_jax import _engine, _pipeline, io, materials
-from abrdf_jax.cli import main, reconstruct
+from abrdf_jax.cli import _common, main, reconstruct
 
 NAMES = ("ggx-plastic", "lambert-clay", "ward-brushed-steel", "rough-fabric", "ashikhmin-satin")
 
@@ -202,3 +202,53 @@ def test_cache_off_or_unusable_still_reconstructs(tmp_path, capsys, where):
     err = capsys.readouterr().err
     assert ("without the compilation cache" in err) == (where == "file")
     assert io.read_table(out).shape == (81, 81, 3)
+
+
+def test_a_folder_read_in_blocks_gives_the_same_tables_and_checks_every_file_first(
+    tmp_path, monkeypatch
+):
+    """A folder larger than ``BLOCK`` files is checked whole, then read again block by block
+    (bounded memory, docs/stability.md "Load"): the same tables and record as one block, and a
+    bad file in the last block still fails the run before anything is written."""
+    src = _folder(tmp_path, 3)
+    monkeypatch.setattr(_engine, "PIPELINE_BATCH", 2)  # the same batch shapes in both runs
+    whole = tmp_path / "whole"
+    assert main(["reconstruct", str(src), "-o", str(whole), "-q"]) == 0
+    monkeypatch.setattr(_common, "BLOCK", 2)  # 3 files: blocks of 2 and 1
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(src), "-o", str(out), "-q"]) == 0
+    for p in whole.iterdir():
+        assert (out / p.name).read_bytes() == p.read_bytes(), p.name
+
+    def entries(name):
+        doc = json.loads((tmp_path / f"{name}.model.json").read_text())
+        return [{k: v for k, v in e.items() if k != "seconds"} for e in doc["inputs"]]
+
+    assert entries("out") == entries("whole")
+    (src / "m9.csv").write_text("theta_i,phi_i,theta_v,phi_v,r,g,b\n30,0,30,x,1,1,1\n")
+    bad = tmp_path / "bad"
+    assert main(["reconstruct", str(src), "-o", str(bad), "-q"]) == 2
+    assert not bad.exists() and not (tmp_path / "bad.model.json").exists()
+
+
+def test_long_stages_say_so_and_quick_ones_do_not(tmp_path, monkeypatch, capsys):
+    """Progress on long work (docs/stability.md, "Load"): a folder shows a bar while its files
+    are read; one file says when its reading is large and when a stage runs long (here every
+    file is large and every stage long), and ``-q`` or a quick stage says nothing."""
+    from abrdf_jax.cli import _progress
+
+    src = _folder(tmp_path, 2)
+    monkeypatch.setattr(_progress, "READ_BAR_DELAY", 0.0)  # shown at once, not after 1 s
+    assert main(["reconstruct", str(src), "-o", str(tmp_path / "out")]) == 0
+    assert "read: 100%" in capsys.readouterr().err
+    one = ["reconstruct", str(src / "m0.csv"), "-o", str(tmp_path / "r.npz")]
+    assert main(one) == 0
+    assert "m0.csv: choosing the model" not in capsys.readouterr().err  # quick: nothing
+    monkeypatch.setattr(_progress, "BIG_FILE_BYTES", 0)
+    monkeypatch.setattr(_progress, "SLOW_STAGE_S", 0.0)
+    assert main(one) == 0
+    err = capsys.readouterr().err
+    for said in ("reading", "choosing the model (102 samples) ...", "choosing the model: done in"):
+        assert said in err, err
+    assert main([*one, "-q"]) == 0
+    assert "abrdf-jax: " not in capsys.readouterr().err.replace("abrdf-jax: replacing", "")

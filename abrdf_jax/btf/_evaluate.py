@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
+from ..io._atomic import write_figure
 from ..metrics._metrics import (
     _de76_pairs,
     _log_error_from_y,
@@ -162,5 +163,7 @@ def save_error_map(
         ax.set_title(name, fontsize=9)
         ax.set(xticks=[], yticks=[])
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        write_figure(fig, path, dpi=110)
+    finally:
+        plt.close(fig)

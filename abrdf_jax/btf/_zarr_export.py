@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 
 from .._errors import InputError
+from ..io._atomic import write_error
 from ._backend import open_store
 from ._store import progress_bar
 from ._zarr import ZarrStore
@@ -41,7 +42,9 @@ def export_zarr(store, out, *, progress: bool = True, overwrite: bool = False) -
         if out.exists():
             shutil.rmtree(out)
         os.replace(tmp, out)
-    except BaseException:
+    except BaseException as e:
         shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(e, OSError) or isinstance(e.__cause__, OSError):  # full, read-only, ...
+            raise write_error(out, e) from e  # name the group, not a file of its hidden copy
         raise
     return ZarrStore.open(out)

@@ -19,11 +19,12 @@ import argparse
 import os
 import sys
 import traceback
+import warnings
 
 from .._errors import InputError
 from . import btf, cache, demo, evaluate, fit, materials, prior, reconstruct, reference, render
 from . import sample
-from ._common import PROG, say, verbose_parent, version
+from ._common import PROG, say, verbose_parent, version, warn
 
 #: The subcommands, in ``--help`` order.
 SUBCOMMANDS = (
@@ -62,6 +63,20 @@ def _user_error(exc: BaseException) -> str | None:
     return None
 
 
+_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """The package's own warnings (a cache it cannot write, a prior rebuilt) as one line
+    ``abrdf-jax: warning: ...``, as the commands' own; other libraries' keep Python's format."""
+    if os.path.abspath(filename).startswith(_PACKAGE + os.sep):
+        warn(" ".join(str(message).split()))
+    else:
+        (file or sys.stderr).write(
+            warnings.formatwarning(message, category, filename, lineno, line)
+        )
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status (see the module docstring)."""
     parser = build_parser()
@@ -70,7 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as e:  # --help, --version, or a usage error already printed by argparse
         return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
     try:
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():  # restores the hook: main() may run inside a test
+            warnings.showwarning = _show_warning
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         say("interrupted")
         return 130

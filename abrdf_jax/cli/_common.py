@@ -21,6 +21,7 @@ from ._outputs import (  # noqa: F401 - the outputs' checks and policy, used thr
     announce_replace,
     check_json_output,
     check_output_file,
+    check_output_folder,
     folder_settings_check,
     refused_store,
 )
@@ -36,6 +37,8 @@ from ._args import (  # noqa: F401 - the arguments' validators, used through thi
     output_path,
     positive,
 )
+from . import _progress
+from ._progress import BigFile, progress, stage  # noqa: F401 - used through this module
 
 PROG = "abrdf-jax"
 #: Format tag of the model record written beside a reconstruction (``OUT.model.json``).
@@ -121,15 +124,6 @@ def say(message: str) -> None:
 
 def warn(message: str) -> None:
     say(f"warning: {message}")
-
-
-def progress(total: int, desc: str, disable: bool):
-    """A ``tqdm`` progress bar over files, on stderr."""
-    from tqdm import tqdm
-
-    return tqdm(
-        total=total, desc=desc, unit="file", file=sys.stderr, disable=disable, dynamic_ncols=True
-    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -289,9 +283,9 @@ def smoothing_record(item: "Measured", config) -> dict | None:
     return slice_smoothing(item.meas, config) if isinstance(config, Config) else None
 
 
-def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measured:
+def plan(samples, forced, alpha, where: Path, warn: bool = True) -> Measured:
     """Group one measurement into slices (once, numpy: no JAX) and decide its budget and slice
-    offset α."""
+    offset α; ``warn``: say what of it is left out."""
     from .._grouping import group_arrays
 
     try:
@@ -303,37 +297,68 @@ def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measu
         raise InputError(f"{where}: --anisotropic needs axial slices, but the file has none")
     used = _used(meas, report, len(samples), weak)
     used["noise_log"] = _noise(meas)
-    _warn_used(used, where)
+    if warn:
+        _warn_used(used, where)
     budget = forced or ("aniso204" if meas.has_axial else "iso102")
     return Measured(where, samples, meas, budget, report["alpha_deg"], used)
 
 
-def read_inputs(files: list[Path], forced: str | None, alpha: float | None, before=None):
+#: A folder run holds the inputs of at most this many files (~20 KiB each) at once: a larger
+#: folder is checked whole, then read again block by block (docs/stability.md, "Load").
+BLOCK = 1024
+
+
+def read_inputs(files, forced, alpha, before=None, quiet=True, keep=True, warn=True):
     """Read, then plan every input (numpy: no JAX; ``before()`` runs in between); one bad file
-    fails the run before any work, naming them all."""
+    fails the run before any work, naming them all. ``keep=False``: check, keep nothing;
+    ``warn=False``: no warning (:func:`input_blocks`'s passes)."""
     from .. import io
 
-    read, bad = [], []
-    for f in files:
-        try:
-            read.append((f, io.read_sample_columns(f)))
-        except InputError as e:
-            bad.append((f, str(e)))
-    items = []
+    read, bad, items = [], [], []
+    with progress(len(files), "read", quiet or len(files) < 2, _progress.READ_BAR_DELAY) as bar:
+        for f in files:
+            try:
+                with BigFile(f, quiet):
+                    samples = io.read_sample_columns(f)
+                if keep:
+                    read.append((f, samples))
+                elif plan(samples, forced, alpha, f, warn) and warn:  # checked, then dropped
+                    warn_negative(f, samples)
+            except InputError as e:
+                bad.append((f, str(e)))
+            bar.update(1)
     if before is not None and not bad:
         before()
     for f, samples in read if not bad else ():
         try:
-            items.append(plan(samples, forced, alpha, f))
+            items.append(plan(samples, forced, alpha, f, warn))
         except InputError as e:
             bad.append((f, str(e)))
     if bad:
         others = ", ".join(str(f) for f, _ in bad[1:4]) + (", ..." if len(bad) > 4 else "")
         more = f" (also bad: {others}; nothing was written)" if len(bad) > 1 else ""
         raise InputError(bad[0][1] + more)
-    for item in items:
+    for item in items if warn else ():
         warn_negative(item.path, item.samples)
     return items
+
+
+def input_blocks(files, targets, forced, alpha, before, quiet, places=None):
+    """``(items, targets)`` of at most :data:`BLOCK` files each, in order; every input is read
+    and checked first (above ``BLOCK`` files the blocks are read again: bounded memory).
+    ``places``: each file's place in the whole job (a ``--resume`` run reads fewer files): a
+    block holds the files of one ``place // BLOCK``, so that a resumed run batches every file
+    as the uninterrupted run did (the same bits)."""
+    places = list(range(len(files))) if places is None else list(places)
+    ids = [p // BLOCK for p in places]
+    cuts = [0] + [i for i in range(1, len(ids)) if ids[i] != ids[i - 1]] + [len(ids)]
+    if len(cuts) == 2:
+        return [(read_inputs(files, forced, alpha, before, quiet), targets)]
+    read_inputs(files, forced, alpha, before, quiet, keep=False)
+    return (
+        (read_inputs(files[a:b], forced, alpha, warn=False), targets[a:b])
+        for a, b in zip(cuts[:-1], cuts[1:])
+    )
 
 
 def measurements_for(item: Measured, config):
@@ -427,6 +452,7 @@ def warn_guard(path: Path, meas, config, params, params_file) -> None:
 # The model record (``OUT.model.json``): its own module, used through this one
 from ._record import (  # noqa: E402, F401
     MODEL_FORMAT,
+    compact,
     describe,
     model_choice,
     save_model_record,

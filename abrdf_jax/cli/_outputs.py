@@ -45,6 +45,20 @@ def check_output_file(path: Path, suffixes: tuple[str, ...], what: str) -> Path:
     return path
 
 
+def check_output_folder(path: Path) -> Path:
+    """Fail before any work when the output folder or store ``path`` cannot be written: its
+    parent must exist, and the folder (or, for a new one, its parent) must be writable."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{path}: exists and is not a folder")
+    if not path.exists() and not path.parent.is_dir():
+        raise InputError(f"{path}: parent folder {path.parent} does not exist")
+    where = path if path.exists() else path.parent
+    if not os.access(where, os.W_OK | os.X_OK):  # EROFS stops root too; permissions do not
+        raise InputError(f"{path}: folder {where} is not writable")
+    return path
+
+
 def check_json_output(path: Path) -> Path:
     """A parameter file name (``.json``) in an existing, writable folder."""
     if path.suffix.lower() != ".json":

@@ -30,17 +30,19 @@ def save_model_record(out: Path, choices: list[dict], folder_mode: bool, setting
 
     out = Path(out)
     path = out.parent / ((out.name if folder_mode else out.stem) + ".model.json")
-    if folder_mode:
-        entries = ",\n".join("    " + _entry_json(c) for c in choices)
-        head = f'  "format": {json.dumps(MODEL_FORMAT)},\n'
-        if settings is not None:
-            head += f'  "settings": {json.dumps(_clean(settings), sort_keys=True)},\n'
-        text = f'{{\n{head}  "inputs": [\n{entries}\n  ]\n}}'
-    else:
+    if not folder_mode:
         doc = {"format": MODEL_FORMAT, **choices[0]["record"]}
-        text = json.dumps(_clean(doc), indent=2, allow_nan=False)
-    with atomic_write(path, "w") as fh:
-        fh.write(text + "\n")
+        with atomic_write(path, "w") as fh:
+            fh.write(json.dumps(_clean(doc), indent=2, allow_nan=False) + "\n")
+        return path
+    head = f'  "format": {json.dumps(MODEL_FORMAT)},\n'
+    if settings is not None:
+        head += f'  "settings": {json.dumps(_clean(settings), sort_keys=True)},\n'
+    with atomic_write(path, "w") as fh:  # entry by entry: no second copy of a large record
+        fh.write(f'{{\n{head}  "inputs": [\n')
+        for k, c in enumerate(choices):
+            fh.write(("    " if k == 0 else ",\n    ") + _entry_json(c))
+        fh.write("\n  ]\n}\n")
     return path
 
 
@@ -111,10 +113,16 @@ def describe(choice: dict) -> list[str]:
     return lines
 
 
-def summary(choices: list[dict]) -> str:
-    """``"iso x2, aniso-crossing x1"``: how often each model was used."""
-    counts = Counter(c["record"]["model"] or "parameter file" for c in choices)
+def summary(models) -> str:
+    """``"iso x2, aniso-crossing x1"``: how often each model (a record's ``model``) was used."""
+    counts = Counter(m or "parameter file" for m in models)
     return ", ".join(f"{n} x{k}" for n, k in counts.items())
+
+
+def compact(choice: dict) -> dict:
+    """What a folder's record keeps of a finished choice: its entry's JSON only (about 2 KiB;
+    the choice itself holds configuration, parameters and report, several times that)."""
+    return {"json": _entry_json(choice)}
 
 
 def describe_prior(rec: dict) -> list[str]:

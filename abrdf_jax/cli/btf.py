@@ -168,9 +168,7 @@ def cmd_reconstruct(args) -> int:
     src = Path(args.input)
     if not src.exists():
         raise InputError(f"{src}: not found")
-    out = Path(args.output)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: exists and is not a folder")
+    out = common.check_output_folder(Path(args.output))
     if _is_image_capture(src, btf):
         meas = _import_capture(src, out, args, btf)
     else:
@@ -248,6 +246,7 @@ def cmd_import(args) -> int:
 def cmd_export(args) -> int:
     if (args.exr_dir is None) == (args.zarr is None):
         raise InputError("btf export: give one of --exr-dir DIR or --zarr OUT.zarr")
+    common.check_output_folder(Path(args.zarr or args.exr_dir))
     from abrdf_jax import btf
 
     if args.zarr:
@@ -266,6 +265,11 @@ def cmd_export(args) -> int:
 def cmd_evaluate(args) -> int:
     import numpy as np
 
+    if args.png:  # before any work
+        png = Path(args.png)
+        if png.suffix.lower() != ".png":
+            raise InputError(f"{png}: expected a .png file in an existing folder")
+        common.check_output_file(png, (".png",), "map")
     from abrdf_jax import btf
 
     rec, ref = btf.open_store(args.rec), btf.open_store(args.ref)
@@ -279,8 +283,6 @@ def cmd_evaluate(args) -> int:
     summary = {k: {s: float(f(v)) for s, f in stats.items()} for k, v in maps.items()}
     if args.png:
         png = Path(args.png)
-        if png.suffix.lower() != ".png" or not png.parent.is_dir():
-            raise InputError(f"{png}: expected a .png file in an existing folder")
         common.announce_replace(png)
         btf.save_error_map(maps["de76"], png, title="ΔE76 per texel")
     if args.json:

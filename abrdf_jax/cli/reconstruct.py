@@ -14,7 +14,6 @@ reconstructed in batches.
 from __future__ import annotations
 
 import math
-import os
 import time
 from pathlib import Path
 
@@ -225,10 +224,10 @@ def _auto_choice(item, s, prior) -> dict:
 
 
 def choose_all(
-    items: list[common.Measured], args, forced: str | None, caches: "common.Caches"
+    items: list[common.Measured], args, forced: str | None, caches: "common.Caches", quiet=False
 ) -> list[dict]:
     """:func:`choose` for every input, with a progress bar when there are several."""
-    quiet = args.quiet or len(items) < 2
+    quiet = quiet or args.quiet or len(items) < 2
     with common.progress(len(items), "select model", quiet) as bar:
         if _automatic(args):
             out = _auto_choices(items, args, forced, caches, on_done=bar.update)
@@ -260,11 +259,7 @@ def _targets(files: list[Path], out: Path, folder_mode: bool, fmt: str | None) -
     ext = "." + (fmt or TABLE_SUFFIXES[0].lstrip("."))
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: several inputs need an output folder, but this is a file")
-    if not out.exists() and not out.parent.is_dir():
-        raise InputError(f"{out}: parent folder {out.parent} does not exist")
-    where = out if out.exists() else out.parent
-    if not os.access(where, os.W_OK | os.X_OK):
-        raise InputError(f"{out}: folder {where} is not writable")
+    common.check_output_folder(out)
     stems: dict[str, Path] = {}
     for f in files:
         if f.stem in stems:
@@ -344,17 +339,19 @@ def _run(args, files, targets, out, folder_mode, prior) -> int:
     # Read and check every input before computing or writing anything.
     forced = common.forced_budget(args)
     caches: list[common.Caches] = []
-    items = common.read_inputs(
-        files,
-        forced,
-        args.alpha,
-        before=lambda: caches.append(common.Caches(args.cache_dir, common.warn)),
+    before = lambda: caches.append(common.Caches(args.cache_dir, common.warn))  # noqa: E731
+    place = {str(f): k for k, f in enumerate(args.all_files)}  # each input's place in the job
+    blocks = common.input_blocks(
+        files, targets, forced, args.alpha, before, args.quiet, [place[str(f)] for f in files]
     )
     caches[0].prior = prior
-    choices = choose_all(items, args, forced, caches[0])
     if folder_mode:
-        return _reconstruct_folder(items, choices, targets, out, args, caches[0])
-    return _reconstruct_one(items[0], choices[0], out, args, caches[0])
+        return _reconstruct_folder(blocks, len(files), out, args, caches[0], forced)
+    ((items, _),) = blocks
+    with common.stage(items[0], "choosing the model", args.quiet):
+        choices = choose_all(items, args, forced, caches[0])
+    with common.stage(items[0], f"reconstructing with {choices[0]['name']}", args.quiet):
+        return _reconstruct_one(items[0], choices[0], out, args, caches[0])
 
 
 def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, caches) -> int:
@@ -412,13 +409,12 @@ def _kept(kept: list[dict], place: dict[str, int]) -> dict[str, list]:
     return out
 
 
-def _reconstruct_folder(
-    items, choices: list[dict], targets: list[Path], out: Path, args, caches
-) -> int:
+def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced) -> int:
     """Every input through :func:`abrdf_jax._engine.reconstruct_many` (operator groups and
-    padded pipeline batches), each batch's tables written by a small thread pool while the next
-    batch computes, the folder's model record rewritten (atomically) after every batch: an
-    interrupted run keeps every table it finished, and the record lists only those."""
+    padded pipeline batches), block by block (:func:`common.input_blocks`), each batch's tables
+    written by a small thread pool while the next batch computes, the folder's model record
+    rewritten (atomically) after every batch: an interrupted run keeps every table it
+    finished, and the record lists only those. Memory: one block and ~2 KiB a finished file."""
     from concurrent.futures import ThreadPoolExecutor
 
     from .. import io
@@ -428,15 +424,11 @@ def _reconstruct_folder(
     out.mkdir(exist_ok=True)
     place = {str(f): k for k, f in enumerate(args.all_files)}  # each input's place in the job
     kept = _kept(args.resumed, place)
-    groups: dict[tuple, list[int]] = {}
-    for k, (item, choice) in enumerate(zip(items, choices)):
-        key = (item.budget, item.alpha, choice["config"])  # what one call must share
-        groups.setdefault(key, []).append(k)
     failed: list[str] = []
-    done = list(args.resumed)  # records of the outputs a --resume run kept
-    paths = {"operator": 0, "pipeline": 0}
+    done = [common.compact(c) for c in args.resumed]  # records of the outputs --resume kept
+    paths, models, budgets = {"operator": 0, "pipeline": 0}, [], set()
     with (
-        common.progress(len(items), "reconstruct", args.quiet) as bar,
+        common.progress(n_files, "reconstruct", args.quiet) as bar,
         ThreadPoolExecutor(max_workers=WRITERS) as pool,
     ):
         pending: list = []  # (futures, records) of the batch being written
@@ -446,52 +438,72 @@ def _reconstruct_folder(
             for futures, records in pending:
                 for f in futures:
                     f.result()  # a write error ends the run (nothing partial: atomic writes)
-                done.extend(records)
+                done.extend(map(common.compact, records))
             pending.clear()
             # the record of a big folder is large: rewritten at most every RECORD_EVERY s
             if final or time.perf_counter() - saved[0] >= RECORD_EVERY:
                 common.save_model_record(out, done, True, args.settings)
                 saved[0] = time.perf_counter()
 
-        for (_, _, config), members in groups.items():
-            params = choices[members[0]]["params"]
-            meas = [common.measurements_for(items[k], config) for k in members]
-            common.warn_guard(items[members[0]].path, meas[0], config, params, args.params)
-            job = dict(done=kept.get(_settings_key(choices[members[0]]["record"]), ()))
-            job["order"] = [place[str(items[k].path)] for k in members]
-            for k, keys in zip(members, job_keys(meas, config, **job)):
-                choices[k]["record"]["batch"] = keys  # what a --resume run reads (_kept)
-            for idx, tables, path in reconstruct_many(
-                meas, config, params, operator=caches.operator, before_jax=caches.numerics, **job
-            ):
-                paths[path] += len(idx)
-                futures, records = [], []
-                for j, table in zip(idx, tables):
-                    k = members[j]
-                    try:
-                        check_finite(table, str(items[k].path))
-                    except InputError as e:  # never written; the other materials still are
-                        failed.append(str(e))
-                        continue
-                    # atomic, not fsync-ed: --resume reads every table it keeps (docs/cache.md)
-                    futures.append(pool.submit(io.write_table, targets[k], table, durable=False))
-                    choices[k]["record"]["engine"] = path
-                    records.append(choices[k])
-                settle()  # the previous batch's files are complete before the record names them
-                pending.append((futures, records))
-                bar.update(len(idx))
+        for items, targets in blocks:
+            bar.set_description("select model")
+            choices = choose_all(items, args, forced, caches, quiet=True)
+            bar.set_description("reconstruct")
+            models += [c["record"]["model"] for c in choices]
+            budgets |= {c["config"].budget for c in choices}
+            block = place[str(items[0].path)] // common.BLOCK  # blocks of the whole job
+            groups: dict[tuple, list[int]] = {}
+            for k, (item, choice) in enumerate(zip(items, choices)):
+                key = (item.budget, item.alpha, choice["config"])  # what one call must share
+                groups.setdefault(key, []).append(k)
+            for (_, _, config), members in groups.items():
+                params = choices[members[0]]["params"]
+                meas = [common.measurements_for(items[k], config) for k in members]
+                common.warn_guard(items[members[0]].path, meas[0], config, params, args.params)
+                job = dict(
+                    done=[
+                        d
+                        for d in kept.get(_settings_key(choices[members[0]]["record"]), ())
+                        if d.order // common.BLOCK == block
+                    ]
+                )
+                job["order"] = [place[str(items[k].path)] for k in members]
+                for k, keys in zip(members, job_keys(meas, config, **job)):
+                    choices[k]["record"]["batch"] = keys  # what a --resume run reads (_kept)
+                for idx, tables, path in reconstruct_many(
+                    meas,
+                    config,
+                    params,
+                    operator=caches.operator,
+                    before_jax=caches.numerics,
+                    **job,
+                ):
+                    paths[path] += len(idx)
+                    futures, records = [], []
+                    for j, table in zip(idx, tables):
+                        k = members[j]
+                        try:
+                            check_finite(table, str(items[k].path))
+                        except InputError as e:  # never written; the other materials still are
+                            failed.append(str(e))
+                            continue
+                        # atomic, not fsync-ed: --resume reads every table it keeps (docs/cache.md)
+                        write = pool.submit(io.write_table, targets[k], table, durable=False)
+                        futures.append(write)
+                        choices[k]["record"]["engine"] = path
+                        records.append(choices[k])
+                    settle()  # the previous batch's files are complete before the record names them
+                    pending.append((futures, records))
+                    bar.update(len(idx))
         settle(final=True)
-    budgets = ", ".join(sorted({c["config"].budget for c in choices}))
-    n = len(items) + len(args.resumed)
+    n = n_files + len(args.resumed)
     engines = ", ".join(f"{v} by the {k}" for k, v in paths.items() if v)
     kept = f", {len(args.resumed)} kept (--resume)" if args.resumed else ""
     print(
-        f"{out}: wrote {len(items) - len(failed)} tables{kept} ({budgets}; {engines}; models "
-        f"{common.summary(choices)})"
+        f"{out}: wrote {n_files - len(failed)} tables{kept} ({', '.join(sorted(budgets))}; "
+        f"{engines}; models {common.summary(models)})"
     )
-    print(
-        f"model record: {common.save_model_record(out, done, True, args.settings)}"
-    )  # all of them
+    print(f"model record: {common.save_model_record(out, done, True, args.settings)}")
     for msg in failed:
         common.say(f"error: {msg}")
     if failed:

@@ -14,6 +14,7 @@ ignores them (no real output starts with ``.`` and ends with ``.tmp``).
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import os
 import tempfile
@@ -73,7 +74,7 @@ def atomic_write(
         fd, tmp = tempfile.mkstemp(dir=folder, prefix=temp_prefix(path), suffix=TEMP_SUFFIX)
     except OSError as e:
         raise InputError(
-            f"cannot write {path}: folder {folder} is not writable ({e.strerror})"
+            f"cannot write {path}: folder {folder} is not writable ({write_cause(e)})"
         ) from e
     try:
         # fchmod is POSIX only; mkstemp's 0o600 is still safe
@@ -88,17 +89,54 @@ def atomic_write(
                     f.flush()
                     os.fsync(f.fileno())
         except OSError as e:  # disk full, I/O error: name the file (the temp file is removed below)
-            raise InputError(f"cannot write {path}: {e.strerror or e}") from e
+            raise write_error(path, e) from e
         try:
             os.replace(tmp, path)
         except OSError as e:
-            raise InputError(f"cannot write {path}: {e.strerror}") from e
+            raise write_error(path, e) from e
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
     if durable:
         _fsync_folder(folder)
+
+
+#: What a failed write means, beside the system's message, by ``errno``.
+WRITE_HINTS = {
+    errno.ENOSPC: "disk full",
+    errno.EFBIG: "over the file-size limit: ulimit -f, or the file system's largest file",
+    errno.EDQUOT: "over the disk quota",
+    errno.EROFS: "mounted read-only",
+}
+
+
+def write_cause(e: BaseException) -> str:
+    """The cause of a failed write: the system's message, and what it means
+    (:data:`WRITE_HINTS`), e.g. ``File too large (over the file-size limit: ...)``."""
+    if isinstance(e, InputError) and isinstance(e.__cause__, OSError):
+        e = e.__cause__
+    text = getattr(e, "strerror", None) or str(e) or type(e).__name__
+    hint = WRITE_HINTS.get(getattr(e, "errno", None))
+    return f"{text} ({hint})" if hint else text
+
+
+def write_error(path, e: BaseException) -> InputError:
+    """``cannot write PATH: CAUSE``: one line naming the output (not a temporary file) and why."""
+    return InputError(f"cannot write {path}: {write_cause(e)}")
+
+
+def write_figure(fig, path, **savefig) -> Path:
+    """Save a matplotlib figure to ``path`` atomically (format from the suffix): rendered in
+    memory, then :func:`atomic_write`, so a failed write leaves no partial image."""
+    import io as _io
+
+    path = Path(path)
+    buf = _io.BytesIO()
+    fig.savefig(buf, format=path.suffix.lower().lstrip("."), **savefig)
+    with atomic_write(path, "wb") as f:
+        f.write(buf.getvalue())
+    return path
 
 
 def temp_prefix(path: Path) -> str:

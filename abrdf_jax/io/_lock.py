@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from .._errors import InputError
-from ._atomic import pid_alive, remove_stale_temps
+from ._atomic import pid_alive, remove_stale_temps, write_cause
 
 try:
     import fcntl
@@ -54,8 +54,8 @@ def _describe(holder: dict) -> str:
     return f"process {holder.get('pid')} on host {holder.get('host')} (since {since})"
 
 
-def _cannot(lock: Path, e: OSError) -> InputError:
-    return InputError(f"cannot write {lock} (the output's lock): {e.strerror or e}")
+def _cannot(output, lock: Path, e: OSError) -> InputError:
+    return InputError(f"cannot write {output}: {write_cause(e)} (at its lock file {lock.name})")
 
 
 @contextlib.contextmanager
@@ -103,7 +103,7 @@ def output_lock(
             os.lseek(fd, 0, os.SEEK_SET)
             os.write(fd, json.dumps(me).encode())
         except OSError as e:
-            raise _cannot(lock, e) from e
+            raise _cannot(output, lock, e) from e
         for path in (output, *also):
             remove_stale_temps(path, locked=True)
         yield lock
@@ -133,7 +133,7 @@ def _acquire_flock(lock: Path, output) -> tuple[int, dict]:
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as e:
-            raise _cannot(lock, e) from e
+            raise _cannot(output, lock, e) from e
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -167,5 +167,5 @@ def _acquire_exclusive(lock: Path, output) -> tuple[int, dict]:
             with contextlib.suppress(OSError):
                 lock.unlink()
         except OSError as e:
-            raise _cannot(lock, e) from e
+            raise _cannot(output, lock, e) from e
     raise _refuse(output, lock, {})

@@ -8,14 +8,14 @@ row's caption states with the metrics.
 
 from __future__ import annotations
 
-import io as _io
+import os
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
 from .._grid import UBO_COUNTS, UBO_THETAS_DEG
-from ..io._atomic import atomic_write
+from ..io._atomic import write_figure
 from ._figures import DEFAULT_LIGHT, _check_table, abrdf_image, exposure_of, render_sphere
 
 _FIG_FORMATS = (".png", ".pdf", ".svg")
@@ -31,7 +31,7 @@ def check_figure_path(path) -> Path:
     """Validate a figure output path (extension, existing folder) before any work is done.
 
     Raises:
-        InputError: unknown extension or missing folder.
+        InputError: unknown extension, missing or read-only folder.
     """
     path = Path(path)
     if path.suffix.lower() not in _FIG_FORMATS:
@@ -43,6 +43,8 @@ def check_figure_path(path) -> Path:
         raise InputError(f"{path}: folder {parent} does not exist")
     if path.is_dir():
         raise InputError(f"{path}: is a folder, expected a file name")
+    if not os.access(parent, os.W_OK | os.X_OK):  # EROFS stops root too; permissions do not
+        raise InputError(f"{path}: folder {parent} is not writable")
     return path
 
 
@@ -187,8 +189,4 @@ def comparison_figure(
         "at the normal; tables interpolated barycentrically between the 81 directions.\n" + _TONE
     )
     fig.text(0.5, 0.03 / height, note, ha="center", va="bottom", fontsize=6.5, color="0.3")
-    buf = _io.BytesIO()
-    fig.savefig(buf, format=path.suffix.lower().lstrip("."), dpi=dpi)
-    with atomic_write(path, "wb") as f:
-        f.write(buf.getvalue())
-    return path
+    return write_figure(fig, path, dpi=dpi)

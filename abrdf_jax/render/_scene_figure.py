@@ -13,7 +13,6 @@ the same ``e``). The background is mid grey in the figure and 0 in the map.
 
 from __future__ import annotations
 
-import io as _io
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -22,7 +21,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._names import RENDER_SHAPES
-from ..io._atomic import atomic_write
+from ..io._atomic import write_figure
 from ._comparison import DE_MAX, check_figure_path
 from ._figures import _BACKGROUND, _display, exposure_of
 from ._scene import render_table
@@ -188,8 +187,4 @@ def scene_figure(rows, path, *, note: str = "", dpi: int = 100) -> Path:
     fig.text(
         0.5, 0.05 / height, footer, ha="center", va="bottom", fontsize=6.5, color="0.3", wrap=True
     )
-    buf = _io.BytesIO()
-    fig.savefig(buf, format=path.suffix.lower().lstrip("."), dpi=dpi)
-    with atomic_write(path, "wb") as f:
-        f.write(buf.getvalue())
-    return path
+    return write_figure(fig, path, dpi=dpi)
