@@ -336,6 +336,16 @@ def _noise(meas) -> float | None:
     return round(sigma, 6) if math.isfinite(sigma) else None
 
 
+def smoothing_record(item: "Measured", config) -> dict | None:
+    """The model record's ``smoothing`` entry of one input: :func:`abrdf_jax._smoothing.
+    slice_smoothing` (numpy, no JAX); ``None`` without slice smoothing or for the prior model."""
+    from .._config import Config
+    from .._smoothing import slice_smoothing
+
+    # the prior model's choice holds no Config: it is not smoothed
+    return slice_smoothing(item.meas, config) if isinstance(config, Config) else None
+
+
 def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measured:
     """Group one measurement into slices (once, numpy: no JAX) and decide its budget and slice
     offset α."""

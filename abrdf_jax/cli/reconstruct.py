@@ -226,16 +226,11 @@ def choose_all(
             for item in items:
                 out.append(choose(item, args, forced, caches))
                 bar.update(1)
-    from .._config import Config
-    from .._smoothing import slice_smoothing
-
     for item, choice in zip(items, out):
         choice["record"]["measurement"] = item.used  # what of the file was used, and why not
-        # the slice smoothing's noise and weights (numpy); the prior model holds no Config
-        if isinstance(choice.get("config"), Config):
-            smoothing = slice_smoothing(item.meas, choice["config"])
-            if smoothing is not None:
-                choice["record"]["smoothing"] = smoothing
+        smoothing = common.smoothing_record(item, choice.get("config"))
+        if smoothing is not None:
+            choice["record"]["smoothing"] = smoothing
     return out
 
 
