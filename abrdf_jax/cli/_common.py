@@ -337,13 +337,11 @@ def _noise(meas) -> float | None:
 
 
 def smoothing_record(item: "Measured", config) -> dict | None:
-    """The model record's ``smoothing`` entry of one input: :func:`abrdf_jax._smoothing.
-    slice_smoothing` (numpy, no JAX); ``None`` without slice smoothing or for the prior model."""
-    from .._config import Config
+    """The model record's ``smoothing`` entry of one input (``None``: no slice smoothing):
+    :func:`abrdf_jax._smoothing.slice_smoothing` (numpy, no JAX)."""
     from .._smoothing import slice_smoothing
 
-    # the prior model's choice holds no Config: it is not smoothed
-    return slice_smoothing(item.meas, config) if isinstance(config, Config) else None
+    return None if config is None else slice_smoothing(item.meas, config)
 
 
 def plan(samples, forced: str | None, alpha: float | None, where: Path) -> Measured:
