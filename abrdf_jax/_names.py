@@ -36,6 +36,7 @@ MODELS = (
     "aniso",
     "paper-aniso",
     "prior",
+    "fused",
 )
 #: Traits of some choices that code without JAX needs (the configuration's checks, the command
 #: line's choice of the compiled operator); the registries check at import that they agree

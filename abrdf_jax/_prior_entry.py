@@ -30,8 +30,73 @@ from ._operator_entry import GRID, check_layout
 PAIRS = GRID[0] * GRID[1]
 
 
+def sample_rows(x, width: int) -> tuple[np.ndarray, int]:
+    """``(rows, B)``: valid samples ``(B, n_in, 3)`` as the rows a prior's map reads: one per
+    material and channel (``width`` 1, the shared layout) or one per material in (sample,
+    channel) order (``width`` 3, joint)."""
+    x = np.asarray(x, np.float32)
+    b = x.shape[0]
+    if width == 1:
+        return np.ascontiguousarray(np.transpose(x, (0, 2, 1))).reshape(b * 3, -1), b
+    return x.reshape(b, -1), b
+
+
+def grid_tables(m: np.ndarray, floor: np.ndarray, b: int, width: int) -> np.ndarray:
+    """The inverse map of mapped grid rows ``m`` (``exp``, minus ``floor``, clamped at 0; in
+    place) as tables ``(B, 81, 81, 3)``."""
+    np.exp(m, out=m)
+    m -= floor
+    np.maximum(m, np.float32(0.0), out=m)
+    if width == 1:
+        return np.ascontiguousarray(np.transpose(m.reshape(b, 3, PAIRS), (0, 2, 1))).reshape(
+            b, *GRID, 3
+        )
+    return m.reshape(b, *GRID, 3)
+
+
+class MappedEntry:
+    """What the prior's entries share: the layout (``index``, ``t``, ``count``), the sample
+    values' check, and the stored form (``ARRAYS``, ``eps``, ``width``)."""
+
+    ARRAYS: tuple[str, ...] = ()
+
+    @property
+    def n_inputs(self) -> int:
+        return int(self.index.shape[0])
+
+    def apply(self, y) -> np.ndarray:
+        """Tables ``(..., 81, 81, C)`` from stacked sample values ``(..., S, nmax, C)``."""
+        y = np.asarray(y, np.float32)
+        s, nmax = self.t.shape
+        if y.ndim < 3 or y.shape[-3:-1] != (s, nmax) or y.shape[-1] != 3:
+            raise InputError(f"values must have shape (..., {s}, {nmax}, 3), got {y.shape}")
+        lead = y.shape[:-3]
+        x = y.reshape(-1, s * nmax, 3)[:, self.index, :]
+        return self.apply_compact(x).reshape(*lead, *GRID, 3)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {n: getattr(self, n) for n in self.ARRAYS}
+
+    def meta(self) -> dict:
+        return {"eps": float(self.eps), "width": int(self.width)}
+
+    @classmethod
+    def from_stored(cls, arrays: dict[str, np.ndarray], meta: dict):
+        return cls(**arrays, eps=meta["eps"], width=meta["width"])
+
+    @staticmethod
+    def check_floats(arrays: dict[str, np.ndarray], meta: dict, floats) -> str | None:
+        """The map's scalars and the float32 arrays ``floats`` (``None``: fine)."""
+        w, eps = meta.get("width"), meta.get("eps")
+        if w not in (1, 3) or not isinstance(eps, float) or not eps > 0:
+            return "malformed (no prior map)"
+        if not all(arrays[n].dtype == np.float32 for n in floats):
+            return "malformed (inconsistent array shapes)"
+        return None
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
-class PriorEntry:
+class PriorEntry(MappedEntry):
     """A built prior-only operator (module docstring), float32 arrays.
 
     Attributes:
@@ -63,68 +128,30 @@ class PriorEntry:
     KIND = "prior"
     ARRAYS = ("right", "shift", "left", "offset", "cos_in", "floor", "index", "t", "count")
 
-    @property
-    def n_inputs(self) -> int:
-        return int(self.index.shape[0])
-
     @functools.cached_property
     def _grid_map(self) -> np.ndarray:
         """``[Q | offset]ᵀ`` ``(K + 1, 6561·w)``: the second product adds the offset."""
         return np.ascontiguousarray(np.concatenate([self.left, self.offset[:, None]], 1).T)
 
-    def apply(self, y) -> np.ndarray:
-        """Tables ``(..., 81, 81, C)`` from stacked sample values ``(..., S, nmax, C)``."""
-        y = np.asarray(y, np.float32)
-        s, nmax = self.t.shape
-        if y.ndim < 3 or y.shape[-3:-1] != (s, nmax) or y.shape[-1] != 3:
-            raise InputError(f"values must have shape (..., {s}, {nmax}, 3), got {y.shape}")
-        lead = y.shape[:-3]
-        x = y.reshape(-1, s * nmax, 3)[:, self.index, :]
-        return self.apply_compact(x).reshape(*lead, *GRID, 3)
-
     def apply_compact(self, x) -> np.ndarray:
         """The same from the valid samples only, ``(B, n_in, 3)`` → ``(B, 81, 81, 3)``."""
-        x = np.asarray(x, np.float32)
-        b = x.shape[0]
-        if self.width == 1:  # one row per material and channel, as the prior's shared layout
-            rows = np.ascontiguousarray(np.transpose(x, (0, 2, 1))).reshape(b * 3, -1)
-        else:  # one row per material, (sample, channel) order
-            rows = x.reshape(b, -1)
-        eps = np.float32(self.eps)
-        z = np.log(np.maximum(rows, np.float32(0.0)) * self.cos_in + eps)
+        rows, b = sample_rows(x, self.width)
+        z = np.log(np.maximum(rows, np.float32(0.0)) * self.cos_in + np.float32(self.eps))
         c = np.empty((rows.shape[0], self.shift.shape[0] + 1), np.float32)
         np.matmul(z, self.right.T, out=c[:, :-1])
         c[:, :-1] -= self.shift
         c[:, -1] = 1.0
-        m = c @ self._grid_map
-        np.exp(m, out=m)
-        m -= self.floor
-        np.maximum(m, np.float32(0.0), out=m)
-        if self.width == 1:
-            return np.ascontiguousarray(np.transpose(m.reshape(b, 3, PAIRS), (0, 2, 1))).reshape(
-                b, *GRID, 3
-            )
-        return m.reshape(b, *GRID, 3)
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        return {n: getattr(self, n) for n in self.ARRAYS}
-
-    def meta(self) -> dict:
-        return {"eps": float(self.eps), "width": int(self.width)}
-
-    @classmethod
-    def from_stored(cls, arrays: dict[str, np.ndarray], meta: dict) -> "PriorEntry":
-        return cls(**arrays, eps=meta["eps"], width=meta["width"])
+        return grid_tables(c @ self._grid_map, self.floor, b, self.width)
 
     @staticmethod
     def check(arrays: dict[str, np.ndarray], meta: dict) -> str | None:
         """What is wrong with stored arrays and scalars (``None``: nothing)."""
-        w, eps = meta.get("width"), meta.get("eps")
-        if w not in (1, 3) or not isinstance(eps, float) or not eps > 0:
-            return "malformed (no prior map)"
-        r, left = arrays["right"], arrays["left"]
         floats = ("right", "shift", "left", "offset", "cos_in", "floor")
-        if not all(arrays[n].dtype == np.float32 for n in floats) or r.ndim != 2:
+        problem = MappedEntry.check_floats(arrays, meta, floats)
+        if problem:
+            return problem
+        w, r, left = meta["width"], arrays["right"], arrays["left"]
+        if r.ndim != 2:
             return "malformed (inconsistent array shapes)"
         k, n_w = r.shape
         d = PAIRS * w

@@ -47,16 +47,22 @@ class PriorSource:
         sha256: sha256 of the file's bytes (in memory: of its arrays and metadata).
         lam: the ridge λ used (the prior's own).
         info: JSON text of what the model record says of the prior.
+        fused: JSON text of the fused model's fixed hyper-parameters (the file's own, else the
+            package's defaults; :func:`abrdf_jax.prior._fused_settings.fused_settings`).
     """
 
     file: str | None
     sha256: str
     lam: float
     info: str
+    fused: str = "{}"
     memory: object = dataclasses.field(default=None, compare=False, hash=False, repr=False)
 
     def record(self) -> dict:
         return json.loads(self.info)
+
+    def fused_settings(self) -> dict:
+        return json.loads(self.fused)
 
     def load(self):
         """The :class:`~abrdf_jax.prior.Prior` (imports JAX; read once per process)."""
@@ -71,6 +77,8 @@ def _load(path: str, sha256: str):
 
 
 def _summary(path, sha, arrays, meta, default: bool) -> PriorSource:
+    from .prior._fused_settings import fused_settings
+
     lam = float(arrays["lam"])
     n = len(meta.get("trained_on", []))
     prov = meta.get("provenance") or (
@@ -90,7 +98,8 @@ def _summary(path, sha, arrays, meta, default: bool) -> PriorSource:
         "provenance": prov,
         **({"licence": meta["licence"]} if "licence" in meta else {}),
     }
-    return PriorSource(None if path is None else str(path), sha, lam, json.dumps(info))
+    fused = json.dumps(fused_settings(meta), sort_keys=True)
+    return PriorSource(None if path is None else str(path), sha, lam, json.dumps(info), fused)
 
 
 def read_source(path, default: bool = False) -> PriorSource:
@@ -140,15 +149,16 @@ def _in_memory(prior) -> PriorSource:
 
 
 @dataclasses.dataclass(frozen=True)
-class PriorModel:
-    """The prior-only model of one budget (see the module docstring)."""
+class LearnedModel:
+    """A model that reads a prior, for one budget: what the command line passes to
+    :func:`abrdf_jax._engine.reconstruct_many` in place of a :class:`~abrdf_jax.Config`.
+    Subclasses say ``name``, ``entry_kind``, ``key_doc()`` and ``build(template, params)``."""
 
     source: PriorSource
     budget: str
 
     #: :func:`abrdf_jax._engine.reconstruct_many`: every layout is one operator.
     operator_only = True
-    name = "prior"
 
     def slice_counts(self, meas) -> np.ndarray:
         return slice_counts(meas, self.budget)
@@ -157,6 +167,23 @@ class PriorModel:
         """The apply function of ``template``'s layout: from ``store``, else built (and stored)."""
         entry, _ = cached_prior_entry(store, template, self, params, warn, before_build)
         return entry.apply
+
+
+@dataclasses.dataclass(frozen=True)
+class PriorModel(LearnedModel):
+    """The prior-only model of one budget (see the module docstring)."""
+
+    name = "prior"
+    entry_kind = PriorEntry
+
+    def key_doc(self) -> dict:
+        """What the entry depends on besides the layout, α and the code (part of its key)."""
+        return {"format": ENTRY_FORMAT, "lam": float(self.source.lam)}
+
+    def build(self, template, params) -> PriorEntry:
+        counts = self.slice_counts(template)
+        src = self.source
+        return build_prior_entry(src.load(), template, params.alpha, src.lam, counts)
 
 
 def slice_counts(meas, budget: str | None) -> np.ndarray:
@@ -180,19 +207,23 @@ def _code_digest() -> str:
     return h.hexdigest()
 
 
-def prior_entry_key(model: PriorModel, meas, params) -> str:
-    """The store key of ``model``'s entry for ``meas``'s layout at α = ``params.alpha``."""
+def prior_entry_key(model, meas, params) -> str:
+    """The store key of a learned model's entry (:class:`PriorModel`, or the fused model's
+    :class:`abrdf_jax._fused_operator.FusedModel`) for ``meas``'s layout at α =
+    ``params.alpha``: its kind, the prior file's sha256, the model's own ``key_doc()``, the
+    budget, the layout, the slices read, the package version and code, JAX's version."""
     from . import _cache
     from ._engine import layout_key
 
+    own = model.key_doc()
     doc = {
-        "kind": PriorEntry.KIND,
-        "format": [_cache.CACHE_FORMAT, ENTRY_FORMAT],
+        "kind": model.entry_kind.KIND,
+        "format": [_cache.CACHE_FORMAT, own.pop("format")],
         "version": _cache.package_version(),
         "code": _code_digest(),
         "jax": [_cache._dist_version("jax"), _cache._dist_version("jaxlib")],
         "prior_sha256": model.source.sha256,
-        "lam": float(model.source.lam),
+        **own,
         "budget": model.budget,
         "alpha": float(np.asarray(params.alpha, np.float64)),
         "layout": layout_key(meas),
@@ -242,21 +273,19 @@ def build_prior_entry(prior, meas, alpha, lam, counts) -> PriorEntry:
     )
 
 
-def cached_prior_entry(store, template, model: PriorModel, params, warn=None, before_build=None):
-    """``(entry, hit)``: ``model``'s entry for ``template``'s layout, from ``store`` (no JAX)
-    when it holds a valid one, else built (``before_build()`` first) and saved."""
+def cached_prior_entry(store, template, model, params, warn=None, before_build=None):
+    """``(entry, hit)``: a learned model's entry for ``template``'s layout, from ``store`` (no
+    JAX) when it holds a valid one, else built (``before_build()`` first) and saved."""
     from ._cache import _fits
 
     key = prior_entry_key(model, template, params)
     if store is not None:
-        entry = store.load(key, warn, kind=PriorEntry)
+        entry = store.load(key, warn, kind=model.entry_kind)
         if entry is not None and _fits(entry, template):
             return entry, True
     if before_build is not None:
         before_build()
-    src = model.source
-    counts = model.slice_counts(template)
-    entry = build_prior_entry(src.load(), template, params.alpha, src.lam, counts)
+    entry = model.build(template, params)
     if store is not None:
         store.save(key, entry, warn)
     return entry, False

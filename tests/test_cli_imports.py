@@ -229,9 +229,9 @@ def test_warm_reconstruct_imports_no_jax(tmp_path):
 
 
 def test_warm_prior_reconstruct_imports_no_jax(tmp_path):
-    """``--model prior`` with its entry in the operator store runs in numpy: a prior file and the
-    default prior (found in the cache folder without JAX), one file and a folder; the tables
-    are bit-identical to the cold call's."""
+    """``--model prior`` (and ``--model fused``, issue 14) with its entry in the operator store
+    runs in numpy: a prior file and the default prior (found in the cache folder without JAX),
+    one file and a folder; the tables are bit-identical to the cold call's."""
     import abrdf_jax as aj
     from abrdf_jax import io, materials
     from abrdf_jax import prior as P
@@ -246,21 +246,27 @@ def test_warm_prior_reconstruct_imports_no_jax(tmp_path):
         s = aj.simulate_capture(iso, budget="iso102", noise=0.01, seed=k)
         io.write_samples_csv(tmp_path / "dir" / f"m{k}.csv", s)
     common = ["--model", "prior", "--cache-dir", "cache"]
+    fused = ["--prior", "p.npz", "--model", "fused", "--cache-dir", "cache"]
 
     def cases(tag):
         return [
             (["reconstruct", "iso.csv", "-o", f"f-{tag}.npz", "--prior", "p.npz", *common], 0),
             (["reconstruct", "iso.csv", "-o", f"d-{tag}.npz", *common], 0),  # the default prior
             (["reconstruct", "dir", "-o", f"out-{tag}", "-q", "--prior", "p.npz", *common], 0),
+            (["reconstruct", "iso.csv", "-o", f"u-{tag}.npz", *fused], 0),
         ]
 
     cold, err = _run(cases("cold"), tmp_path)
-    assert [c[1] for c in cold] == [0, 0, 0], err
+    assert [c[1] for c in cold] == [0, 0, 0, 0], err
     for case in cases("warm"):  # each in a fresh interpreter
         ((argv, code, jax_loaded),), err = _run([case], tmp_path)
         assert code == 0, (argv, err)
         assert not jax_loaded, f"warm {argv} imported jax"
-    pairs = [("f-cold.npz", "f-warm.npz"), ("d-cold.npz", "d-warm.npz")]
+    pairs = [
+        ("f-cold.npz", "f-warm.npz"),
+        ("d-cold.npz", "d-warm.npz"),
+        ("u-cold.npz", "u-warm.npz"),
+    ]
     pairs += [(f"out-cold/m{k}.npz", f"out-warm/m{k}.npz") for k in range(3)]
     for a, b in pairs:
         np.testing.assert_array_equal(io.read_table(tmp_path / a), io.read_table(tmp_path / b))

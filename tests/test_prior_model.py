@@ -96,8 +96,11 @@ def test_auto_keeps_the_rbf_on_anisotropic_and_may_choose_the_prior(small_prior)
     sp = select.select_model(plastic, prior=small_prior)
     assert sa.name in select.CANDIDATES and sa.config.budget == "aniso204", sa.reason
     assert "prior" in sa.errors and sa.errors["prior"] > sa.errors[sa.name]
-    assert sp.name == "prior", sp.reason  # a material of the prior's own family
+    # the fused model is scored too, but left out: the prior alone is worse than the kernel
+    assert "fused" in sa.errors and "fused left out" in sa.reason, sa.reason
+    assert sp.name in ("prior", "fused"), sp.reason  # a material of the prior's own family
     assert sp.config.budget == "iso102"  # isotropic: the prior on the diagonal slices
+    assert select.select_model(plastic, prior=small_prior, fused=False).name == "prior"
     # a folder's batched choice: the same choices and errors
     both = select.select_models([aniso, plastic], prior=small_prior)
     assert [s.name for s in both] == [sa.name, sp.name]
@@ -165,7 +168,8 @@ def test_cli_auto_with_prior(prior_file, tmp_path):
     aniso, plastic = rec["aniso.csv"], rec["plastic.csv"]
     assert aniso["model"] in select.CANDIDATES and aniso["config"]["budget"] == "aniso204"
     assert "prior" in [c["name"] for c in aniso["candidates"]]
-    assert plastic["model"] == "prior" and plastic["how"] == "auto"
+    assert plastic["model"] in ("prior", "fused") and plastic["how"] == "auto"
+    assert {"prior", "fused"} <= {c["name"] for c in plastic["candidates"]}
     assert plastic["prior"]["sha256"] == read_source(prior_file).sha256
 
 

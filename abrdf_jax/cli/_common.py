@@ -461,7 +461,10 @@ from ._record import (  # noqa: E402, F401
 
 # The prior-only model (``--model prior``, ``--prior``): its own module, used through this one
 from ._learned import (  # noqa: E402, F401
+    FUSED_MODEL,
+    LEARNED_MODELS,
     PRIOR_MODEL,
+    learned_choice,
     check_prior_arguments,
     prior_choice,
     prior_source,

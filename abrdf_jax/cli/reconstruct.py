@@ -50,10 +50,10 @@ HELP = {
     "and named in its model record; reconstruct only the others (the same tables, bit for bit, "
     "as one uninterrupted run)",
     "--cache-dir": common.CACHE_DIR_HELP,
-    "--prior": "the prior of --model prior and of the automatic choice: a prior file ('abrdf-jax "
-    "prior train') or 'default' (the built-in prior, trained on the package's own analytic "
-    "materials; what --model prior uses without --prior). With --model auto, --prior adds the "
-    "prior-only model to the candidates (docs/model_selection.md)",
+    "--prior": "the prior of --model prior|fused and of the automatic choice: a prior file "
+    "('abrdf-jax prior train') or 'default' (the built-in prior, from the package's own analytic "
+    "materials; what --model prior|fused use without --prior). With --model auto, --prior adds "
+    "the prior-only and the fused (prior + kernel) model to the candidates (docs/prior.md)",
     "--overwrite": "folder mode: replace an output folder written with other settings (model, "
     "preset, parameters, prior, tolerance, budget, alpha, format); without it such a folder is "
     "refused",
@@ -105,7 +105,7 @@ def check_model_arguments(args) -> None:
         if v is not None and not (math.isfinite(v) and v >= 0):
             raise InputError(f"--{name} must be {what} >= 0, got {v}")
     common.check_prior_arguments(args)
-    if fixed not in (None, common.PRIOR_MODEL) and (args.isotropic or args.anisotropic):
+    if fixed not in (None, *common.LEARNED_MODELS) and (args.isotropic or args.anisotropic):
         from ..select import candidate  # the candidate's budget (imports the numerics)
 
         iso = candidate(fixed).settings["budget"] == "iso102"
@@ -133,9 +133,8 @@ def choose(item: common.Measured, args, forced: str | None, caches: "common.Cach
         return common.model_choice(where, None, config, params, "params", why)
     if _automatic(args):
         return _auto_choices([item], args, forced, caches)[0]
-    if args.model == common.PRIOR_MODEL:
-        why = f"--model prior: the prior alone, on the {budget} slices"
-        return common.prior_choice(where, caches.prior, budget, alpha, "fixed", why)
+    if args.model in common.LEARNED_MODELS:
+        return common.learned_choice(item, caches.prior, args.model, budget, "fixed")
     if args.preset is not None:
         config, how, flag = preset(args.preset, budget), "preset", f"--preset {args.preset}"
         c = next((c for c in CANDIDATES.values() if c.config() == config), None)  # its name, if any
@@ -217,9 +216,8 @@ def _auto_choice(item, s, prior) -> dict:
     d = s.to_dict()
     extra = {"rank": s.ranks[s.name], "tol": s.tol, "folds": s.k}
     extra |= {"candidates": d["candidates"], "isotropy": d["isotropy"], "seconds": s.seconds}
-    if s.name == common.PRIOR_MODEL:
-        budget = s.config.budget
-        return common.prior_choice(item.path, prior, budget, item.alpha, "auto", s.reason, extra)
+    if s.name in common.LEARNED_MODELS:
+        return common.learned_choice(item, prior, s.name, s.config.budget, "auto", s.reason, extra)
     return common.model_choice(item.path, s.name, s.config, s.params, "auto", s.reason, extra)
 
 

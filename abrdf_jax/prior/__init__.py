@@ -48,5 +48,6 @@ _EXPORTS = {
         "fused_rescaled",
     ),
     "_evidence": ("fit_evidence", "fit_population"),
+    "_fused_settings": ("FUSED_DEFAULTS",),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS)

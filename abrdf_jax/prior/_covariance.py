@@ -28,6 +28,7 @@ from jaxtyping import Array, Float
 
 from .._errors import InputError
 from .._grid import half_diff, onion_from_vector
+from ._fused_settings import SCALES, WIDTH_NAMES
 
 
 def _safe_r(r2):
@@ -89,9 +90,9 @@ class Coordinates:
 
 
 COORDINATES: dict[str, Coordinates] = {
-    "onion": Coordinates(_onion, (0, 1, 0, 1), ("alpha", "beta"), (0.5, 0.5)),
+    "onion": Coordinates(_onion, (0, 1, 0, 1), WIDTH_NAMES["onion"], (0.5, 0.5)),
     "halfdiff": Coordinates(
-        _halfdiff, (0, 1, 1, 2, 3, 3), ("theta_h", "phi_h", "theta_d", "phi_d"), (0.1, 1, 0.5, 1)
+        _halfdiff, (0, 1, 1, 2, 3, 3), WIDTH_NAMES["halfdiff"], (0.1, 1, 0.5, 1)
     ),
 }
 
@@ -150,6 +151,19 @@ class FusedHyper(eqx.Module):
             raise InputError(f"FusedHyper: widths and scales must be > 0, got {values}")
         logs = [jnp.asarray(np.log(v), dtype) for v in values]
         return cls(*logs, coords=coords, kernel=kernel)
+
+    @classmethod
+    def from_settings(cls, settings: dict, dtype=jnp.float32) -> "FusedHyper":
+        """From plain settings (a prior file's ``"fused"`` member,
+        :data:`~abrdf_jax.prior.FUSED_DEFAULTS`)."""
+        scales = {k: settings[k] for k in SCALES}
+        return cls.create(
+            widths=settings["widths"],
+            **scales,
+            coords=settings["coords"],
+            kernel=settings["kernel"],
+            dtype=dtype,
+        )
 
     @property
     def widths(self):

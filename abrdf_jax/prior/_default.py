@@ -18,6 +18,7 @@ import warnings
 import numpy as np
 
 from .._errors import InputError
+from ._fused_settings import FUSED_DEFAULTS
 
 #: What the default prior is trained on and with: ``K`` chosen by 6-fold cross-validation on these
 #: draws themselves, ``λ`` on the MERL train split (exact iso102 samples; the draws' own
@@ -36,6 +37,8 @@ DEFAULT_RECIPE = {
     "lam": 0.03,
     "channels": "shared",
     "eps": 1e-6,
+    # the fused model's hyper-parameters (``reconstruct --model fused``), chosen on MERL train
+    "fused": {k: v for k, v in FUSED_DEFAULTS.items() if k != "chosen_on"},
 }
 
 
@@ -118,7 +121,16 @@ def build_default_prior(recipe: dict | None = None):
         lam=recipe["lam"],
         channels=recipe["channels"],
         eps=recipe["eps"],
-        extra_meta={"provenance": provenance, "recipe": recipe, "key": recipe_key(recipe)},
+        extra_meta={
+            "provenance": provenance,
+            "recipe": recipe,
+            "key": recipe_key(recipe),
+            **(
+                {"fused": {**recipe["fused"], "chosen_on": FUSED_DEFAULTS["chosen_on"]}}
+                if "fused" in recipe
+                else {}
+            ),
+        },
     )
 
 

@@ -125,6 +125,7 @@ def fit_population(
     reference: str = "log",
     dtype=jnp.float32,
     log=None,
+    prior: Prior | None = None,
 ) -> tuple[FusedHyper, list[float]]:
     """One set of hyper-parameters for a population, by gradient descent on held-out ΔE76.
 
@@ -136,6 +137,10 @@ def fit_population(
         steps, lr: Adam steps and step size on the logs.
         k, channels, eps: the fold priors' settings (:func:`~abrdf_jax.prior.train_prior`).
         log: optional ``print``-like callable (the loss every 10 steps).
+        prior: a prior trained on none of ``tables`` (e.g. the default prior, on measured
+            tables): every material is then already held out, so no folds: the loss is the
+            mean ΔE76 of all of them with this prior (``folds``, ``k``, ``channels``, ``eps``
+            unused).
 
     Returns:
         ``(hyper, losses)``: the fitted :class:`FusedHyper` and the mean held-out ΔE76 per step
@@ -146,13 +151,13 @@ def fit_population(
     _check_steps(steps, lr)
     tables = np.asarray(tables, np.float32)
     n = len(tables)
-    if not 2 <= folds <= n or meas.t.shape[0] != n:
+    if not (prior is not None or 2 <= folds <= n) or meas.t.shape[0] != n:
         raise InputError(
             f"fit_population: {n} tables, {meas.t.shape[0]} measurements, {folds} folds"
         )
     fold = np.arange(n) % folds
-    split = []
-    for f in range(folds):
+    split = [] if prior is None else [(prior, meas, jnp.asarray(tables))]
+    for f in range(folds if prior is None else 0):
         te = np.flatnonzero(fold == f)
         kf = min(k, 3 * (n - len(te)) - 1 if channels == "shared" else n - len(te) - 1)
         prior = train_prior(tables[fold != f], k=kf, channels=channels, eps=eps, dtype=dtype)

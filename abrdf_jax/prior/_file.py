@@ -6,7 +6,8 @@ holding:
 - ``metadata``: ``uint8`` bytes of UTF-8 JSON with at least ``format`` (``"abrdf_jax.prior/1"``),
   ``channels`` (``"joint"``/``"shared"``) and ``eps`` (> 0); also what the prior was trained on
   (``trained_on``: name, sha256, source of every input), ``package_version`` and how K and λ
-  were chosen.
+  were chosen; optionally ``fused``, the fused model's fixed hyper-parameters
+  (:mod:`abrdf_jax.prior._fused_settings`).
 - ``mean`` ``(D,)``, ``components`` ``(D, K)``, ``reference`` ``(6561, 3)``, ``lam`` ``()``: float
   arrays, ``D = 6561·3`` (joint) or ``6561`` (shared), ``K ≥ 1``.
 
@@ -27,6 +28,7 @@ import numpy as np
 from .._errors import InputError, located
 from ..io._atomic import _check_readable, atomic_write
 from ..io._untrusted import check_npz
+from ._fused_settings import check_fused
 
 #: The file format this version writes and reads.
 PRIOR_FORMAT = "abrdf_jax.prior/1"
@@ -115,6 +117,10 @@ def _metadata(path: Path, raw: np.ndarray) -> dict:
     eps = meta.get("eps")
     if not isinstance(eps, (int, float)) or isinstance(eps, bool) or not eps > 0:
         raise _fail(path, "eps", f"{eps!r}, expected a number > 0")
+    if "fused" in meta:  # optional: the fused model's fixed hyper-parameters
+        problem = check_fused(meta["fused"])
+        if problem:
+            raise _fail(path, "fused", problem)
     return meta
 
 
@@ -175,5 +181,5 @@ def prior_info(path: str | os.PathLike) -> dict:
         "n_materials": len(trained),
         "package_version": meta.get("package_version"),
         "trained_on": trained,
-        **{k: meta[k] for k in ("provenance", "selection", "licence") if k in meta},
+        **{k: meta[k] for k in ("provenance", "selection", "licence", "fused") if k in meta},
     }

@@ -35,6 +35,7 @@ from .._grid import ubo_target_vectors
 from .._measurements import Measurements
 from .._slices import slice_directions
 from ._covariance import FusedHyper, covariance, features
+from ._fused_settings import fused_settings
 from ._mapping import inverse_log_relative, log_relative
 from ._model import Prior, SampleBasis
 from ._reconstruct import _alpha, _rows, prior_at_samples
@@ -293,6 +294,14 @@ def reconstruct_fused(
     )
     table = to_linear(prior, mean)
     return (table, var) if return_variance else table
+
+
+def prior_fused(prior: Prior, dtype=None):
+    """``(FusedHyper, settings)`` of a :class:`~abrdf_jax.prior.Prior`: its metadata's
+    ``"fused"`` hyper-parameters, else the package's defaults
+    (:func:`~abrdf_jax.prior._fused_settings.fused_settings`)."""
+    s = fused_settings(prior.metadata)
+    return FusedHyper.from_settings(s, dtype or prior.dtype), s
 
 
 #: Public names of this module's functions (``abrdf_jax.prior.fused_*``).

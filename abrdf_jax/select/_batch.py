@@ -34,6 +34,7 @@ def select_models(
     alpha_deg=None,
     on_done=None,
     prior=None,
+    fused=True,
 ) -> list[Selection]:
     """:func:`select_model` (``candidates="auto"``) for many measurements, with the held-out
     errors of every group of one fold layout, α and candidate list computed in one compiled,
@@ -46,6 +47,7 @@ def select_models(
         on_done: called with the number of materials when a group is done (a progress bar).
         prior: a :class:`abrdf_jax.prior.Prior` joining the candidates, as in
             :func:`select_model` (its held-out errors batched the same way).
+        fused: the fused candidate, as in :func:`select_model`.
 
     Returns:
         One :class:`Selection` per measurement, in order (``seconds``: its share of the batch).
@@ -56,8 +58,11 @@ def select_models(
     plans = [
         _plan(m, "auto", budget, noise, level, min_effect, a, None) for m, a in zip(items, alphas)
     ]
+    from ._fused import fused_of
+
+    fh = fused_of(prior, fused)
     if prior is not None:
-        plans = [with_prior(p) for p in plans]
+        plans = [with_prior(p, fh is not None) for p in plans]
     groups: dict[tuple, list[int]] = {}
     for i, p in enumerate(plans):
         if len(p.configs) > 1:
@@ -78,7 +83,7 @@ def select_models(
                 for row, i in zip(errs, chunk):
                     errors.setdefault(i, {}).update({n: float(e) for n, e in zip(names, row)})
             if prior is not None:
-                _prior_errors(plans, chunk, alpha, k, prior, errors)
+                _prior_errors(plans, chunk, alpha, k, prior, errors, fh)
             if on_done is not None:
                 on_done(len(chunk))
     share = (time.perf_counter() - t0) / max(len(items), 1)
@@ -88,14 +93,20 @@ def select_models(
     return out
 
 
-def _prior_errors(plans, chunk, alpha, k, prior, errors) -> None:
-    """The prior's held-out errors of one chunk, in one padded batch (one compile per layout)."""
+def _prior_errors(plans, chunk, alpha, k, prior, errors, fh=None) -> None:
+    """The prior's (and with ``fh`` the fused model's) held-out errors of one chunk, in one
+    padded batch (one compile per layout)."""
+    from ._fused import fused_held_out_errors
     from ._prior import prior_fold_data, prior_held_out_errors_batch
 
     budget = plans[chunk[0]].configs["prior"].budget
     data = [prior_fold_data(plans[i].meas, np.deg2rad(alpha), k, budget) for i in chunk]
+    fused = None if fh is None else fused_held_out_errors(data, prior, fh[0], fh[1]["reference"])
     data += [data[-1]] * (BATCH - len(chunk))
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *data)
-    errs = np.asarray(prior_held_out_errors_batch(stacked, prior, prior.lam))
-    for e, i in zip(errs, chunk):
-        errors.setdefault(i, {})["prior"] = float(e)
+    errs = {"prior": np.asarray(prior_held_out_errors_batch(stacked, prior, prior.lam))}
+    if fused is not None:
+        errs["fused"] = np.asarray(fused)
+    for name, row in errs.items():
+        for e, i in zip(row, chunk):
+            errors.setdefault(i, {})[name] = float(e)

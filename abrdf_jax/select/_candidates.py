@@ -82,9 +82,23 @@ PRIOR_DESCRIPTION = (
 )
 
 
+#: The fused model (``reconstruct --model fused``): the prior plus a stationary kernel on its
+#: residual, at the prior's fixed hyper-parameters. It ranks above the prior alone (it adds a
+#: kernel to the prior's assumptions): chosen only where it beats the prior and every RBF model
+#: by more than the tolerance.
+FUSED = "fused"
+FUSED_RANK = PRIOR_RANK + 1
+FUSED_DESCRIPTION = (
+    "a learned prior plus a stationary kernel on its residual (regression kriging, fixed "
+    "hyper-parameters); the slices of the budget"
+)
+#: The models that read a prior: name -> (rank, description).
+LEARNED = {PRIOR: (PRIOR_RANK, PRIOR_DESCRIPTION), FUSED: (FUSED_RANK, FUSED_DESCRIPTION)}
+
+
 def description(name: str) -> str:
-    """What a model of the choice is (an RBF candidate or the prior)."""
-    return PRIOR_DESCRIPTION if name == PRIOR else CANDIDATES[name].description
+    """What a model of the choice is (an RBF candidate, the prior or the fused model)."""
+    return LEARNED[name][1] if name in LEARNED else CANDIDATES[name].description
 
 
 def candidate(name: str) -> Candidate:

@@ -276,6 +276,7 @@ def select_model(
     alpha_deg: float | None = None,
     dtype=None,
     prior=None,
+    fused=True,
 ) -> Selection:
     """Choose the simplest reconstruction model the measurements support.
 
@@ -296,14 +297,21 @@ def select_model(
             (rank above every RBF model; :func:`abrdf_jax.select._choice.with_prior`), scored
             on the same folds (:mod:`abrdf_jax.select._prior`). Chosen, the selection's name is
             ``"prior"`` and its ``config`` says the budget whose slices it reads.
+        fused: with a prior, the fused model (prior + kernel on the residual) joins too, rank
+            above the prior: ``True`` at the prior's own fixed hyper-parameters (its file's, else
+            the package's defaults), a :class:`abrdf_jax.prior.FusedHyper`, or ``False``
+            (not a candidate). Scored on the same folds (:mod:`abrdf_jax.select._fused`).
 
     Returns:
         A :class:`Selection`.
     """
     t0 = time.perf_counter()
     plan = _plan(samples, candidates, budget, noise, level, min_effect, alpha_deg, dtype)
+    from ._fused import fused_of
+
+    fh = fused_of(prior, fused)
     if prior is not None:
-        plan = with_prior(plan)
+        plan = with_prior(plan, fh is not None)
     errors = None
     if len(plan.configs) > 1:
         errors = held_out_errors(plan.meas, rbf_configs(plan.configs), alpha_deg=plan.alpha, k=k)
@@ -313,6 +321,10 @@ def select_model(
             b = plan.configs["prior"].budget
             a = np.deg2rad(plan.alpha)
             errors["prior"] = prior_held_out_error(plan.meas, prior, a, k, b)
+            if fh is not None:
+                from ._fused import fused_held_out_error
+
+                errors["fused"] = fused_held_out_error(plan.meas, prior, a, k, b, fh)
     return _finish(plan, errors, tol, k, time.perf_counter() - t0)
 
 
