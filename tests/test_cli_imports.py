@@ -112,7 +112,8 @@ def test_materials_listing_imports_no_jax(tmp_path):
 def test_subcommands_import_only_the_shared_module():
     """Arrows point into cli/_common only (which holds cli/_record, the model record,
     cli/_outputs, the output checks and overwrite policy, cli/_caches, --cache-dir,
-    cli/_learned, the prior-only model, and cli/_progress, the progress bars and lines): no
+    cli/_learned, the prior-only model, cli/_progress, the progress bars and lines, and
+    cli/_resume, what --resume keeps): no
     subcommand imports another, nor the package's __init__ (checked on the source: relative
     imports inside abrdf_jax/cli)."""
     import ast
@@ -134,11 +135,13 @@ def test_subcommands_import_only_the_shared_module():
                         "_args",
                         "_caches",
                         "_progress",
+                        "_resume",
                     },
                     "_args.py": set(),
                     "_outputs.py": set(),
                     "_caches.py": set(),
                     "_progress.py": set(),
+                    "_resume.py": set(),
                     "_record.py": set(),
                     "_learned.py": set(),
                 }.get(path.name, {"_common"})

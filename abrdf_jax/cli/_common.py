@@ -472,3 +472,4 @@ from ._learned import (  # noqa: E402, F401
 
 # The caches of a run (``--cache-dir``): their own module, used through this one
 from ._caches import CACHE_DIR_HELP, Caches, compilation_cache  # noqa: E402, F401
+from ._resume import kept_batches, resumable, settings_key  # noqa: E402, F401

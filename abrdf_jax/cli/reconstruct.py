@@ -266,32 +266,6 @@ def _targets(files: list[Path], out: Path, folder_mode: bool, fmt: str | None) -
     return [out / (f.stem + ext) for f in files]
 
 
-def _resumable(files: list[Path], targets: list[Path], out: Path):
-    """``--resume``: the inputs whose table is already complete and valid in ``out`` and named
-    in its model record are kept (their record entries with them); the others are redone."""
-    import json
-
-    from .. import io
-
-    record = out.parent / (out.name + ".model.json")
-    try:
-        entries = {e["input"]: e for e in json.loads(record.read_text())["inputs"]}
-    except (OSError, ValueError, KeyError, TypeError):
-        entries = {}  # no record (or a torn one): nothing is known to be finished
-    todo, kept = [], []
-    for f, t in zip(files, targets):
-        entry = entries.get(str(f))
-        if entry is not None and t.exists():
-            try:
-                io.read_table(t)  # complete and finite, or redone
-                kept.append({"record": entry})
-                continue
-            except InputError:
-                pass
-        todo.append((f, t))
-    return [f for f, _ in todo], [t for _, t in todo], kept
-
-
 def run(args) -> int:
     files, folder_mode = common.expand_inputs(args.inputs)
     out = Path(args.output)
@@ -330,7 +304,7 @@ def _run(args, files, targets, out, folder_mode, prior) -> int:
         if not folder_mode:
             raise InputError("--resume needs an output folder (several inputs or a folder)")
         if same:
-            files, targets, args.resumed = _resumable(files, targets, out)
+            files, targets, args.resumed = common.resumable(files, targets, out)
         if not files:
             print(f"{out}: all {len(args.resumed)} tables are complete (--resume); nothing to do")
             return 0
@@ -380,33 +354,6 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, cache
     return 0
 
 
-def _settings_key(record: dict) -> str:
-    """What, besides the slice layout, one operator depends on: a record entry's configuration,
-    parameters and slice offset."""
-    import json
-
-    return json.dumps([record.get("config"), record.get("params")], sort_keys=True)
-
-
-def _kept(kept: list[dict], place: dict[str, int]) -> dict[str, list]:
-    """``{settings: [Done, ...]}`` of the tables a ``--resume`` run keeps (their record's
-    ``batch`` entry and place in the job): :func:`abrdf_jax._engine.reconstruct_many` gives each
-    table it makes the path, batch row and padding it gets in one uninterrupted run, hence the
-    same bits. (Entries of records written before ``batch`` count nothing.)"""
-    from .._engine import Done
-
-    out: dict[str, list] = {}
-    for choice in kept:
-        rec = choice["record"]
-        b = rec.get("batch")
-        if isinstance(b, dict) and rec.get("input") in place:
-            done = Done(
-                b.get("layout"), b.get("group"), place[rec["input"]], int(b.get("width", 0))
-            )
-            out.setdefault(_settings_key(rec), []).append(done)
-    return out
-
-
 def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced) -> int:
     """Every input through :func:`abrdf_jax._engine.reconstruct_many` (operator groups and
     padded pipeline batches), block by block (:func:`common.input_blocks`), each batch's tables
@@ -421,7 +368,7 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced) -
 
     out.mkdir(exist_ok=True)
     place = {str(f): k for k, f in enumerate(args.all_files)}  # each input's place in the job
-    kept = _kept(args.resumed, place)
+    kept = common.kept_batches(args.resumed, place)
     failed: list[str] = []
     done = [common.compact(c) for c in args.resumed]  # records of the outputs --resume kept
     paths, models, budgets = {"operator": 0, "pipeline": 0}, [], set()
@@ -461,13 +408,15 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced) -
                 job = dict(
                     done=[
                         d
-                        for d in kept.get(_settings_key(choices[members[0]]["record"]), ())
+                        for d in kept.get(common.settings_key(choices[members[0]]["record"]), ())
                         if d.order // common.BLOCK == block
                     ]
                 )
                 job["order"] = [place[str(items[k].path)] for k in members]
                 for k, keys in zip(members, job_keys(meas, config, **job)):
-                    choices[k]["record"]["batch"] = keys  # what a --resume run reads (_kept)
+                    choices[k]["record"]["batch"] = (
+                        keys  # what a --resume run reads (common.kept_batches)
+                    )
                 for idx, tables, path in reconstruct_many(
                     meas,
                     config,
