@@ -119,8 +119,9 @@ def group_id(group: tuple) -> str:
 
 def _plan(meas, config, min_group, done, order, only) -> dict[str, dict]:
     """The groups of the whole job (``meas`` and the measurements ``done`` before): ``{group_id:
-    {"kind", "members" (indices into meas), "slots" (their places among the job's group),
-    "width" (the group's longest slices)}}``. A layout is an operator group when the job holds
+    {"kind", "members" (indices into meas), "layouts" (their layout keys, ``None`` where no
+    operator applies), "slots" (their places among the job's group), "width" (the group's
+    longest slices)}}``. A layout is an operator group when the job holds
     at least ``min_group`` measurements of it, whichever of them are left to do."""
     done = list(done or ())
     order = list(range(len(meas))) if order is None else list(order)
@@ -131,8 +132,11 @@ def _plan(meas, config, min_group, done, order, only) -> dict[str, dict]:
     for k, (m, key) in enumerate(zip(meas, keys)):
         fast = key is not None and (only or sizes[key] >= min_group)
         group = ("operator", key) if fast else ("pipeline", m.pairs, m.centre_azimuths)
-        g = plan.setdefault(group_id(group), {"kind": group[0], "members": [], "width": 0})
+        g = plan.setdefault(
+            group_id(group), {"kind": group[0], "members": [], "layouts": [], "width": 0}
+        )
         g["members"].append(k)
+        g["layouts"].append(key)
         g["width"] = max(g["width"], int(np.shape(m.t)[-1]))
     for gid, g in plan.items():
         before = [d for d in done if d.group == gid]
@@ -156,10 +160,8 @@ def job_keys(
     only = getattr(config, "operator_only", False)
     out: list[dict] = [{} for _ in meas]
     for gid, g in _plan(meas, config, min_group, done, order, only).items():
-        for k in g["members"]:
-            m = meas[k]
-            key = layout_key(m) if only or operator_applies(config, m) else None
-            out[k] = {"layout": key, "group": gid, "width": int(np.shape(m.t)[-1])}
+        for k, key in zip(g["members"], g["layouts"]):
+            out[k] = {"layout": key, "group": gid, "width": int(np.shape(meas[k].t)[-1])}
     return out
 
 

@@ -53,11 +53,7 @@ class FusedEntry(MappedEntry):
         """Tables ``(B, 81, 81, 3)`` from the valid samples only, ``(B, n_in, 3)``."""
         rows, b = sample_rows(x, self.width)
         c = np.empty((rows.shape[0], rows.shape[1] + 1), np.float32)
-        z = c[:, :-1]
-        np.maximum(rows, np.float32(0.0), out=z)
-        z *= self.cos_in
-        z += np.float32(self.eps)
-        np.log(z, out=z)
+        self.log_samples(rows, out=c[:, :-1])
         c[:, -1] = 1.0
         return grid_tables(c @ self.matrix, self.floor, b, self.width)
 

@@ -19,7 +19,7 @@ import functools
 import numpy as np
 
 from ._fused_entry import FusedEntry
-from ._prior_operator import LearnedModel
+from ._prior_operator import LearnedModel, entry_layout, f32, float64_template
 
 #: Version of the fused entry key; bump it when the entry changes meaning.
 ENTRY_FORMAT = 1
@@ -75,16 +75,12 @@ def build_fused_entry(prior, meas, alpha, settings: dict, counts) -> FusedEntry:
     import jax.numpy as jnp
 
     from ._cache import x64_scope
-    from ._engine import as_jax
     from .prior._covariance import FusedHyper
 
-    t = np.asarray(meas.t)
-    index = np.flatnonzero(np.arange(t.shape[1])[None, :] < np.asarray(counts)[:, None])
     with x64_scope(True):
         f64 = jnp.float64
         p = prior.astype(f64)
-        m = as_jax(meas, None)[0]
-        m = m.replace(t=jnp.asarray(t, f64), count=jnp.asarray(counts, m.count.dtype))
+        index, m = float64_template(meas, counts)
         out = _jitted_gain()(p, FusedHyper.from_settings(settings, f64), m, jnp.asarray(alpha, f64), settings["reference"],
                    jnp.asarray(index))  # fmt: skip
         mt, ref_s, cos_s, mean_s = (np.asarray(v, np.float64) for v in out)
@@ -93,17 +89,7 @@ def build_fused_entry(prior, meas, alpha, settings: dict, counts) -> FusedEntry:
     eps = float(prior.eps)
     offset = mean_g + np.log((ref_g * cos_g + eps) / cos_g)
     offset = offset - (np.log(ref_s * cos_s + eps) + mean_s) @ mt
-
-    def f32(v):
-        return np.ascontiguousarray(v, np.float32)
-
     return FusedEntry(
         matrix=f32(np.concatenate([mt, offset[None, :]], 0)),
-        cos_in=f32(cos_s),
-        floor=f32(eps / cos_g),
-        index=index.astype(np.int64),
-        t=f32(t),
-        count=np.asarray(meas.count, np.int32),
-        eps=eps,
-        width=3 if prior.channels == "joint" else 1,
+        **entry_layout(index, meas, cos_s, cos_g, eps, 3 if prior.channels == "joint" else 1),
     )

@@ -19,6 +19,14 @@ from ._spikes import cap_samples
 
 #: The pipeline's ε offset, ``sqrt(tiny)`` of float32 (``_values.value_eps``).
 _EPS_FLOOR = np.finfo(np.float32).tiny ** 0.5
+
+
+def sample_eps(x, log_eps: float, axis) -> np.ndarray:
+    """ε of the log value spaces on the host (``abrdf_jax._values.value_eps`` in numpy, at
+    float32's floor): ``log_eps`` times the mean absolute value of ``x`` along ``axis``."""
+    return x.dtype.type(log_eps) * np.mean(np.abs(x), axis=axis) + _EPS_FLOOR
+
+
 GRID = (81, 81)
 
 
@@ -86,7 +94,7 @@ class OperatorEntry:
         q = self.matrix.shape[0]
         eps = xc = None
         if self.log_samples:
-            eps = np.float32(self.log_eps) * np.mean(np.abs(x), axis=1) + _EPS_FLOOR  # (B, C)
+            eps = sample_eps(x, self.log_eps, axis=1)  # (B, C)
             x = np.log(np.maximum(x, np.float32(0.0)) + eps[:, None, :])
             x = smooth_compact(self.slice_smoothing, x, self.index, self.t, self.count, np)
             x = x.astype(np.float32)

@@ -84,6 +84,14 @@ class MappedEntry:
     def from_stored(cls, arrays: dict[str, np.ndarray], meta: dict):
         return cls(**arrays, eps=meta["eps"], width=meta["width"])
 
+    def log_samples(self, rows, out=None) -> np.ndarray:
+        """``ln(max(y, 0) cos θv + ε)`` of sample rows ``(R, n_in·w)`` (the map's log), into
+        ``out`` if given."""
+        out = np.maximum(rows, np.float32(0.0), out=out)
+        out *= self.cos_in
+        out += np.float32(self.eps)
+        return np.log(out, out=out)
+
     @staticmethod
     def check_floats(arrays: dict[str, np.ndarray], meta: dict, floats) -> str | None:
         """The map's scalars and the float32 arrays ``floats`` (``None``: fine)."""
@@ -136,7 +144,7 @@ class PriorEntry(MappedEntry):
     def apply_compact(self, x) -> np.ndarray:
         """The same from the valid samples only, ``(B, n_in, 3)`` → ``(B, 81, 81, 3)``."""
         rows, b = sample_rows(x, self.width)
-        z = np.log(np.maximum(rows, np.float32(0.0)) * self.cos_in + np.float32(self.eps))
+        z = self.log_samples(rows)
         c = np.empty((rows.shape[0], self.shift.shape[0] + 1), np.float32)
         np.matmul(z, self.right.T, out=c[:, :-1])
         c[:, :-1] -= self.shift

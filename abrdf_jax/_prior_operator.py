@@ -239,37 +239,57 @@ def build_prior_entry(prior, meas, alpha, lam, counts) -> PriorEntry:
     import jax.numpy as jnp
 
     from ._cache import x64_scope
-    from ._engine import as_jax
     from .prior._reconstruct import prior_at_samples, ridge_operator
 
-    t = np.asarray(meas.t)
-    index = np.flatnonzero(np.arange(t.shape[1])[None, :] < np.asarray(counts)[:, None])
     with x64_scope(True):
         p = prior.astype(jnp.float64)
-        m = as_jax(meas, None)[0]
-        m = m.replace(t=jnp.asarray(t, jnp.float64), count=jnp.asarray(counts, m.count.dtype))
+        index, m = float64_template(meas, counts)
         basis = prior_at_samples(p, m, jnp.asarray(alpha, jnp.float64)).take(index)
         r = np.asarray(ridge_operator(basis, jnp.asarray(lam, jnp.float64)))
         ref_s, cos_s, mean_s = (np.asarray(a) for a in (basis.reference, basis.cos_v, basis.mean))
         ref_g, cos_g = (np.asarray(a, np.float64) for a in p.grid_layout())
         mean, comps = np.asarray(p.mean), np.asarray(p.components)
     eps = float(prior.eps)
-
-    def f32(a):
-        return np.ascontiguousarray(a, np.float32)
-
     return PriorEntry(
         right=f32(r),
         shift=f32(r @ (np.log(ref_s * cos_s + eps) + mean_s)),
         left=f32(comps),
         offset=f32(mean + np.log((ref_g * cos_g + eps) / cos_g)),
+        **entry_layout(index, meas, cos_s, cos_g, eps, int(basis.width)),
+    )
+
+
+def f32(a) -> np.ndarray:
+    """A built entry's array as stored: float32, contiguous."""
+    return np.ascontiguousarray(a, np.float32)
+
+
+def float64_template(meas, counts):
+    """``(index, m)`` for building a learned model's entry (inside ``x64_scope(True)``): the
+    flat index of the samples within ``counts`` per slice, and ``meas`` as JAX arrays with
+    float64 slice parameters and ``counts``."""
+    import jax.numpy as jnp
+
+    from ._engine import as_jax
+
+    t = np.asarray(meas.t)
+    index = np.flatnonzero(np.arange(t.shape[1])[None, :] < np.asarray(counts)[:, None])
+    m = as_jax(meas, None)[0]
+    m = m.replace(t=jnp.asarray(t, jnp.float64), count=jnp.asarray(counts, m.count.dtype))
+    return index, m
+
+
+def entry_layout(index, meas, cos_s, cos_g, eps: float, width: int) -> dict:
+    """The fields every learned model's entry shares: the map's ``cos θv`` at the samples and
+    floor on the grid, the template's layout, ε and the width."""
+    return dict(
         cos_in=f32(cos_s),
         floor=f32(eps / cos_g),
         index=index.astype(np.int64),
-        t=f32(t),
+        t=f32(np.asarray(meas.t)),
         count=np.asarray(meas.count, np.int32),
         eps=eps,
-        width=int(basis.width),
+        width=width,
     )
 
 

@@ -63,12 +63,12 @@ def _diagonal(e):
 check_registry("AFFINE_RULES", AFFINE)
 
 
-def combine(coefficients, a: Callable, b: Callable, c: Callable):
-    """``ca · a() + cb · b() + cc · c() + const``, reading only the terms whose coefficient is
-    not the number ``0`` (``a``, ``b``, ``c``: functions that give the terms)."""
+def combine(coefficients, a: Callable, b: Callable, c: Callable, one: Callable | None = None):
+    """``ca · a() + cb · b() + cc · c() + const · one()``, reading only the terms whose
+    coefficient is not the number ``0`` (``a``, ``b``, ``c``, ``one``: functions that give the
+    terms; without ``one`` the constant is added as it is)."""
     out = 0
-    for coef, term in zip(coefficients[:3], (a, b, c)):
+    for coef, term in zip(coefficients, (a, b, c, one)):
         if not (isinstance(coef, (int, float)) and coef == 0):
-            out = out + coef * term()
-    const = coefficients[3]
-    return out if isinstance(const, (int, float)) and const == 0 else out + const
+            out = out + (coef if term is None else coef * term())
+    return out

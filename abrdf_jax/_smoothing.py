@@ -211,8 +211,9 @@ def smoothing_report(setting, y, t, count, log_eps: float) -> dict | None:
         return None
     y, t, count = np.asarray(y, np.float64), np.asarray(t, np.float64), np.asarray(count)
     mask = np.arange(t.shape[-1])[None, :] < count[:, None]
-    mean = np.abs(y[mask]).mean(axis=0) if mask.any() else np.zeros(y.shape[-1])
-    eps = log_eps * mean + np.finfo(np.float32).tiny ** 0.5
+    from ._operator_entry import sample_eps  # (it imports this module)
+
+    eps = sample_eps(y[mask] if mask.any() else np.zeros((1, y.shape[-1])), log_eps, axis=0)
     z = np.where(mask[..., None], np.log(np.maximum(y, 0.0) + eps), 0.0)
     nb = neighbours(t, count, np)
     beta, sigma = weights(setting, z.reshape(-1, z.shape[-1]), count, nb, np)

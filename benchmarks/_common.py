@@ -60,6 +60,11 @@ def mean_metrics(per: dict) -> dict:
     return {k: float(np.mean(v)) for k, v in per.items()}
 
 
+def metric_cells(r: dict) -> str:
+    """ΔE76, LogErr, ΔE2000 and PSNR of a metrics dict as Markdown table cells."""
+    return f"{r['de76']:.2f} | {r['logerr']:.3f} | {r['de2000']:.2f} | {r['psnr']:.1f}"
+
+
 def mean_fill(meas: aj.Measurements) -> jnp.ndarray:
     """The trivial reconstruction of stacked measurements: every value is the mean of the samples (per channel)."""
     mean = (

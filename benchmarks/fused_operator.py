@@ -29,7 +29,15 @@ import abrdf_jax as aj
 from abrdf_jax import prior as P
 from abrdf_jax import select
 
-from ._common import RESULTS, machine, merl_split, metrics_of, sample_batch, write_json
+from ._common import (
+    RESULTS,
+    machine,
+    merl_split,
+    metric_cells,
+    metrics_of,
+    sample_batch,
+    write_json,
+)
 
 QUICK_MATERIALS = ("ggx-aniso-metal", "rough-fabric", "ggx-plastic")
 
@@ -131,10 +139,7 @@ def _markdown(out) -> str:
     ]
     for budget, rows in out["merl_test"].items():
         for name, r in rows.items():
-            lines.append(
-                f"| {budget} | {name} | {r['de76']:.2f} | {r['logerr']:.3f} | "
-                f"{r['de2000']:.2f} | {r['psnr']:.1f} |"
-            )
+            lines.append(f"| {budget} | {name} | {metric_cells(r)} |")
     lines += [
         "",
         "## The automatic choice, built-in analytic materials (aniso204, exact samples)",

@@ -38,6 +38,7 @@ from ._common import (
     RESULTS,
     machine,
     mean_metrics,
+    metric_cells,
     merl_split,
     metrics_of,
     sample_batch,
@@ -184,10 +185,7 @@ def _table(out, stem) -> str:
     ]
     for ds, rows in out["results"].items():
         for name, r in rows.items():
-            lines.append(
-                f"| {ds} | {name} | {r['de76']:.2f} | {r['logerr']:.3f} | {r['de2000']:.2f} | "
-                f"{r['psnr']:.1f} |"
-            )
+            lines.append(f"| {ds} | {name} | {metric_cells(r)} |")
     return "\n".join(lines) + "\n"
 
 

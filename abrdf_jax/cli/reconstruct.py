@@ -318,7 +318,7 @@ def _run(args, files, targets, out, folder_mode, prior) -> int:
     )
     caches[0].prior = prior
     if folder_mode:
-        return _reconstruct_folder(blocks, len(files), out, args, caches[0], forced)
+        return _reconstruct_folder(blocks, len(files), out, args, caches[0], forced, place)
     ((items, _),) = blocks
     with common.stage(items[0], "choosing the model", args.quiet):
         choices = choose_all(items, args, forced, caches[0])
@@ -354,12 +354,13 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, cache
     return 0
 
 
-def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced) -> int:
+def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, place) -> int:
     """Every input through :func:`abrdf_jax._engine.reconstruct_many` (operator groups and
     padded pipeline batches), block by block (:func:`common.input_blocks`), each batch's tables
     written by a small thread pool while the next batch computes, the folder's model record
     rewritten (atomically) after every batch: an interrupted run keeps every table it
-    finished, and the record lists only those. Memory: one block and ~2 KiB a finished file."""
+    finished, and the record lists only those. Memory: one block and ~2 KiB a finished file.
+    ``place``: each input's place in the whole job (``--resume`` keeps the batches' rows)."""
     from concurrent.futures import ThreadPoolExecutor
 
     from .. import io
@@ -367,7 +368,6 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced) -
     from .._engine import job_keys, reconstruct_many
 
     out.mkdir(exist_ok=True)
-    place = {str(f): k for k, f in enumerate(args.all_files)}  # each input's place in the job
     kept = common.kept_batches(args.resumed, place)
     failed: list[str] = []
     done = [common.compact(c) for c in args.resumed]  # records of the outputs --resume kept

@@ -16,7 +16,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._folds import log_rms
 from .._measurements import Measurements
 from ..prior._covariance import FusedHyper, covariance
 from ..prior._fused import (
@@ -28,7 +27,7 @@ from ..prior._fused import (
     sample_features,
 )
 from ..prior._mapping import inverse_log_relative
-from ._prior import prior_fold_data
+from ._prior import fold_error, prior_fold_data
 
 
 def fused_predict(prior, hyper: FusedHyper, train: Measurements, test: Measurements, alpha, ref):
@@ -55,10 +54,7 @@ def _held_out(data: dict, prior, hyper, ref):
     pred = jax.lax.map(
         lambda tt: fused_predict(prior, hyper, tt[0], tt[1], alpha, ref), (train, test)
     )
-    k = pred.shape[0]
-    y = test.y.reshape(k, -1, 3)
-    mask = test.mask.reshape(k, -1, 1)
-    return log_rms(pred, y, data["res_eps"], mask)
+    return fold_error(pred, data)
 
 
 _held_out_jit = eqx.filter_jit(_held_out)

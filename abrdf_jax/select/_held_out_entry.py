@@ -26,16 +26,16 @@ from .._config import Config, default_values
 from .._errors import InputError
 from .._names import LOG_SUBSPACE
 from .._folds import fold_slots, log_residual
-from .._operator_entry import _EPS_FLOOR, check_layout
+from .._operator_entry import check_layout, sample_eps
+from .._engine import OPERATOR_MIN_GROUP
 from .._rules import AFFINE, combine
 from .._smoothing import smooth_compact, smoothing_from_json, smoothing_to_json
 from .._spikes import cap_samples
 from ._choice import finish, group_configs, plan
 
 #: Inputs of one layout (α, candidates) that make a held-out entry worth building in a call of
-#: several (as ``abrdf_jax._engine.OPERATOR_MIN_GROUP`` for reconstruction operators); a single
-#: file passes 1.
-MIN_GROUP = 32
+#: several: the reconstruction operators' threshold; a single file passes 1.
+MIN_GROUP = OPERATOR_MIN_GROUP
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -80,7 +80,7 @@ class HeldOutEntry:
         b, c = y.shape[0], y.shape[-1]
         flat = y.reshape(b, s * nmax, c)
         valid = (np.arange(nmax)[None, :] < self.count[:, None]).reshape(-1)
-        res_eps = np.float32(self.res_log_eps) * np.mean(np.abs(flat[:, valid]), 1) + _EPS_FLOOR
+        res_eps = sample_eps(flat[:, valid], self.res_log_eps, axis=1)
         total = np.zeros((b, len(self.names)))
         n = 0
         for j in range(self.terms.shape[0]):
@@ -89,7 +89,7 @@ class HeldOutEntry:
             x = flat[:, self.train[j].reshape(-1)[cols]]  # (B, n_train, C)
             eps = None
             if self.log_samples:
-                eps = np.float32(self.log_eps) * np.mean(np.abs(x), 1) + _EPS_FLOOR  # (B, C)
+                eps = sample_eps(x, self.log_eps, axis=1)  # (B, C)
                 x = np.log(np.maximum(x, np.float32(0.0)) + eps[:, None, :])
                 if self.slice_smoothing is not None:  # on fold j's own slices
                     fold_t = np.where(self.train[j] >= 0, self.t.reshape(-1)[self.train[j]], 0)
@@ -117,13 +117,13 @@ class HeldOutEntry:
         """Each pair's part of the held-out prediction under ``rule`` ``(B, P, q, C)``; a pair
         without an axial slice takes its diagonal slice (as ``abrdf_jax._subspace.subspace``)."""
         has_axial = (self.count[0::2] > 0)[None, :, None, None]
-        coef = AFFINE[rule](ext)
         out = combine(
-            (*coef[:3], 0), lambda: terms[:, :, 0], lambda: terms[:, :, 1], lambda: terms[:, :, 2]
+            AFFINE[rule](ext),
+            lambda: terms[:, :, 0],
+            lambda: terms[:, :, 1],
+            lambda: terms[:, :, 2],
+            one=lambda: ones,  # the RBF's fit of a constant at the pair's centres
         )
-        const = coef[3]
-        if not (isinstance(const, (int, float)) and const == 0):
-            out = out + const * ones
         return np.where(has_axial, out, terms[:, :, 1])
 
     def arrays(self) -> dict[str, np.ndarray]:

@@ -62,6 +62,13 @@ def _held_out(data: dict, prior, lam):
     train, test = data["train"], data["test"]
     alpha = data["alpha"]
     pred = jax.vmap(lambda a, b: _predict(prior, a, b, lam, alpha))(train, test)
+    return fold_error(pred, data)
+
+
+def fold_error(pred, data: dict):
+    """The held-out RMS log error of predictions ``(k, P_test, 3)`` at the held-out samples of
+    :func:`prior_fold_data`'s folds (the RBF candidates' residual and ε)."""
+    test = data["test"]
     k = pred.shape[0]
     y = test.y.reshape(k, -1, 3)
     mask = test.mask.reshape(k, -1, 1)
