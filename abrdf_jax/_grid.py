@@ -68,10 +68,12 @@ def pair_grid(theta_deg: np.ndarray | None = None, phi_deg: np.ndarray | None = 
     return ti, pi, tv, pv
 
 
-def to_vector(theta: Float[Array, "..."], phi: Float[Array, "..."]) -> Float[Array, "... 3"]:
-    """Spherical angles (radians) to unit vectors."""
-    st = jnp.sin(theta)
-    return jnp.stack([st * jnp.cos(phi), st * jnp.sin(phi), jnp.cos(theta)], axis=-1)
+def to_vector(
+    theta: Float[Array, "..."], phi: Float[Array, "..."], xp=jnp
+) -> Float[Array, "... 3"]:
+    """Spherical angles (radians) to unit vectors (``xp=numpy``: on the host, no JAX dispatch)."""
+    st = xp.sin(theta)
+    return xp.stack([st * xp.cos(phi), st * xp.sin(phi), xp.cos(theta)], axis=-1)
 
 
 def from_vector(w: Float[Array, "... 3"]) -> tuple[Float[Array, "..."], Float[Array, "..."]]:
@@ -178,8 +180,8 @@ def centre_vectors(pairs, dtype, azimuths: int | None = None):
 
 def ubo_target_vectors(dtype):
     ti, pi_, tv, pv = pair_grid()
-    wi = to_vector(np.deg2rad(ti), np.deg2rad(pi_))
-    wv = to_vector(np.deg2rad(tv), np.deg2rad(pv))
+    wi = to_vector(np.deg2rad(ti), np.deg2rad(pi_), np)  # once a build: on the host
+    wv = to_vector(np.deg2rad(tv), np.deg2rad(pv), np)
     return jnp.asarray(wi, dtype), jnp.asarray(wv, dtype)
 
 

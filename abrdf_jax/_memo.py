@@ -32,6 +32,9 @@ class BoundedMemo(Generic[V]):
             del self._entries[next(iter(self._entries))]
         return value
 
+    def __contains__(self, key: Hashable) -> bool:
+        return key in self._entries
+
     def __len__(self) -> int:
         return len(self._entries)
 

@@ -39,6 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from ._build_jit import build_jit
 from ._errors import InputError
 from ._finite import check_concrete
 from ._grid import _centre_target_index, centre_layout, keep_centres, ubo_target_vectors
@@ -314,7 +315,7 @@ def _apply_into(arrays, static, x, full: bool, out):
     return _apply_impl(eqx.combine(arrays, static), x, full, out)
 
 
-@eqx.filter_jit
+@build_jit
 def _build(
     t,
     count,

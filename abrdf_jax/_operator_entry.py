@@ -14,18 +14,9 @@ import hashlib
 import numpy as np
 
 from ._errors import InputError
+from ._host_eps import sample_eps
 from ._smoothing import smooth_compact, smoothing_from_json, smoothing_to_json
 from ._spikes import cap_samples
-
-#: The pipeline's ε offset, ``sqrt(tiny)`` of float32 (``_values.value_eps``).
-_EPS_FLOOR = np.finfo(np.float32).tiny ** 0.5
-
-
-def sample_eps(x, log_eps: float, axis) -> np.ndarray:
-    """ε of the log value spaces on the host (``abrdf_jax._values.value_eps`` in numpy, at
-    float32's floor): ``log_eps`` times the mean absolute value of ``x`` along ``axis``."""
-    return x.dtype.type(log_eps) * np.mean(np.abs(x), axis=axis) + _EPS_FLOOR
-
 
 GRID = (81, 81)
 

@@ -42,6 +42,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._host_eps import sample_eps
+from ._memo import BoundedMemo
+
 #: The spacing ``Δ_0`` (radians) at which the rule's ``floor`` and ``scale`` are given: the
 #: protocol's diagonal slices (26 samples).
 SPACING_0 = 2.0 * np.pi / 26
@@ -64,6 +67,20 @@ def neighbours(t, count, xp=None):
     """
     if xp is None:
         import jax.numpy as xp
+    if xp is np:  # on the host: one build per layout (a folder's files share their angles)
+        t, count = np.ascontiguousarray(t), np.ascontiguousarray(count)
+        key = (t.shape, t.dtype.str, t.tobytes(), count.dtype.str, count.tobytes())
+        return _HOST_NEIGHBOURS.get(key, lambda: _frozen(_neighbours(t, count, np)))
+    return _neighbours(t, count, xp)
+
+
+def _frozen(arrays):
+    for a in arrays:
+        a.flags.writeable = False  # shared by every caller of the memo
+    return arrays
+
+
+def _neighbours(t, count, xp):
     s, nmax = t.shape
     n = xp.asarray(count)[:, None]
     k = xp.arange(nmax, dtype=n.dtype)[None, :]  # one integer type and rank (strict promotion)
@@ -80,7 +97,10 @@ def neighbours(t, count, xp=None):
     base = slices * nmax
     slice_of = xp.broadcast_to(slices, (s, nmax))
     parts = (left + base, right + base, 1.0 - wr, wr, valid, slice_of)
-    return tuple(a.reshape(-1) for a in parts)
+    return tuple(xp.array(a.reshape(-1)) if xp is np else a.reshape(-1) for a in parts)
+
+
+_HOST_NEIGHBOURS = BoundedMemo(256)
 
 
 def compact(nb, index, xp=None):
@@ -124,11 +144,10 @@ def noise_level(z, nb, xp=None):
     r = xp.where(_column(valid, z), xp.abs(r), np.nan)
     flat = r.reshape(*r.shape[:-2], -1)
     if xp is np:  # numpy's nanmedian goes through masked arrays: ~1 ms a material on the host
-        rows = flat.reshape(-1, flat.shape[-1])
-        med = [
-            np.median(row[~np.isnan(row)]) if not np.isnan(row).all() else np.nan for row in rows
-        ]
-        return _MAD_TO_SIGMA * np.asarray(med, flat.dtype).reshape(flat.shape[:-1])
+        cols = np.flatnonzero(~np.isnan(flat.reshape(-1, flat.shape[-1])).any(axis=0))
+        if not cols.size:
+            return np.full(flat.shape[:-1], np.nan, flat.dtype)
+        return _MAD_TO_SIGMA * np.median(flat[..., cols], axis=-1)
     return _MAD_TO_SIGMA * xp.nanmedian(flat, axis=-1)
 
 
@@ -207,23 +226,30 @@ def smoothing_report(setting, y, t, count, log_eps: float) -> dict | None:
     ``setting``, ``noise_log`` (``σ̂`` in the reconstruction's log values, or ``None`` for a fixed
     ``β``) and ``beta``: one weight per slice (0 for a slice of fewer than 3 samples). ``None``
     when ``setting`` is ``None``."""
+    return smoothing_reports(setting, np.asarray(y)[None], t, count, log_eps)[0]
+
+
+def smoothing_reports(setting, y, t, count, log_eps: float) -> list:
+    """:func:`smoothing_report` of each of the measurements ``y`` ``(B, S, nmax, C)`` of one
+    layout (``t``, ``count``) in one vectorised pass (a folder's files: the same numbers)."""
     if setting is None:
-        return None
+        return [None] * len(y)
     y, t, count = np.asarray(y, np.float64), np.asarray(t, np.float64), np.asarray(count)
     mask = np.arange(t.shape[-1])[None, :] < count[:, None]
-    from ._operator_entry import sample_eps  # (it imports this module)
-
-    eps = sample_eps(y[mask] if mask.any() else np.zeros((1, y.shape[-1])), log_eps, axis=0)
-    z = np.where(mask[..., None], np.log(np.maximum(y, 0.0) + eps), 0.0)
+    x = y[:, mask] if mask.any() else np.zeros((len(y), 1, y.shape[-1]))
+    eps = sample_eps(x, log_eps, axis=1)  # (B, C)
+    z = np.where(mask[..., None], np.log(np.maximum(y, 0.0) + eps[:, None, None, :]), 0.0)
     nb = neighbours(t, count, np)
-    beta, sigma = weights(setting, z.reshape(-1, z.shape[-1]), count, nb, np)
+    beta, sigma = weights(setting, z.reshape(len(y), -1, z.shape[-1]), count, nb, np)
     beta = np.where(count >= 3, beta, 0.0)
-    sigma = float(sigma)
-    return {
-        "setting": smoothing_to_json(setting),
-        "noise_log": round(sigma, 6) if np.isfinite(sigma) else None,
-        "beta": [round(float(b), 4) for b in beta],
-    }
+    return [
+        {
+            "setting": smoothing_to_json(setting),
+            "noise_log": round(float(s), 6) if np.isfinite(s) else None,
+            "beta": [round(float(v), 4) for v in b],
+        }
+        for b, s in zip(beta, np.reshape(sigma, -1))
+    ]
 
 
 def slice_smoothing(meas, config) -> dict | None:
@@ -240,8 +266,29 @@ def slice_smoothing(meas, config) -> dict | None:
         when the configuration does not smooth (setting ``None``, or a value space other than
         ``"logsamples"``).
     """
+    return slice_smoothings([meas], [config])[0]
+
+
+def slice_smoothings(measurements, configs) -> list:
+    """:func:`slice_smoothing` of every ``(measurement, config)`` pair; those that share a
+    layout and a setting in one vectorised pass (:func:`smoothing_reports`: the same numbers)."""
     from ._names import LOG_SAMPLES
 
-    if config.value_space not in LOG_SAMPLES:
-        return None
-    return smoothing_report(config.slice_smoothing, meas.y, meas.t, meas.count, config.log_eps)
+    out, groups = [None] * len(measurements), {}
+    for k, (m, c) in enumerate(zip(measurements, configs)):
+        if c.value_space in LOG_SAMPLES and c.slice_smoothing is not None:
+            t, n = np.asarray(m.t), np.asarray(m.count)
+            key = (
+                repr(c.slice_smoothing),
+                float(c.log_eps),
+                np.shape(m.y),
+                t.tobytes(),
+                n.tobytes(),
+            )
+            groups.setdefault(key, []).append(k)
+    for ks in groups.values():
+        m, c = measurements[ks[0]], configs[ks[0]]
+        y = np.stack([np.asarray(measurements[k].y) for k in ks])
+        for k, r in zip(ks, smoothing_reports(c.slice_smoothing, y, m.t, m.count, c.log_eps)):
+            out[k] = r
+    return out

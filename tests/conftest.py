@@ -4,9 +4,17 @@ import os
 import sys
 from pathlib import Path
 
-import jax
-import numpy as np
-import pytest
+# The tests check numbers, not speed: XLA compiles their programs at its lowest backend
+# optimisation level, without LLVM's expensive passes (the same operations; compiling is most
+# of the suite's time, a few run-heavy tests are slower: `pytest --durations`). Subprocesses
+# inherit it. A user's XLA_FLAGS wins.
+os.environ.setdefault(
+    "XLA_FLAGS", "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
+)
+
+import jax  # noqa: E402 - after XLA_FLAGS
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 # The caches of the command line (abrdf_jax._cache) go to a folder of this test session, never

@@ -97,7 +97,10 @@ def test_kernel_runs_this_python(tmp_path, monkeypatch, fallback):
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
-def test_notebook_runs(path: Path, tmp_path: Path):
+def test_notebook_runs(path: Path, tmp_path: Path, monkeypatch):
+    # The notebooks' coarse settings (fewer grid points and steps, the same code): the kernel
+    # inherits the environment.
+    monkeypatch.setenv("ABRDF_NOTEBOOK_QUICK", "1")
     nb = nbformat.read(path, as_version=4)  # in memory only: the committed file is never rewritten
     km = _kernel_manager(tmp_path)
     client = nbclient.NotebookClient(

@@ -263,29 +263,36 @@ def _warn_used(used: dict, where: Path) -> None:
         )
 
 
-def _noise(meas) -> float | None:
-    """The capture's value noise (log units, per slice knot: after bin means) from the slices'
-    neighbour residuals (:func:`abrdf_jax.select.estimate_noise` over all slices); an upper
-    bound where a sparse slice's own curvature dominates its residuals."""
-    from ..select._isotropy import estimate_noise
+def fill_noise(items: list["Measured"]) -> None:
+    """Set each input's ``noise_log``: the capture's value noise (log units, per slice knot:
+    after bin means) from the slices' neighbour residuals
+    (:func:`abrdf_jax.select.estimate_noise` over all slices; the files of one layout in one
+    pass); an upper bound where a sparse slice's own curvature dominates its residuals."""
+    from ..select._isotropy import estimate_noise_many
 
-    sigma = float(estimate_noise(meas, slices="all"))
-    return round(sigma, 6) if math.isfinite(sigma) else None
+    for item, sigma in zip(items, estimate_noise_many([it.meas for it in items], slices="all")):
+        item.used["noise_log"] = round(sigma, 6) if math.isfinite(sigma) else None
 
 
-def smoothing_record(item: "Measured", config) -> dict | None:
-    """The model record's ``smoothing`` entry of one input (``None``: no slice smoothing):
-    :func:`abrdf_jax._smoothing.slice_smoothing` (numpy, no JAX). The prior's models have no
-    slice smoothing (they read the samples as they are)."""
+def smoothing_records(items: list["Measured"], configs: list) -> list[dict | None]:
+    """The model record's ``smoothing`` entry of every input (``None``: no slice smoothing):
+    :func:`abrdf_jax._smoothing.slice_smoothings` (numpy, no JAX; one pass per layout). The
+    prior's models have no slice smoothing (they read the samples as they are)."""
     from .._config import Config
-    from .._smoothing import slice_smoothing
+    from .._smoothing import slice_smoothings
 
-    return slice_smoothing(item.meas, config) if isinstance(config, Config) else None
+    ks = [k for k, c in enumerate(configs) if isinstance(c, Config)]
+    out = [None] * len(items)
+    found = slice_smoothings([items[k].meas for k in ks], [configs[k] for k in ks])
+    for k, r in zip(ks, found):
+        out[k] = r
+    return out
 
 
-def plan(samples, forced, alpha, where: Path, warn: bool = True) -> Measured:
+def plan(samples, forced, alpha, where: Path, warn: bool = True, noise: bool = True) -> Measured:
     """Group one measurement into slices (once, numpy: no JAX) and decide its budget and slice
-    offset α; ``warn``: say what of it is left out."""
+    offset α; ``warn``: say what of it is left out; ``noise=False``: leave ``noise_log`` to a
+    :func:`fill_noise` of many inputs at once."""
     from .._grouping import group_arrays
 
     try:
@@ -296,11 +303,14 @@ def plan(samples, forced, alpha, where: Path, warn: bool = True) -> Measured:
     if forced == "aniso204" and not meas.has_axial:
         raise InputError(f"{where}: --anisotropic needs axial slices, but the file has none")
     used = _used(meas, report, len(samples), weak)
-    used["noise_log"] = _noise(meas)
+    used["noise_log"] = None
     if warn:
         _warn_used(used, where)
     budget = forced or ("aniso204" if meas.has_axial else "iso102")
-    return Measured(where, samples, meas, budget, report["alpha_deg"], used)
+    item = Measured(where, samples, meas, budget, report["alpha_deg"], used)
+    if noise:
+        fill_noise([item])
+    return item
 
 
 #: A folder run holds the inputs of at most this many files (~20 KiB each) at once: a larger
@@ -322,7 +332,7 @@ def read_inputs(files, forced, alpha, before=None, quiet=True, keep=True, warn=T
                     samples = io.read_sample_columns(f)
                 if keep:
                     read.append((f, samples))
-                elif plan(samples, forced, alpha, f, warn) and warn:  # checked, then dropped
+                elif plan(samples, forced, alpha, f, warn, noise=False) and warn:  # checked
                     warn_negative(f, samples)
             except InputError as e:
                 bad.append((f, str(e)))
@@ -331,13 +341,14 @@ def read_inputs(files, forced, alpha, before=None, quiet=True, keep=True, warn=T
         before()
     for f, samples in read if not bad else ():
         try:
-            items.append(plan(samples, forced, alpha, f, warn))
+            items.append(plan(samples, forced, alpha, f, warn, noise=False))
         except InputError as e:
             bad.append((f, str(e)))
     if bad:
         others = ", ".join(str(f) for f, _ in bad[1:4]) + (", ..." if len(bad) > 4 else "")
         more = f" (also bad: {others}; nothing was written)" if len(bad) > 1 else ""
         raise InputError(bad[0][1] + more)
+    fill_noise(items)
     for item in items if warn else ():
         warn_negative(item.path, item.samples)
     return items

@@ -160,7 +160,10 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
     choices either way (errors within float32 rounding)."""
     from ..select import LEVEL, MIN_EFFECT, TOL
     from ..select._held_out_entry import MIN_GROUP, entry_selections
+    from ..select._isotropy import estimate_noise_many
 
+    if args.noise is None:  # the isotropy tests' noise, the files of a layout at once (memoised)
+        estimate_noise_many([it.meas for it in items], slices="axial")
     tol = {} if args.tol is None else {"tol": args.tol}
     sels = [None] * len(items)  # with a prior every material compares candidates (JAX)
     if caches.prior is None:
@@ -234,9 +237,9 @@ def choose_all(
             for item in items:
                 out.append(choose(item, args, forced, caches))
                 bar.update(1)
-    for item, choice in zip(items, out):
+    found = common.smoothing_records(items, [c.get("config") for c in out])
+    for item, choice, smoothing in zip(items, out, found):
         choice["record"]["measurement"] = item.used  # what of the file was used, and why not
-        smoothing = common.smoothing_record(item, choice.get("config"))
         if smoothing is not None:
             choice["record"]["smoothing"] = smoothing
     return out

@@ -26,7 +26,8 @@ from .._config import Config, default_values
 from .._errors import InputError
 from .._names import LOG_SUBSPACE
 from .._folds import fold_slots, log_residual
-from .._operator_entry import check_layout, sample_eps
+from .._host_eps import sample_eps
+from .._operator_entry import check_layout
 from .._engine import OPERATOR_MIN_GROUP
 from .._rules import AFFINE, combine
 from .._smoothing import smooth_compact, smoothing_from_json, smoothing_to_json

@@ -177,6 +177,43 @@ def _estimate(meas, log_eps: float, slices: str, logl=None) -> float:
     by a digest of the measurement's bytes and the slices that enter it (the command line asks
     for all slices of every file of a folder first, then the isotropy test for the axial ones:
     the same rows when no axial slice is measured)."""
+    key, t, cnt, y, rows = _keyed(meas, log_eps, slices)
+
+    def build():
+        lg = logl
+        if lg is None:  # one material: on the host (numpy)
+            lg = _log_luminance(y[None], np.asarray(meas.mask)[None], log_eps, np)
+        return float(_noise(lg, t, cnt, rows, np)[0])
+
+    return _ESTIMATES.get(key, build)
+
+
+def estimate_noise_many(measurements, log_eps: float | None = None, slices: str = "axial"):
+    """:func:`estimate_noise` of every measurement (a list of floats): those that share a
+    layout in one vectorised pass on the host (the same numbers; memoised as one by one)."""
+    log_eps = LOG_EPS if log_eps is None else log_eps
+    if slices not in ("axial", "diagonal", "all"):
+        raise InputError(f"slices must be 'axial', 'diagonal' or 'all', got {slices!r}")
+    keyed = [_keyed(m, log_eps, slices) for m in measurements]
+    groups: dict = {}
+    for k, (key, t, cnt, y, rows) in enumerate(keyed):
+        if key not in _ESTIMATES:
+            groups.setdefault((t.tobytes(), cnt.tobytes(), y.shape, rows), []).append(k)
+    for ks in groups.values():
+        _, t, cnt, _, rows = keyed[ks[0]]
+        y = np.stack([keyed[k][3] for k in ks])
+        mask = np.asarray(measurements[ks[0]].mask)[None]
+        sigma = _noise(_log_luminance(y, mask, log_eps, np), t, cnt, rows, np)
+        for k, v in zip(ks, np.reshape(sigma, -1)):
+            _ESTIMATES.get(keyed[k][0], lambda v=v: float(v))
+    return [
+        _ESTIMATES.get(key, lambda m=m: _estimate(m, log_eps, slices))
+        for m, (key, *_) in zip(measurements, keyed)
+    ]
+
+
+def _keyed(meas, log_eps: float, slices: str):
+    """``(memo key, t, count, y, rows)`` of one measurement's noise estimate."""
     t, cnt, y = np.asarray(meas.t, np.float64), np.asarray(meas.count), np.asarray(meas.y)
     if slices == "axial" and not np.any(cnt[0::2] >= 3):
         slices = "diagonal"
@@ -190,15 +227,7 @@ def _estimate(meas, log_eps: float, slices: str, logl=None) -> float:
     for a in (t, cnt, y):
         digest.update(repr((a.shape, a.dtype.str)).encode())
         digest.update(np.ascontiguousarray(a).tobytes())
-    key = (digest.digest(), float(log_eps), rows)
-
-    def build():
-        lg = logl
-        if lg is None:  # one material: on the host (numpy)
-            lg = _log_luminance(y[None], np.asarray(meas.mask)[None], log_eps, np)
-        return float(_noise(lg, t, cnt, rows, np)[0])
-
-    return _ESTIMATES.get(key, build)
+    return (digest.digest(), float(log_eps), rows), t, cnt, y, rows
 
 
 _ESTIMATES = BoundedMemo(4096)  # a few hundred kB
@@ -246,14 +275,30 @@ def isotropy_test(
         raise InputError(f"samples must be Samples or Measurements, got {type(samples).__name__}")
     meas = samples
     cnt = np.asarray(meas.count)
+    measured = bool(np.any(cnt[0::2] >= 3))  # an axial slice to test
     # one material: on the host (numpy); the batched test below runs the same helpers in JAX
-    logl = _log_luminance(np.asarray(meas.y)[None], np.asarray(meas.mask)[None], log_eps, np)
+    logl = None
+    if measured:
+        logl = _log_luminance(np.asarray(meas.y)[None], np.asarray(meas.mask)[None], log_eps, np)
     floor = 1e-6  # log units: float32 rounding of constant slices stays below it
     if noise is None:
         sigma, source = _estimate(meas, log_eps, "axial", logl), "estimated"
     else:
         sigma, source = float(noise), "given"
     sigma = max(sigma, floor) if math.isfinite(sigma) else floor
+    common = dict(noise=sigma, noise_source=source, level=level, min_effect=min_effect)
+    if not measured:
+        return IsotropyReport(
+            isotropic=True,
+            measured=False,
+            statistic=float("nan"),
+            p_value=float("nan"),
+            dof=0,
+            effect=float("nan"),
+            per_pair=(),
+            **common,
+            reason="no axial slice was measured: only the diagonal-only model (eq. 5) is possible",
+        )
     sums, used = _axial_sums(logl, cnt, np)
     sums = np.asarray(sums[0], np.float64)
     per_pair = [
@@ -268,19 +313,6 @@ def isotropy_test(
     ]
     ss, dof, nn = float(sums[used].sum()), int((cnt[used] - 1).sum()), int(cnt[used].sum())
     q = ss / sigma**2
-    common = dict(noise=sigma, noise_source=source, level=level, min_effect=min_effect)
-    if not per_pair:
-        return IsotropyReport(
-            isotropic=True,
-            measured=False,
-            statistic=float("nan"),
-            p_value=float("nan"),
-            dof=0,
-            effect=float("nan"),
-            per_pair=(),
-            **common,
-            reason="no axial slice was measured: only the diagonal-only model (eq. 5) is possible",
-        )
     # The raw RMS includes the noise: remove its expected share (n_p - 1) σ² per pair.
     effect = math.sqrt(max(ss - dof * sigma**2, 0.0) / nn)
     stat = q / dof

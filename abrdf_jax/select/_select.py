@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._build_jit import build_jit
 from .._errors import InputError
 from ._choice import (  # noqa: F401
     Plan,
@@ -177,7 +178,7 @@ def _rbf_at_held_out(rhs, data: dict, cfg0: Config, params: Params):
     return rbf(xq).reshape(k, q, -1)
 
 
-@eqx.filter_jit
+@build_jit
 def held_out_terms(data: dict, config: Config, params: Params, centres: tuple[int, ...]):
     """The held-out fits of :func:`_cv_core` as matrices, for rules affine in the slice terms
     (:mod:`abrdf_jax._rules`) in a value space without a log after the rule (the JAX-free
