@@ -147,3 +147,29 @@ def test_smoothing_survives_a_parameter_file(tmp_path):
         cfg = aj.preset("recommended", "iso102", slice_smoothing=setting)
         path = tuning.save_params(tmp_path / "p.json", cfg, aj.Params.default(cfg))
         assert tuning.load_params(path)[0].slice_smoothing == setting
+
+
+def test_a_folder_pass_equals_one_by_one():
+    """The command line's per-layout passes (noise estimates, smoothing records of many files at
+    once) give each file exactly what a call of its own gives."""
+    from abrdf_jax._grouping import group_arrays
+    from abrdf_jax._smoothing import slice_smoothing, slice_smoothings
+    from abrdf_jax.select import _isotropy
+
+    meas = []
+    for i, name in enumerate(["ggx-plastic", "ggx-aniso-metal", "lambert-clay"] * 2):
+        model = aj.materials.get_material(name)
+        for budget in ("iso102", "aniso204"):
+            s = aj.simulate_capture(model, budget=budget, noise=0.02 * (i % 3), seed=i)
+            meas.append(group_arrays(s, None)[0])
+    for slices in ("axial", "diagonal", "all"):
+        _isotropy._ESTIMATES.clear()
+        one = [_isotropy.estimate_noise(m, slices=slices) for m in meas]
+        _isotropy._ESTIMATES.clear()
+        many = _isotropy.estimate_noise_many(meas, slices=slices)
+        assert many == one and all(np.isfinite(one))
+    rec = aj.Config.recommended  # the log samples: the value space that smooths
+    cfgs = [rec(), rec(slice_smoothing=CONST), rec(slice_smoothing=None)] * 4
+    one = [slice_smoothing(m, c) for m, c in zip(meas, cfgs)]
+    assert slice_smoothings(meas, cfgs) == one
+    assert one[0]["noise_log"] is not None and one[1]["noise_log"] is None and one[2] is None
