@@ -97,7 +97,7 @@ def _neighbours(t, count, xp):
     base = slices * nmax
     slice_of = xp.broadcast_to(slices, (s, nmax))
     parts = (left + base, right + base, 1.0 - wr, wr, valid, slice_of)
-    return tuple(xp.array(a.reshape(-1)) if xp is np else a.reshape(-1) for a in parts)
+    return tuple(a.reshape(-1) for a in parts)
 
 
 _HOST_NEIGHBOURS = BoundedMemo(256)
@@ -221,17 +221,12 @@ def smoothing_from_json(value):
     return tuple(value) if isinstance(value, list) else value
 
 
-def smoothing_report(setting, y, t, count, log_eps: float) -> dict | None:
-    """What the smoothing does to one measurement (numpy; the model record's ``smoothing``):
+def smoothing_reports(setting, y, t, count, log_eps: float) -> list:
+    """What the smoothing does to each of the measurements ``y`` ``(B, S, nmax, C)`` of one
+    layout (``t``, ``count``), in one vectorised pass (numpy; the model record's ``smoothing``):
     ``setting``, ``noise_log`` (``σ̂`` in the reconstruction's log values, or ``None`` for a fixed
     ``β``) and ``beta``: one weight per slice (0 for a slice of fewer than 3 samples). ``None``
-    when ``setting`` is ``None``."""
-    return smoothing_reports(setting, np.asarray(y)[None], t, count, log_eps)[0]
-
-
-def smoothing_reports(setting, y, t, count, log_eps: float) -> list:
-    """:func:`smoothing_report` of each of the measurements ``y`` ``(B, S, nmax, C)`` of one
-    layout (``t``, ``count``) in one vectorised pass (a folder's files: the same numbers)."""
+    for each when ``setting`` is ``None``."""
     if setting is None:
         return [None] * len(y)
     y, t, count = np.asarray(y, np.float64), np.asarray(t, np.float64), np.asarray(count)

@@ -166,10 +166,7 @@ def estimate_noise(meas: "Measurements", log_eps: float = None, slices: str = "a
     Returns:
         ``σ`` in log units (``nan`` when no slice has 3 samples).
     """
-    log_eps = LOG_EPS if log_eps is None else log_eps
-    if slices not in ("axial", "diagonal", "all"):
-        raise InputError(f"slices must be 'axial', 'diagonal' or 'all', got {slices!r}")
-    return _estimate(meas, log_eps, slices)
+    return estimate_noise_many([meas], log_eps, slices)[0]
 
 
 def _estimate(meas, log_eps: float, slices: str, logl=None) -> float:
