@@ -162,8 +162,9 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
     from ..select._held_out_entry import MIN_GROUP, entry_selections
     from ..select._isotropy import estimate_noise_many
 
-    if args.noise is None:  # the isotropy tests' noise, the files of a layout at once (memoised)
-        estimate_noise_many([it.meas for it in items], slices="axial")
+    estimates = None  # the isotropy tests' noise, the files of a layout at once
+    if args.noise is None and forced is None:
+        estimates = estimate_noise_many([it.meas for it in items], slices="axial")
     tol = {} if args.tol is None else {"tol": args.tol}
     sels = [None] * len(items)  # with a prior every material compares candidates (JAX)
     if caches.prior is None:
@@ -179,6 +180,7 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
             min_group=1 if len(items) == 1 else MIN_GROUP,
             before_build=caches.numerics,
             where=[it.path for it in items],
+            estimates=estimates,
         )
     rest = [k for k, s in enumerate(sels) if s is None]
     if rest:
@@ -216,9 +218,8 @@ def _automatic(args) -> bool:
 
 def _auto_choice(item, s, prior) -> dict:
     """The model record of an automatic choice (a :class:`abrdf_jax.select.Selection`)."""
-    d = s.to_dict()
     extra = {"rank": s.ranks[s.name], "tol": s.tol, "folds": s.k}
-    extra |= {"candidates": d["candidates"], "isotropy": d["isotropy"], "seconds": s.seconds}
+    extra |= {**s.evidence(), "seconds": s.seconds}
     if s.name in common.LEARNED_MODELS:
         return common.learned_choice(item, prior, s.name, s.config.budget, "auto", s.reason, extra)
     return common.model_choice(item.path, s.name, s.config, s.params, "auto", s.reason, extra)

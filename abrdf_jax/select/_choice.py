@@ -108,6 +108,14 @@ class Selection:
             "reason": self.reason,
             "tol": self.tol,
             "folds": self.k,
+            **self.evidence(),
+            "seconds": self.seconds,
+        }
+
+    def evidence(self) -> dict:
+        """The record's ``candidates`` (each with its held-out error, rank and description) and
+        ``isotropy`` (the report's dictionary): what :meth:`to_dict` holds beyond the model."""
+        return {
             "candidates": [
                 {
                     "name": n,
@@ -118,7 +126,6 @@ class Selection:
                 for n in sorted(self.errors, key=lambda n: self.ranks[n])
             ],
             "isotropy": None if self.isotropy is None else self.isotropy.to_dict(),
-            "seconds": self.seconds,
         }
 
 
@@ -142,15 +149,18 @@ def check_budget(budget) -> None:
         raise InputError(f"budget must be 'iso102', 'aniso204' or None, got {budget!r}")
 
 
-def plan(meas, alpha: float, candidates, budget, noise, level, min_effect) -> Plan:
+def plan(meas, alpha: float, candidates, budget, noise, level, min_effect, estimate=None) -> Plan:
     """Test isotropy and list the candidates left for a grouped measurement (everything before
-    the folds; numpy: the isotropy test and its χ² tail need no JAX)."""
+    the folds; numpy: the isotropy test and its χ² tail need no JAX). ``estimate``: the
+    measurement's noise estimate if at hand (:func:`~abrdf_jax.select.isotropy_test`)."""
     check_budget(budget)
     if budget == "aniso204" and not meas.has_axial:
         raise InputError("budget 'aniso204' needs axial slices, but the measurement has none")
     report = None
     if budget is None:
-        report = isotropy_test(meas, noise=noise, level=level, min_effect=min_effect)
+        report = isotropy_test(
+            meas, noise=noise, level=level, min_effect=min_effect, estimate=estimate
+        )
         aniso_ok = not report.isotropic
     else:
         aniso_ok = budget == "aniso204"
