@@ -117,6 +117,21 @@ def group_id(group: tuple) -> str:
     return hashlib.sha256(repr(group).encode()).hexdigest()[:16]
 
 
+def plan_job(
+    meas: Sequence["Measurements"],
+    config: Config,
+    *,
+    min_group: int = OPERATOR_MIN_GROUP,
+    done: Sequence[Done] = (),
+    order: Sequence[int] | None = None,
+) -> dict[str, dict]:
+    """The plan of :func:`reconstruct_many` with these arguments (its groups, each with the
+    layout key of its members), made once for both :func:`job_keys` and
+    :func:`reconstruct_many` (``plan=``): a folder's record and its reconstruction read one
+    plan, and each measurement's layout is digested once."""
+    return _plan(meas, config, min_group, done, order, getattr(config, "operator_only", False))
+
+
 def _plan(meas, config, min_group, done, order, only) -> dict[str, dict]:
     """The groups of the whole job (``meas`` and the measurements ``done`` before): ``{group_id:
     {"kind", "members" (indices into meas), "layouts" (their layout keys, ``None`` where no
@@ -154,12 +169,15 @@ def job_keys(
     min_group: int = OPERATOR_MIN_GROUP,
     done=(),
     order: Sequence[int] | None = None,
+    plan: dict[str, dict] | None = None,
 ) -> list[dict]:
     """What :func:`reconstruct_many` with the same arguments makes of each measurement, for a
-    record that a resumed run reads back as :class:`Done`: ``{"layout", "group", "width"}``."""
-    only = getattr(config, "operator_only", False)
+    record that a resumed run reads back as :class:`Done`: ``{"layout", "group", "width"}``.
+    ``plan``: :func:`plan_job` of the same arguments, if made already."""
+    if plan is None:
+        plan = plan_job(meas, config, min_group=min_group, done=done, order=order)
     out: list[dict] = [{} for _ in meas]
-    for gid, g in _plan(meas, config, min_group, done, order, only).items():
+    for gid, g in plan.items():
         for k, key in zip(g["members"], g["layouts"]):
             out[k] = {"layout": key, "group": gid, "width": int(np.shape(meas[k].t)[-1])}
     return out
@@ -187,6 +205,7 @@ def reconstruct_many(
     before_jax: Callable[[], None] | None = None,
     done: Sequence[Done] = (),
     order: Sequence[int] | None = None,
+    plan: dict[str, dict] | None = None,
 ) -> Iterator[tuple[list[int], np.ndarray, str]]:
     """Reconstruct measurements that share ``config`` and ``params`` (module docstring).
 
@@ -206,6 +225,8 @@ def reconstruct_many(
             each measurement's place in the whole job (default: ``0, 1, ...``). Each
             measurement then takes the path, the batch row and the slice padding it takes in one
             uninterrupted run over all of them, and gets the same bits.
+        plan: :func:`plan_job` of the same ``meas``, ``config``, ``min_group``, ``done`` and
+            ``order``, if made already (e.g. for :func:`job_keys`).
 
     Yields:
         ``(indices, tables, path)``: positions in ``meas``, their ``(len(indices), 81, 81, 3)``
@@ -225,7 +246,8 @@ def reconstruct_many(
             template, params = as_jax(template, params)
             return compile_operator(config, params, template)
 
-    plan = _plan(meas, config, min_group, done, order, only)
+    if plan is None:
+        plan = _plan(meas, config, min_group, done, order, only)
     for gid, g in plan.items():
         members, slots = g["members"], g["slots"]
         if g["kind"] == "operator":

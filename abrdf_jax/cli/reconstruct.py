@@ -367,9 +367,11 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, p
     ``place``: each input's place in the whole job (``--resume`` keeps the batches' rows)."""
     from concurrent.futures import ThreadPoolExecutor
 
+    import numpy as np
+
     from .. import io
     from .._arrays import check_finite
-    from .._engine import job_keys, reconstruct_many
+    from .._engine import job_keys, plan_job, reconstruct_many
 
     out.mkdir(exist_ok=True)
     kept = common.kept_batches(args.resumed, place)
@@ -417,6 +419,7 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, p
                     ]
                 )
                 job["order"] = [place[str(items[k].path)] for k in members]
+                job["plan"] = plan_job(meas, config, **job)  # one plan: the record's, the run's
                 for k, keys in zip(members, job_keys(meas, config, **job)):
                     choices[k]["record"]["batch"] = (
                         keys  # what a --resume run reads (common.kept_batches)
@@ -431,10 +434,12 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, p
                 ):
                     paths[path] += len(idx)
                     futures, records = [], []
-                    for j, table in zip(idx, tables):
+                    finite = np.isfinite(tables).reshape(len(idx), -1).all(axis=1)  # one pass
+                    for j, table, ok in zip(idx, tables, finite):
                         k = members[j]
                         try:
-                            check_finite(table, str(items[k].path))
+                            if not ok:  # raises, naming the file and the first bad value
+                                check_finite(table, str(items[k].path))
                         except InputError as e:  # never written; the other materials still are
                             failed.append(str(e))
                             continue
