@@ -16,6 +16,7 @@ from typing import NamedTuple
 
 from .._config import Config, default_values
 from .._errors import InputError
+from .._memo import BoundedMemo
 from ._candidates import (
     CANDIDATES,
     DEFAULT_ANISO,
@@ -176,9 +177,19 @@ def plan(meas, alpha: float, candidates, budget, noise, level, min_effect, estim
         names = [n for n in names if CANDIDATES[n].settings["budget"] == "aniso204"] or ["aniso"]
     elif budget == "iso102" or not aniso_ok:
         names = [n for n in names if CANDIDATES[n].settings["budget"] == "iso102"] or ["iso"]
-    configs = {n: CANDIDATES[n].config(pairs=meas.pairs) for n in names}
+    configs = {n: _candidate_config(n, meas.pairs) for n in names}
     ranks = {n: CANDIDATES[n].rank for n in names}
     return Plan(meas, alpha, budget, report, configs, ranks)
+
+
+def _candidate_config(name: str, pairs) -> Config:
+    """``CANDIDATES[name].config(pairs=pairs)``, made once per name and pairs (a folder's files
+    share them; a :class:`Config` is frozen). Keyed by the pairs' ``repr``: pairs that print
+    alike are the same values of the same types."""
+    return _CONFIGS.get((name, repr(pairs)), lambda: CANDIDATES[name].config(pairs=pairs))
+
+
+_CONFIGS = BoundedMemo(256)
 
 
 def with_prior(p: Plan, fused: bool = False) -> Plan:
