@@ -101,6 +101,13 @@ def _batches(
         yield chunk, [at.get(r, chunk[-1]) for r in range(size)], rows
 
 
+def _rows(tables: np.ndarray, rows: list[int]) -> np.ndarray:
+    """``tables[rows]``; a view where the rows are consecutive (a full batch: no copy)."""
+    if rows == list(range(rows[0], rows[0] + len(rows))):
+        return tables[rows[0] : rows[0] + len(rows)]
+    return tables[rows]
+
+
 class Done(NamedTuple):
     """A measurement of the job that an earlier, interrupted run already reconstructed (what a
     folder run's model record keeps of it: :func:`job_keys`)."""
@@ -254,7 +261,7 @@ def reconstruct_many(
             op = operator(config, params, meas[members[0]])
             for chunk, padded, rows in _batches(members, slots, batch or OPERATOR_BATCH):
                 y = np.stack([np.asarray(meas[k].y) for k in padded])
-                yield chunk, np.asarray(op(y))[rows], "operator"
+                yield chunk, _rows(np.asarray(op(y)), rows), "operator"
         else:
             if before_jax is not None:
                 before_jax()
@@ -271,4 +278,4 @@ def reconstruct_many(
                     [_pad_slices(as_jax(meas[k], None)[0], nmax) for k in padded]
                 )
                 tables = np.asarray(reconstruct_batch(stack, config, jparams))
-                yield chunk, tables[rows], "pipeline"
+                yield chunk, _rows(tables, rows), "pipeline"
