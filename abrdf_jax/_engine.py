@@ -101,6 +101,13 @@ def _batches(
         yield chunk, [at.get(r, chunk[-1]) for r in range(size)], rows
 
 
+def _rows(tables: np.ndarray, rows: list[int]) -> np.ndarray:
+    """``tables[rows]``; a view where the rows are consecutive (a full batch: no copy)."""
+    if rows == list(range(rows[0], rows[0] + len(rows))):
+        return tables[rows[0] : rows[0] + len(rows)]
+    return tables[rows]
+
+
 class Done(NamedTuple):
     """A measurement of the job that an earlier, interrupted run already reconstructed (what a
     folder run's model record keeps of it: :func:`job_keys`)."""
@@ -115,6 +122,21 @@ def group_id(group: tuple) -> str:
     """A short digest of a group key (``("operator", layout)`` or ``("pipeline", pairs,
     centre_azimuths)``): what a model record keeps."""
     return hashlib.sha256(repr(group).encode()).hexdigest()[:16]
+
+
+def plan_job(
+    meas: Sequence["Measurements"],
+    config: Config,
+    *,
+    min_group: int = OPERATOR_MIN_GROUP,
+    done: Sequence[Done] = (),
+    order: Sequence[int] | None = None,
+) -> dict[str, dict]:
+    """The plan of :func:`reconstruct_many` with these arguments (its groups, each with the
+    layout key of its members), made once for both :func:`job_keys` and
+    :func:`reconstruct_many` (``plan=``): a folder's record and its reconstruction read one
+    plan, and each measurement's layout is digested once."""
+    return _plan(meas, config, min_group, done, order, getattr(config, "operator_only", False))
 
 
 def _plan(meas, config, min_group, done, order, only) -> dict[str, dict]:
@@ -154,12 +176,15 @@ def job_keys(
     min_group: int = OPERATOR_MIN_GROUP,
     done=(),
     order: Sequence[int] | None = None,
+    plan: dict[str, dict] | None = None,
 ) -> list[dict]:
     """What :func:`reconstruct_many` with the same arguments makes of each measurement, for a
-    record that a resumed run reads back as :class:`Done`: ``{"layout", "group", "width"}``."""
-    only = getattr(config, "operator_only", False)
+    record that a resumed run reads back as :class:`Done`: ``{"layout", "group", "width"}``.
+    ``plan``: :func:`plan_job` of the same arguments, if made already."""
+    if plan is None:
+        plan = plan_job(meas, config, min_group=min_group, done=done, order=order)
     out: list[dict] = [{} for _ in meas]
-    for gid, g in _plan(meas, config, min_group, done, order, only).items():
+    for gid, g in plan.items():
         for k, key in zip(g["members"], g["layouts"]):
             out[k] = {"layout": key, "group": gid, "width": int(np.shape(meas[k].t)[-1])}
     return out
@@ -187,6 +212,7 @@ def reconstruct_many(
     before_jax: Callable[[], None] | None = None,
     done: Sequence[Done] = (),
     order: Sequence[int] | None = None,
+    plan: dict[str, dict] | None = None,
 ) -> Iterator[tuple[list[int], np.ndarray, str]]:
     """Reconstruct measurements that share ``config`` and ``params`` (module docstring).
 
@@ -206,6 +232,8 @@ def reconstruct_many(
             each measurement's place in the whole job (default: ``0, 1, ...``). Each
             measurement then takes the path, the batch row and the slice padding it takes in one
             uninterrupted run over all of them, and gets the same bits.
+        plan: :func:`plan_job` of the same ``meas``, ``config``, ``min_group``, ``done`` and
+            ``order``, if made already (e.g. for :func:`job_keys`).
 
     Yields:
         ``(indices, tables, path)``: positions in ``meas``, their ``(len(indices), 81, 81, 3)``
@@ -225,14 +253,15 @@ def reconstruct_many(
             template, params = as_jax(template, params)
             return compile_operator(config, params, template)
 
-    plan = _plan(meas, config, min_group, done, order, only)
+    if plan is None:
+        plan = _plan(meas, config, min_group, done, order, only)
     for gid, g in plan.items():
         members, slots = g["members"], g["slots"]
         if g["kind"] == "operator":
             op = operator(config, params, meas[members[0]])
             for chunk, padded, rows in _batches(members, slots, batch or OPERATOR_BATCH):
                 y = np.stack([np.asarray(meas[k].y) for k in padded])
-                yield chunk, np.asarray(op(y))[rows], "operator"
+                yield chunk, _rows(np.asarray(op(y)), rows), "operator"
         else:
             if before_jax is not None:
                 before_jax()
@@ -249,4 +278,4 @@ def reconstruct_many(
                     [_pad_slices(as_jax(meas[k], None)[0], nmax) for k in padded]
                 )
                 tables = np.asarray(reconstruct_batch(stack, config, jparams))
-                yield chunk, tables[rows], "pipeline"
+                yield chunk, _rows(tables, rows), "pipeline"

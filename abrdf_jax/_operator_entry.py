@@ -9,6 +9,7 @@ stage, ``abrdf_jax._operator._apply``) in numpy float32, with the value space's 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 
 import numpy as np
@@ -97,13 +98,30 @@ class OperatorEntry:
 
         out = (rows(x if xc is None else xc) @ self.matrix.T).reshape(b, c, q)
         if xc is not None and self.keep.size:
-            fix = rows(x - xc) @ self.matrix[self.keep].T
-            out[:, :, self.keep] += fix.reshape(b, c, -1)
+            kept, runs = self._kept
+            fix = (rows(x - xc) @ kept.T).reshape(b, c, -1)
+            if runs is None:
+                out[:, :, self.keep] += fix
+            for first, stop, at in runs or ():  # in place, run by run: the same float32 sums
+                out[:, :, first:stop] += fix[:, :, at : at + stop - first]
         if eps is not None:
             np.exp(out, out=out)
             out -= eps[:, :, None]
         np.maximum(out, np.float32(0.0), out=out)
-        return np.ascontiguousarray(np.transpose(out, (0, 2, 1))).reshape(b, *GRID, c)
+        # channel last: one strided copy per channel (faster than one of the transposed array)
+        return np.stack([out[:, k] for k in range(c)], axis=-1).reshape(b, *GRID, c)
+
+    @functools.cached_property
+    def _kept(self) -> tuple[np.ndarray, list[tuple[int, int, int]] | None]:
+        """The matrix's kept rows (copied once, not per batch) and ``keep`` as runs of
+        consecutive rows ``(first, stop, offset in keep)`` (``None`` if a row repeats: the
+        fancy-indexed update then)."""
+        keep = np.asarray(self.keep)
+        if np.unique(keep).size != keep.size:
+            return self.matrix[keep], None
+        cuts = [0, *(np.flatnonzero(np.diff(keep) != 1) + 1).tolist(), keep.size]
+        runs = [(int(keep[a]), int(keep[a]) + (z - a), a) for a, z in zip(cuts[:-1], cuts[1:])]
+        return self.matrix[keep], runs
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The arrays by name (what the cache stores)."""

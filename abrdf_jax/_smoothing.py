@@ -44,6 +44,7 @@ import numpy as np
 
 from ._host_eps import sample_eps
 from ._memo import BoundedMemo
+from ._per_layout import layout_of, per_layout, stacked_values
 
 #: The spacing ``Δ_0`` (radians) at which the rule's ``floor`` and ``scale`` are given: the
 #: protocol's diagonal slices (26 samples).
@@ -269,21 +270,14 @@ def slice_smoothings(measurements, configs) -> list:
     layout and a setting in one vectorised pass (:func:`smoothing_reports`: the same numbers)."""
     from ._names import LOG_SAMPLES
 
-    out, groups = [None] * len(measurements), {}
-    for k, (m, c) in enumerate(zip(measurements, configs)):
+    def key(m, c):
         if c.value_space in LOG_SAMPLES and c.slice_smoothing is not None:
-            t, n = np.asarray(m.t), np.asarray(m.count)
-            key = (
-                repr(c.slice_smoothing),
-                float(c.log_eps),
-                np.shape(m.y),
-                t.tobytes(),
-                n.tobytes(),
-            )
-            groups.setdefault(key, []).append(k)
-    for ks in groups.values():
+            return (repr(c.slice_smoothing), float(c.log_eps), *layout_of(m))
+        return None
+
+    def run(ks):
         m, c = measurements[ks[0]], configs[ks[0]]
-        y = np.stack([np.asarray(measurements[k].y) for k in ks])
-        for k, r in zip(ks, smoothing_reports(c.slice_smoothing, y, m.t, m.count, c.log_eps)):
-            out[k] = r
-    return out
+        y = stacked_values(measurements, ks)
+        return smoothing_reports(c.slice_smoothing, y, m.t, m.count, c.log_eps)
+
+    return per_layout([key(m, c) for m, c in zip(measurements, configs)], run)

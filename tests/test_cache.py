@@ -63,6 +63,38 @@ def _synthetic(seed: int = 0) -> OperatorEntry:
     )
 
 
+def test_kept_rows_run_by_run_equal_the_indexed_update():
+    """``OperatorEntry.apply_compact`` adds the spike cap's correction on the kept rows run by
+    run (``_kept``) and moves channels last by one copy each: bit for bit the indexed update and
+    transposed copy it replaced (written out here), for runs, single rows and a repeated row."""
+    import dataclasses
+
+    from abrdf_jax._host_eps import sample_eps
+    from abrdf_jax._spikes import cap_samples
+
+    base = _synthetic(3)
+    x = np.random.default_rng(4).lognormal(-2, 1.5, (5, base.n_inputs, 3)).astype(np.float32)
+    x[:, 2] *= 40  # spikes for the cap
+    for keep in ([574, 575, 576, 3, 655, 656, 9, 6000], [7, 8, 7]):
+        e = dataclasses.replace(base, keep=np.array(keep, np.int64), spike_cap=(0.93, 0.5))
+        eps = sample_eps(x, e.log_eps, axis=1)
+        z = np.log(np.maximum(x, np.float32(0)) + eps[:, None, :]).astype(np.float32)
+        zc = cap_samples(z, e.spike_cap, xp=np).astype(np.float32)
+
+        def rows(v):
+            return np.ascontiguousarray(np.transpose(v, (0, 2, 1))).reshape(15, -1)
+
+        out = (rows(zc) @ e.matrix.T).reshape(5, 3, -1)
+        out[:, :, e.keep] += (rows(z - zc) @ e.matrix[e.keep].T).reshape(5, 3, -1)
+        np.exp(out, out=out)
+        out -= eps[:, :, None]
+        np.maximum(out, np.float32(0), out=out)
+        want = np.ascontiguousarray(np.transpose(out, (0, 2, 1))).reshape(5, 81, 81, 3)
+        got = e.apply_compact(x)
+        assert got.dtype == np.float32 and got.tobytes() == want.tobytes()
+        assert (e._kept[1] is None) == (len(set(keep)) < len(keep))
+
+
 def _same(a: OperatorEntry, b: OperatorEntry) -> bool:
     return all(np.array_equal(x, y) for x, y in zip(a.arrays().values(), b.arrays().values())) and (
         (a.log_samples, a.log_eps) == (b.log_samples, b.log_eps)

@@ -232,14 +232,26 @@ def test_negative_values_warn_and_write_failure_keeps_output(tmp_path, capsys, m
     good = (tmp_path / "rec.npz").read_bytes()
 
     # The disk fills up half-way through the archive: the old file stays, no temp file remains.
-    real = np.savez
+    import contextlib
 
-    def half_then_full(f, **arrays):
-        real(f, **arrays)
-        f.truncate(f.tell() // 2)
-        raise OSError(errno.ENOSPC, "No space left on device")
+    from abrdf_jax.io import _tables
 
-    monkeypatch.setattr(np, "savez", half_then_full)
+    real = _tables.atomic_write
+
+    class HalfThenFull:
+        def __init__(self, f):
+            self.f = f
+
+        def write(self, data):
+            self.f.write(data[: len(data) // 2])
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    @contextlib.contextmanager
+    def half_then_full(path, *args, **kw):
+        with real(path, *args, **kw) as f:
+            yield HalfThenFull(f)
+
+    monkeypatch.setattr(_tables, "atomic_write", half_then_full)
     before = snapshot(tmp_path)
     fails(
         capsys, ["reconstruct", "m.csv", "-o", "rec.npz"], "cannot write rec.npz", "No space left"

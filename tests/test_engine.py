@@ -72,6 +72,11 @@ def test_a_resumed_group_gets_the_batch_rows_and_bits_of_the_whole_run():
         assert path == "operator"
         whole.update(zip(idx, tables))
     keys = _engine.job_keys(meas, config, min_group=12)
+    plan = _engine.plan_job(meas, config, min_group=12)  # one plan, passed to both: the same
+    assert _engine.job_keys(meas, config, min_group=12, plan=plan) == keys
+    for idx, tables, _ in _engine.reconstruct_many(meas, config, params, plan=plan, **run):
+        for i, t in zip(idx, tables):
+            np.testing.assert_array_equal(t, whole[i])
     kept = [0, 2, 3, 9, 10]  # 7 left: fewer than min_group, yet the operator's, at their rows
     done = [_engine.Done(keys[k]["layout"], keys[k]["group"], k, keys[k]["width"]) for k in kept]
     rest = [k for k in range(12) if k not in kept]

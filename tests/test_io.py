@@ -339,6 +339,28 @@ def test_table_round_trip_bit_exact(tmp_path, table, ext):
     assert _no_temp_files(tmp_path)
 
 
+def test_npz_bytes_is_what_numpy_savez_holds(tmp_path, table):
+    """The in-memory archive of write_table (``_npz.npz_bytes``) holds the member numpy.savez
+    writes, byte for byte, in a zip that numpy and zipfile read; equal arrays, equal bytes."""
+    import io
+    import zipfile
+
+    from abrdf_jax.io._npz import npz_bytes
+
+    for arr in (table, np.arange(6, dtype=">f8").reshape(2, 3), np.zeros((0,), np.int16)):
+        data = npz_bytes("abrdf", arr)
+        ref = io.BytesIO()
+        np.savez(ref, abrdf=arr)
+        with zipfile.ZipFile(io.BytesIO(data)) as ours, zipfile.ZipFile(ref) as theirs:
+            assert ours.testzip() is None and ours.namelist() == theirs.namelist()
+            assert ours.read("abrdf.npy") == theirs.read("abrdf.npy")
+        back = np.load(io.BytesIO(data))["abrdf"]
+        assert back.dtype == arr.dtype and back.tobytes() == arr.tobytes()
+        assert npz_bytes("abrdf", arr.copy()) == data
+    write_table(tmp_path / "t.npz", table)
+    assert (tmp_path / "t.npz").read_bytes() == npz_bytes("abrdf", table)
+
+
 def test_table_write_converts_float64_and_jax(tmp_path, table):
     p = tmp_path / "t.npz"
     write_table(p, jnp.asarray(table.astype(np.float64)))

@@ -163,13 +163,32 @@ def test_a_folder_pass_equals_one_by_one():
             s = aj.simulate_capture(model, budget=budget, noise=0.02 * (i % 3), seed=i)
             meas.append(group_arrays(s, None)[0])
     for slices in ("axial", "diagonal", "all"):
-        _isotropy._ESTIMATES.clear()
         one = [_isotropy.estimate_noise(m, slices=slices) for m in meas]
-        _isotropy._ESTIMATES.clear()
         many = _isotropy.estimate_noise_many(meas, slices=slices)
         assert many == one and all(np.isfinite(one))
+    # the isotropy test given a folder's estimate reports what it reports estimating it itself
+    for m, est in zip(meas, _isotropy.estimate_noise_many(meas)):
+        alone = _isotropy.isotropy_test(m)  # (to_dict: a NaN statistic equals itself there)
+        assert _isotropy.isotropy_test(m, estimate=est).to_dict() == alone.to_dict()
+        assert alone.noise_source == "estimated"
     rec = aj.Config.recommended  # the log samples: the value space that smooths
     cfgs = [rec(), rec(slice_smoothing=CONST), rec(slice_smoothing=None)] * 4
     one = [slice_smoothing(m, c) for m, c in zip(meas, cfgs)]
     assert slice_smoothings(meas, cfgs) == one
     assert one[0]["noise_log"] is not None and one[1]["noise_log"] is None and one[2] is None
+
+
+def test_per_layout_scatters_each_group_pass_back_in_order():
+    """``_per_layout.per_layout``: one call per distinct key, with the positions of that key in
+    order; results land at their positions, ``None`` keys get ``None`` and no call."""
+    from abrdf_jax._per_layout import per_layout
+
+    calls = []
+
+    def run(ks):
+        calls.append(ks)
+        return [f"r{k}" for k in ks]
+
+    assert per_layout(["a", None, "b", "a", "b"], run) == ["r0", None, "r2", "r3", "r4"]
+    assert calls == [[0, 3], [2, 4]]
+    assert per_layout([], run) == [] and per_layout([None], run) == [None]

@@ -162,8 +162,9 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
     from ..select._held_out_entry import MIN_GROUP, entry_selections
     from ..select._isotropy import estimate_noise_many
 
-    if args.noise is None:  # the isotropy tests' noise, the files of a layout at once (memoised)
-        estimate_noise_many([it.meas for it in items], slices="axial")
+    estimates = None  # the isotropy tests' noise, the files of a layout at once
+    if args.noise is None and forced is None:
+        estimates = estimate_noise_many([it.meas for it in items], slices="axial")
     tol = {} if args.tol is None else {"tol": args.tol}
     sels = [None] * len(items)  # with a prior every material compares candidates (JAX)
     if caches.prior is None:
@@ -179,6 +180,7 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
             min_group=1 if len(items) == 1 else MIN_GROUP,
             before_build=caches.numerics,
             where=[it.path for it in items],
+            estimates=estimates,
         )
     rest = [k for k, s in enumerate(sels) if s is None]
     if rest:
@@ -216,9 +218,8 @@ def _automatic(args) -> bool:
 
 def _auto_choice(item, s, prior) -> dict:
     """The model record of an automatic choice (a :class:`abrdf_jax.select.Selection`)."""
-    d = s.to_dict()
     extra = {"rank": s.ranks[s.name], "tol": s.tol, "folds": s.k}
-    extra |= {"candidates": d["candidates"], "isotropy": d["isotropy"], "seconds": s.seconds}
+    extra |= {**s.evidence(), "seconds": s.seconds}
     if s.name in common.LEARNED_MODELS:
         return common.learned_choice(item, prior, s.name, s.config.budget, "auto", s.reason, extra)
     return common.model_choice(item.path, s.name, s.config, s.params, "auto", s.reason, extra)
@@ -366,9 +367,11 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, p
     ``place``: each input's place in the whole job (``--resume`` keeps the batches' rows)."""
     from concurrent.futures import ThreadPoolExecutor
 
+    import numpy as np
+
     from .. import io
     from .._arrays import check_finite
-    from .._engine import job_keys, reconstruct_many
+    from .._engine import job_keys, plan_job, reconstruct_many
 
     out.mkdir(exist_ok=True)
     kept = common.kept_batches(args.resumed, place)
@@ -416,6 +419,7 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, p
                     ]
                 )
                 job["order"] = [place[str(items[k].path)] for k in members]
+                job["plan"] = plan_job(meas, config, **job)  # one plan: the record's, the run's
                 for k, keys in zip(members, job_keys(meas, config, **job)):
                     choices[k]["record"]["batch"] = (
                         keys  # what a --resume run reads (common.kept_batches)
@@ -430,10 +434,12 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, p
                 ):
                     paths[path] += len(idx)
                     futures, records = [], []
-                    for j, table in zip(idx, tables):
+                    finite = np.isfinite(tables).reshape(len(idx), -1).all(axis=1)  # one pass
+                    for j, table, ok in zip(idx, tables, finite):
                         k = members[j]
                         try:
-                            check_finite(table, str(items[k].path))
+                            if not ok:  # raises, naming the file and the first bad value
+                                check_finite(table, str(items[k].path))
                         except InputError as e:  # never written; the other materials still are
                             failed.append(str(e))
                             continue

@@ -16,6 +16,7 @@ from typing import NamedTuple
 
 from .._config import Config, default_values
 from .._errors import InputError
+from .._memo import BoundedMemo
 from ._candidates import (
     CANDIDATES,
     DEFAULT_ANISO,
@@ -108,6 +109,14 @@ class Selection:
             "reason": self.reason,
             "tol": self.tol,
             "folds": self.k,
+            **self.evidence(),
+            "seconds": self.seconds,
+        }
+
+    def evidence(self) -> dict:
+        """The record's ``candidates`` (each with its held-out error, rank and description) and
+        ``isotropy`` (the report's dictionary): what :meth:`to_dict` holds beyond the model."""
+        return {
             "candidates": [
                 {
                     "name": n,
@@ -118,7 +127,6 @@ class Selection:
                 for n in sorted(self.errors, key=lambda n: self.ranks[n])
             ],
             "isotropy": None if self.isotropy is None else self.isotropy.to_dict(),
-            "seconds": self.seconds,
         }
 
 
@@ -142,15 +150,18 @@ def check_budget(budget) -> None:
         raise InputError(f"budget must be 'iso102', 'aniso204' or None, got {budget!r}")
 
 
-def plan(meas, alpha: float, candidates, budget, noise, level, min_effect) -> Plan:
+def plan(meas, alpha: float, candidates, budget, noise, level, min_effect, estimate=None) -> Plan:
     """Test isotropy and list the candidates left for a grouped measurement (everything before
-    the folds; numpy: the isotropy test and its χ² tail need no JAX)."""
+    the folds; numpy: the isotropy test and its χ² tail need no JAX). ``estimate``: the
+    measurement's noise estimate if at hand (:func:`~abrdf_jax.select.isotropy_test`)."""
     check_budget(budget)
     if budget == "aniso204" and not meas.has_axial:
         raise InputError("budget 'aniso204' needs axial slices, but the measurement has none")
     report = None
     if budget is None:
-        report = isotropy_test(meas, noise=noise, level=level, min_effect=min_effect)
+        report = isotropy_test(
+            meas, noise=noise, level=level, min_effect=min_effect, estimate=estimate
+        )
         aniso_ok = not report.isotropic
     else:
         aniso_ok = budget == "aniso204"
@@ -166,9 +177,19 @@ def plan(meas, alpha: float, candidates, budget, noise, level, min_effect) -> Pl
         names = [n for n in names if CANDIDATES[n].settings["budget"] == "aniso204"] or ["aniso"]
     elif budget == "iso102" or not aniso_ok:
         names = [n for n in names if CANDIDATES[n].settings["budget"] == "iso102"] or ["iso"]
-    configs = {n: CANDIDATES[n].config(pairs=meas.pairs) for n in names}
+    configs = {n: _candidate_config(n, meas.pairs) for n in names}
     ranks = {n: CANDIDATES[n].rank for n in names}
     return Plan(meas, alpha, budget, report, configs, ranks)
+
+
+def _candidate_config(name: str, pairs) -> Config:
+    """``CANDIDATES[name].config(pairs=pairs)``, made once per name and pairs (a folder's files
+    share them; a :class:`Config` is frozen). Keyed by the pairs' ``repr``: pairs that print
+    alike are the same values of the same types."""
+    return _CONFIGS.get((name, repr(pairs)), lambda: CANDIDATES[name].config(pairs=pairs))
+
+
+_CONFIGS = BoundedMemo(256)
 
 
 def with_prior(p: Plan, fused: bool = False) -> Plan:

@@ -319,6 +319,7 @@ def entry_selections(
     min_group: int = MIN_GROUP,
     before_build=None,
     where=None,
+    estimates=None,
 ):
     """:func:`abrdf_jax.select.select_model` (``candidates="auto"``) of grouped measurements
     ``items`` (``(meas, alpha_deg)`` pairs) wherever it needs no JAX: one candidate left (as
@@ -326,15 +327,17 @@ def entry_selections(
     ``min_group`` inputs or more, scored by held-out entries (:class:`HeldOutEntry`, from
     ``store``). ``None`` where the caller must run the JAX path
     (:func:`~abrdf_jax.select.select_models`). ``where``: each input's name, put before the
-    message of an :class:`~abrdf_jax.InputError` of its plan. Parameters are numpy values
-    (:class:`abrdf_jax._config.ParamValues`)."""
+    message of an :class:`~abrdf_jax.InputError` of its plan; ``estimates``: each input's
+    noise estimate (:func:`~abrdf_jax.select.estimate_noise_many`), if at hand. Parameters are
+    numpy values (:class:`abrdf_jax._config.ParamValues`)."""
     from .._engine import layout_key
 
     t0 = time.perf_counter()
     plans = []
-    for i, (m, a) in enumerate(items):
+    estimates = [None] * len(items) if estimates is None else estimates
+    for i, ((m, a), est) in enumerate(zip(items, estimates)):
         try:
-            plans.append(plan(m, a, "auto", budget, noise, level, min_effect))
+            plans.append(plan(m, a, "auto", budget, noise, level, min_effect, est))
         except InputError as e:
             raise InputError(f"{where[i]}: {e}" if where is not None else str(e)) from e
     out = [finish(p, None, tol, k, 0.0) if len(p.configs) == 1 else None for p in plans]

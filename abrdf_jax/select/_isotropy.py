@@ -36,7 +36,6 @@ only up to rounding, so the test compares the axial slices' variation with a noi
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import math
 
 from typing import TYPE_CHECKING
@@ -45,7 +44,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._grouping import group_arrays
-from .._memo import BoundedMemo
+from .._per_layout import layout_of, per_layout, stacked_values
 from .._protocol import LUMA
 from .._smoothing import neighbours, noise_level
 from ._chi2 import chi2_critical, chi2_sf
@@ -107,12 +106,15 @@ class IsotropyReport:
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (non-finite numbers as ``None``)."""
-        out = dataclasses.asdict(self)
+        out = {f: getattr(self, f) for f in _REPORT_FIELDS}  # scalars: no deep copy needed
         for k, v in out.items():
             if isinstance(v, float) and not math.isfinite(v):
                 out[k] = None
         out["per_pair"] = [dict(d, pair=list(d["pair"])) for d in self.per_pair]
         return out
+
+
+_REPORT_FIELDS = tuple(f.name for f in dataclasses.fields(IsotropyReport))
 
 
 def _log_luminance(y, valid, log_eps: float, xp=None):
@@ -169,65 +171,36 @@ def estimate_noise(meas: "Measurements", log_eps: float = None, slices: str = "a
     return estimate_noise_many([meas], log_eps, slices)[0]
 
 
-def _estimate(meas, log_eps: float, slices: str, logl=None) -> float:
-    """:func:`estimate_noise` (``logl``: the measurement's log luminance, if at hand), memoised
-    by a digest of the measurement's bytes and the slices that enter it (the command line asks
-    for all slices of every file of a folder first, then the isotropy test for the axial ones:
-    the same rows when no axial slice is measured)."""
-    key, t, cnt, y, rows = _keyed(meas, log_eps, slices)
-
-    def build():
-        lg = logl
-        if lg is None:  # one material: on the host (numpy)
-            lg = _log_luminance(y[None], np.asarray(meas.mask)[None], log_eps, np)
-        return float(_noise(lg, t, cnt, rows, np)[0])
-
-    return _ESTIMATES.get(key, build)
-
-
 def estimate_noise_many(measurements, log_eps: float | None = None, slices: str = "axial"):
     """:func:`estimate_noise` of every measurement (a list of floats): those that share a
-    layout in one vectorised pass on the host (the same numbers; memoised as one by one)."""
+    layout in one vectorised pass on the host (:func:`abrdf_jax._per_layout.per_layout`; the
+    same numbers as one by one)."""
     log_eps = LOG_EPS if log_eps is None else log_eps
     if slices not in ("axial", "diagonal", "all"):
         raise InputError(f"slices must be 'axial', 'diagonal' or 'all', got {slices!r}")
-    keyed = [_keyed(m, log_eps, slices) for m in measurements]
-    groups: dict = {}
-    for k, (key, t, cnt, y, rows) in enumerate(keyed):
-        if key not in _ESTIMATES:
-            groups.setdefault((t.tobytes(), cnt.tobytes(), y.shape, rows), []).append(k)
-    for ks in groups.values():
-        _, t, cnt, _, rows = keyed[ks[0]]
-        y = np.stack([keyed[k][3] for k in ks])
-        mask = np.asarray(measurements[ks[0]].mask)[None]
-        sigma = _noise(_log_luminance(y, mask, log_eps, np), t, cnt, rows, np)
-        for k, v in zip(ks, np.reshape(sigma, -1)):
-            _ESTIMATES.get(keyed[k][0], lambda v=v: float(v))
-    return [
-        _ESTIMATES.get(key, lambda m=m: _estimate(m, log_eps, slices))
-        for m, (key, *_) in zip(measurements, keyed)
-    ]
+
+    def run(ks):
+        m = measurements[ks[0]]
+        logl = _log_luminance(
+            stacked_values(measurements, ks), np.asarray(m.mask)[None], log_eps, np
+        )
+        return [float(v) for v in np.reshape(_estimate(m, logl, slices), -1)]
+
+    return per_layout([layout_of(m) for m in measurements], run)
 
 
-def _keyed(meas, log_eps: float, slices: str):
-    """``(memo key, t, count, y, rows)`` of one measurement's noise estimate."""
-    t, cnt, y = np.asarray(meas.t, np.float64), np.asarray(meas.count), np.asarray(meas.y)
-    if slices == "axial" and not np.any(cnt[0::2] >= 3):
+def _rows(count: np.ndarray, slices: str) -> tuple:
+    """The slices (with ≥ 3 samples) whose residuals enter the noise estimate ``slices``."""
+    if slices == "axial" and not np.any(count[0::2] >= 3):
         slices = "diagonal"
-    rows = {
-        "axial": range(0, len(cnt), 2),
-        "diagonal": range(1, len(cnt), 2),
-        "all": range(len(cnt)),
-    }[slices]
-    rows = tuple(s for s in rows if cnt[s] >= 3)
-    digest = hashlib.blake2b(digest_size=16)
-    for a in (t, cnt, y):
-        digest.update(repr((a.shape, a.dtype.str)).encode())
-        digest.update(np.ascontiguousarray(a).tobytes())
-    return (digest.digest(), float(log_eps), rows), t, cnt, y, rows
+    start, step = {"axial": (0, 2), "diagonal": (1, 2), "all": (0, 1)}[slices]
+    return tuple(s for s in range(start, len(count), step) if count[s] >= 3)
 
 
-_ESTIMATES = BoundedMemo(4096)  # a few hundred kB
+def _estimate(meas, logl, slices: str):
+    """The noise ``σ`` ``(B,)`` of log luminances ``logl`` ``(B, S, nmax)`` of ``meas``'s layout."""
+    cnt = np.asarray(meas.count)
+    return _noise(logl, np.asarray(meas.t, np.float64), cnt, _rows(cnt, slices), np)
 
 
 def isotropy_test(
@@ -238,6 +211,7 @@ def isotropy_test(
     min_effect: float = MIN_EFFECT,
     alpha_deg: float | None = None,
     log_eps: float = LOG_EPS,
+    estimate: float | None = None,
 ) -> IsotropyReport:
     """Decide from the axial slices whether a material is isotropic (module docstring).
 
@@ -251,6 +225,9 @@ def isotropy_test(
             anisotropy worth modelling.
         alpha_deg: slice offset for grouping :class:`Samples`.
         log_eps: ``ε`` of the log transform, relative to the mean luminance (:data:`LOG_EPS`).
+        estimate: without ``noise``, :func:`estimate_noise` of ``samples`` (grouped) with this
+            ``log_eps``, when already at hand (a folder's, :func:`estimate_noise_many`): the
+            report is the same as when the test estimates it.
 
     Returns:
         An :class:`IsotropyReport`.
@@ -275,11 +252,13 @@ def isotropy_test(
     measured = bool(np.any(cnt[0::2] >= 3))  # an axial slice to test
     # one material: on the host (numpy); the batched test below runs the same helpers in JAX
     logl = None
-    if measured:
+    if measured or (noise is None and estimate is None):
         logl = _log_luminance(np.asarray(meas.y)[None], np.asarray(meas.mask)[None], log_eps, np)
     floor = 1e-6  # log units: float32 rounding of constant slices stays below it
     if noise is None:
-        sigma, source = _estimate(meas, log_eps, "axial", logl), "estimated"
+        if estimate is None:
+            estimate = _estimate(meas, logl, "axial")[0]
+        sigma, source = float(estimate), "estimated"
     else:
         sigma, source = float(noise), "given"
     sigma = max(sigma, floor) if math.isfinite(sigma) else floor
