@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .._errors import InputError
-from ._learned import LEARNED_MODELS
+from .._names import VARIANCE_MODELS
 from ._outputs import announce_replace
 
 #: What the file holds (the model record's ``uncertainty.what`` and the EXR header's comment).
@@ -36,7 +36,7 @@ def check_uncertainty(args, folder_mode: bool) -> None:
     """``--uncertainty`` needs a model with a predictive variance and one output file."""
     if not getattr(args, "uncertainty", False):
         return
-    if args.model not in LEARNED_MODELS:
+    if args.model not in VARIANCE_MODELS:
         given = (
             f"--model {args.model}"
             if args.model not in (None, "auto")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from .._names import VARIANCE_MODELS
 from . import _common as common
 
 HELP = {
@@ -49,7 +50,7 @@ def register(sub) -> None:
     s = common.command(sub, "suggest", run, HELP["help"], HELP["description"])
     add = common.adder(s, HELP)
     add("input", metavar="MEAS", type=common.existing("file"))
-    add("--model", choices=common.LEARNED_MODELS, default=common.FUSED_MODEL)
+    add("--model", choices=VARIANCE_MODELS, default="fused")
     add("--prior", metavar="FILE")
     common.budget_flags(s)
     add("--alpha", type=common.alpha_deg, metavar="DEG")

@@ -26,13 +26,11 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from .._errors import InputError
+from .._names import VARIANCE_MODELS
 from .._measurements import Measurements
 from ._covariance import FusedHyper
 from ._fused import reconstruct_fused, rescaled, prior_fused
 from ._model import Prior
-
-#: The learned models that have a predictive variance (the command line's ``--model`` names).
-VARIANCE_MODELS = ("prior", "fused")
 
 
 def learned_hyper(prior: Prior, model: str = "fused", dtype=None) -> tuple[FusedHyper, str]:
