@@ -49,12 +49,13 @@ def _grid_gain(prior, hyper, meas, alpha, reference: str, index):
     instead of an eager dispatch per operation)."""
     import jax.numpy as jnp
 
-    from .prior._fused import factor, fused_basis, grid_features, sample_features
+    from .prior._fused import factor, fused_basis, grid_features, grid_sample_covariance
+    from .prior._fused import sample_features
 
     basis = fused_basis(prior, meas, alpha, reference)
     x_g = grid_features(hyper, prior.dtype)
     fs = factor(hyper, basis, sample_features(hyper, meas, alpha).astype(prior.dtype), x_g)
-    gain = hyper.sigma_p * (prior.components @ fs.u.T) + fs.k_gs  # (D, N): cov(grid, samples)
+    gain = grid_sample_covariance(prior, hyper, fs)  # (D, N): cov(grid, samples)
     w = basis.width
     cols = (index[:, None] * w + jnp.arange(w)).reshape(-1)  # the valid samples' rows
     mt = fs.solve(gain.T)[cols]  # C⁻¹ is symmetric: C⁻¹ gainᵀ = Mᵀ, (n_w, D)

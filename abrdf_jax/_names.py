@@ -72,6 +72,9 @@ STORE_FORMATS = ("npy", "zarr")
 # learned priors (abrdf_jax.prior): channel layouts, training inputs
 PRIOR_CHANNELS = ("joint", "shared")
 PRIOR_INPUT_SUFFIXES = (".npz", ".exr", ".binary")
+#: the learned models that are Gaussian processes with a predictive variance (``--uncertainty``,
+#: ``abrdf-jax suggest``; :mod:`abrdf_jax.prior._uncertainty`)
+VARIANCE_MODELS = ("prior", "fused")
 #: relative tolerance of the automatic model choice (the simplest model within it of the best)
 MODEL_TOL = 0.05
 #: Mitsuba 3 rendering (``abrdf-jax render``, ``abrdf_jax.render.render_table``): the RGB variants

@@ -81,6 +81,11 @@ CASES = [
     (["demo", "-o", "no/f.png"], "--output", "no does not exist"),
     (["reconstruct", "m.csv", "-o", "r.npz", "--params", "none.json"], "--params", "not found"),
     (["reconstruct", "m.csv", "-o", "r.npz", "--params", "d"], "--params", "expected a file"),
+    (["suggest", "m.csv", "--samples", "0"], "--samples", "[1, 1000]"),
+    (["suggest", "m.csv", "--top", "0"], "--top", "[1, 10000]"),
+    (["suggest", "m.csv", "--pairs", "30/95"], "--pairs", "[0, 90)"),
+    (["suggest", "m.csv", "--kinds", "both"], "--kinds", "axial and/or diagonal"),
+    (["suggest", "none.csv"], "MEAS", "not found"),
 ]
 IDS = [" ".join(argv[:2]) + " " + flag for argv, flag, _ in CASES]
 

@@ -61,6 +61,11 @@ NO_JAX_CASES = [
     (["prior", "train", "--help"], 0),
     (["prior", "info", "--help"], 0),
     (["prior", "default", "--help"], 0),
+    (["suggest", "--help"], 0),
+    (["suggest", "bad.csv"], 2),  # a malformed CSV: before any numerics
+    (["suggest", "missing.csv"], 2),
+    (["suggest", "bad.csv", "--pairs", "30/95"], 2),
+    (["reconstruct", "bad.csv", "-o", "rec.npz", "--uncertainty"], 2),  # no variance: auto
     (["prior", "info", "missing.npz"], 2),
     (["prior", "info", "bad.csv"], 2),  # not a prior file
     (["prior", "train", "shape.npz", "-o", "p.txt"], 2),  # a bad output extension
@@ -136,6 +141,7 @@ def test_subcommands_import_only_the_shared_module():
                         "_caches",
                         "_progress",
                         "_resume",
+                        "_uncertainty",
                     },
                     "_args.py": set(),
                     "_outputs.py": set(),
@@ -144,6 +150,7 @@ def test_subcommands_import_only_the_shared_module():
                     "_resume.py": set(),
                     "_record.py": set(),
                     "_learned.py": set(),
+                    "_uncertainty.py": {"_outputs"},
                 }.get(path.name, {"_common"})
                 assert set(targets) <= allowed, (path.name, targets)
 

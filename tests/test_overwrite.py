@@ -48,7 +48,7 @@ def test_every_writer_states_the_policy_in_its_help(path):
 
 
 def test_readers_do_not_claim_to_write():
-    for path in [("evaluate",), ("materials",), ("prior", "info")]:
+    for path in [("evaluate",), ("materials",), ("prior", "info"), ("suggest",)]:
         assert OVERWRITE_POLICY.split()[0] not in _sub(build_parser(), path).format_help()
 
 

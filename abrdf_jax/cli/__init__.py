@@ -1,5 +1,5 @@
-"""The ``abrdf-jax`` command line: reconstruct, sample, evaluate, reference, render, demo, materials,
-fit, btf, cache, prior.
+"""The ``abrdf-jax`` command line: reconstruct, suggest, sample, evaluate, reference, render, demo,
+materials, fit, btf, cache, prior.
 
 One module per subcommand, each with ``register(subparsers)``; what they share lives in
 :mod:`abrdf_jax.cli._common` (the only module they import from this package's CLI). This module
@@ -23,12 +23,13 @@ import warnings
 
 from .._errors import InputError
 from . import btf, cache, demo, evaluate, fit, materials, prior, reconstruct, reference, render
-from . import sample
+from . import sample, suggest
 from ._common import PROG, say, verbose_parent, version, warn
 
 #: The subcommands, in ``--help`` order.
 SUBCOMMANDS = (
     reconstruct,
+    suggest,
     sample,
     evaluate,
     reference,

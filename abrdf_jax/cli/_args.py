@@ -110,3 +110,26 @@ def output_path(text):
     if not p.parent.is_dir():
         raise argparse.ArgumentTypeError(f"{p}: parent folder {p.parent} does not exist")
     return p
+
+
+def elevation_pairs(text: str) -> list[tuple[float, float]]:
+    """The elevation pairs of ``--pairs`` (``TI/TV,TI/TV,...``), each elevation in [0, 90)."""
+    pairs = []
+    for item in text.split(","):
+        halves = item.split("/")
+        if len(halves) != 2:
+            raise argparse.ArgumentTypeError(f"{item!r} is not an elevation pair THETA_I/THETA_V")
+        try:
+            pair = tuple(float(h) for h in halves)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{item!r} is not an elevation pair of numbers"
+            ) from None
+        if not all(math.isfinite(t) and 0 <= t < 90 for t in pair):
+            raise argparse.ArgumentTypeError(
+                f"elevations must lie in [0, 90) degrees, got {item!r}"
+            )
+        pairs.append(pair)
+    if len(set(pairs)) != len(pairs):
+        raise argparse.ArgumentTypeError(f"an elevation pair is given twice in {text!r}")
+    return pairs

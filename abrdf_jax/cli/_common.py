@@ -30,6 +30,7 @@ from ._args import (  # noqa: F401 - the arguments' validators, used through thi
     ALPHA_RANGE,
     alpha_deg,
     degrees,
+    elevation_pairs,
     existing,
     finite,
     integer,
@@ -484,3 +485,7 @@ from ._learned import (  # noqa: E402, F401
 # The caches of a run (``--cache-dir``): their own module, used through this one
 from ._caches import CACHE_DIR_HELP, Caches, compilation_cache  # noqa: E402, F401
 from ._resume import kept_batches, resumable, settings_key  # noqa: E402, F401
+
+# ``--uncertainty``: its own module, used through this one
+from ._uncertainty import HELP as UNCERTAINTY_HELP  # noqa: E402, F401
+from ._uncertainty import check_uncertainty, std_path, write_std  # noqa: E402, F401

@@ -59,6 +59,7 @@ HELP = {
     "refused",
     "--noise": "relative noise of one sample for the isotropy test (default: estimated from the "
     "data)",
+    "--uncertainty": common.UNCERTAINTY_HELP,
 }
 
 
@@ -79,6 +80,7 @@ def register(sub) -> None:
     add("--prior", metavar="FILE")
     add("--resume", action="store_true")
     add("--overwrite", action="store_true")
+    add("--uncertainty", action="store_true")
     add("--cache-dir", metavar="DIR")
 
 
@@ -275,12 +277,14 @@ def run(args) -> int:
     out = Path(args.output)
     targets = _targets(files, out, folder_mode, args.format)
     check_model_arguments(args)
+    common.check_uncertainty(args, folder_mode)
     prior = common.prior_source(args)  # a bad prior file fails here, before any work
     common.check_params_file(args.params)  # and a bad parameter file
     # One writer of the output (and its model record) at a time; a killed one's lock is taken
     # over and its temporary files removed (docs/stability.md, "Faults").
     record = out.parent / ((out.name if folder_mode else out.stem) + ".model.json")
-    with common.output_lock(out, also=[record], announce=False):  # said at the write
+    also = [record] + ([common.std_path(out)] if args.uncertainty else [])
+    with common.output_lock(out, also=also, announce=False):  # said at the write
         return _run(args, files, targets, out, folder_mode, prior)
 
 
@@ -348,12 +352,15 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, cache
     common.announce_replace(out)
     io.write_table(out, table)
     choice["record"]["engine"] = engine
+    std = common.write_std(item, choice, out, caches.prior) if args.uncertainty else None
     how = f"parameters from {args.params}" if args.params else f"model {choice['name']}"
     print(
         f"{out}: reconstructed from {len(item.samples)} samples ({config.budget}, alpha "
         f"{item.alpha:g} deg, {how})"
     )
     print("\n".join(common.describe(choice)))
+    if std is not None:
+        print(f"uncertainty: {std} (standard deviation of ln(x cos(theta_v) + eps); docs/prior.md)")
     print(f"model record: {common.save_model_record(out, [choice], False)}")
     return 0
 

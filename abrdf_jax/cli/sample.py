@@ -10,8 +10,6 @@ is only known on the UBO grid).
 
 from __future__ import annotations
 
-import argparse
-import math
 from pathlib import Path
 
 from .._errors import InputError
@@ -86,33 +84,10 @@ def _per_slice(text: str):
     return counts[0] if len(counts) == 1 else counts
 
 
-def _pairs(text: str) -> list[tuple[float, float]]:
-    """The elevation pairs of ``--pairs`` (``TI/TV,TI/TV,...``), each elevation in [0, 90)."""
-    pairs = []
-    for item in text.split(","):
-        halves = item.split("/")
-        if len(halves) != 2:
-            raise argparse.ArgumentTypeError(f"{item!r} is not an elevation pair THETA_I/THETA_V")
-        try:
-            pair = tuple(float(h) for h in halves)
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"{item!r} is not an elevation pair of numbers"
-            ) from None
-        if not all(math.isfinite(t) and 0 <= t < 90 for t in pair):
-            raise argparse.ArgumentTypeError(
-                f"elevations must lie in [0, 90) degrees, got {item!r}"
-            )
-        pairs.append(pair)
-    if len(set(pairs)) != len(pairs):
-        raise argparse.ArgumentTypeError(f"an elevation pair is given twice in {text!r}")
-    return pairs
-
-
 #: flag -> its argparse ``type=`` (each value checked while the command line is parsed).
 _TYPES = {
     "--per-slice": _per_slice,
-    "--pairs": _pairs,
+    "--pairs": common.elevation_pairs,
     "--jitter": common.finite("--jitter", 0.0, open_low=False),
     "--noise": common.finite("--noise", 0.0, open_low=False),
     "--gap": common.finite("--gap", 0.0, open_low=False),

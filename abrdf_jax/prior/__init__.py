@@ -49,5 +49,7 @@ _EXPORTS = {
     ),
     "_evidence": ("fit_evidence", "fit_population"),
     "_fused_settings": ("FUSED_DEFAULTS",),
+    "_uncertainty": ("VARIANCE_MODELS", "learned_hyper", "reconstruct_with_std"),
+    "_suggest": ("candidate_slices", "ring_pairs", "slice_scores", "suggest_slices"),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS)

@@ -141,10 +141,15 @@ def posterior_mean(prior: Prior, hyper: FusedHyper, fs: FusedSolve, r):
     return m + prior.mean[:, None]
 
 
+def grid_sample_covariance(prior: Prior, hyper: FusedHyper, fs: FusedSolve):
+    """``cov(f(x_g), ŷ)``, ``(G, N)``: ``σ_p² Q_g Q_sᵀ W + σ_k² k(x_g, x_s) W`` (padding: 0)."""
+    return hyper.sigma_p.astype(fs.u.dtype) * prior.components @ fs.u.T + fs.k_gs
+
+
 def posterior_variance(prior: Prior, hyper: FusedHyper, fs: FusedSolve):
     """Latent (noise-free) posterior variance at the grid, ``(G,)`` (non-negative)."""
     dt = fs.u.dtype
-    k_gs = hyper.sigma_p.astype(dt) * prior.components @ fs.u.T + fs.k_gs  # (G, N)
+    k_gs = grid_sample_covariance(prior, hyper, fs)  # (G, N)
     prior_var = hyper.sigma_p.astype(dt) ** 2 * jnp.sum(prior.components**2, -1)
     prior_var = prior_var + hyper.sigma_k.astype(dt) ** 2
     explained = jnp.sum(k_gs * fs.solve(k_gs.T).T, -1)
