@@ -239,12 +239,12 @@ def build_prior_entry(prior, meas, alpha, lam, counts) -> PriorEntry:
     import jax.numpy as jnp
 
     from ._cache import x64_scope
-    from .prior._reconstruct import prior_at_samples, ridge_operator
+    from .prior._reconstruct import ridge_operator, sample_basis
 
     with x64_scope(True):
         p = prior.astype(jnp.float64)
         index, m = float64_template(meas, counts)
-        basis = prior_at_samples(p, m, jnp.asarray(alpha, jnp.float64)).take(index)
+        basis = sample_basis(p, m, jnp.asarray(alpha, jnp.float64)).take(index)
         r = np.asarray(ridge_operator(basis, jnp.asarray(lam, jnp.float64)))
         ref_s, cos_s, mean_s = (np.asarray(a) for a in (basis.reference, basis.cos_v, basis.mean))
         ref_g, cos_g = (np.asarray(a, np.float64) for a in p.grid_layout())
