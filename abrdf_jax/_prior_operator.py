@@ -233,20 +233,45 @@ def prior_entry_key(model, meas, params) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def _ridge_gain(prior, meas, alpha, lam, index):
+    """``(ridge operator, x_ref,s, cos θv,s, μ_s)`` on the valid samples ``index`` (traced)."""
+    import jax.numpy as jnp
+
+    from .prior._model import SampleBasis
+    from .prior._reconstruct import ridge_operator, sample_basis
+
+    full = sample_basis(prior, meas, alpha)
+    w = full.width
+    rows = (index[:, None] * w + jnp.arange(w)).reshape(-1)  # SampleBasis.take, traced
+    fields = (full.mean, full.reference, full.cos_v, full.components, full.weight)
+    basis = SampleBasis(*(a[rows] for a in fields), w)
+    return ridge_operator(basis, lam), basis.reference, basis.cos_v, basis.mean
+
+
+@functools.cache
+def _jitted_ridge_gain():
+    """:func:`_ridge_gain` jitted: one compile instead of an eager dispatch per operation (the
+    exact basis evaluates the prior's training materials)."""
+    import equinox as eqx
+
+    return eqx.filter_jit(_ridge_gain)
+
+
 def build_prior_entry(prior, meas, alpha, lam, counts) -> PriorEntry:
     """The :class:`PriorEntry` of ``prior`` at ``meas``'s layout (α in radians), reading the
     samples within ``counts`` per slice; computed in float64 (JAX), stored as float32."""
     import jax.numpy as jnp
 
     from ._cache import x64_scope
-    from .prior._reconstruct import prior_at_samples, ridge_operator
 
     with x64_scope(True):
-        p = prior.astype(jnp.float64)
+        f64 = jnp.float64
+        p = prior.astype(f64)
         index, m = float64_template(meas, counts)
-        basis = prior_at_samples(p, m, jnp.asarray(alpha, jnp.float64)).take(index)
-        r = np.asarray(ridge_operator(basis, jnp.asarray(lam, jnp.float64)))
-        ref_s, cos_s, mean_s = (np.asarray(a) for a in (basis.reference, basis.cos_v, basis.mean))
+        out = _jitted_ridge_gain()(
+            p, m, jnp.asarray(alpha, f64), jnp.asarray(lam, f64), jnp.asarray(index)
+        )
+        r, ref_s, cos_s, mean_s = (np.asarray(a, np.float64) for a in out)
         ref_g, cos_g = (np.asarray(a, np.float64) for a in p.grid_layout())
         mean, comps = np.asarray(p.mean), np.asarray(p.components)
     eps = float(prior.eps)
@@ -255,7 +280,7 @@ def build_prior_entry(prior, meas, alpha, lam, counts) -> PriorEntry:
         shift=f32(r @ (np.log(ref_s * cos_s + eps) + mean_s)),
         left=f32(comps),
         offset=f32(mean + np.log((ref_g * cos_g + eps) / cos_g)),
-        **entry_layout(index, meas, cos_s, cos_g, eps, int(basis.width)),
+        **entry_layout(index, meas, cos_s, cos_g, eps, 3 if prior.channels == "joint" else 1),
     )
 
 

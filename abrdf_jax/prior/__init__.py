@@ -36,9 +36,21 @@ _EXPORTS = {
     "_model": ("Prior", "SampleBasis", "assemble_prior", "basis_from_training", "train_prior"),
     "_file": ("PRIOR_FORMAT", "load_prior", "prior_info", "read_prior_file", "save_prior"),
     "_inputs": ("read_training_tables",),
-    "_reconstruct": ("prior_at_samples", "project", "reconstruct_prior", "ridge_operator"),
+    "_reconstruct": (
+        "prior_at_samples",
+        "project",
+        "reconstruct_prior",
+        "ridge_operator",
+        "sample_basis",
+    ),
+    "_exact": ("TrainingModels", "exact_basis", "stack_models", "training_models"),
     "_select": ("cross_validate_prior", "select_prior", "table_samples"),
-    "_default": ("DEFAULT_RECIPE", "default_prior", "default_training_tables"),
+    "_default": (
+        "DEFAULT_RECIPE",
+        "default_prior",
+        "default_training_models",
+        "default_training_tables",
+    ),
     "_covariance": ("COORDINATES", "COVARIANCES", "FusedHyper", "covariance"),
     "_fused": (
         "reconstruct_fused",

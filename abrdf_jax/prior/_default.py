@@ -37,9 +37,16 @@ DEFAULT_RECIPE = {
     "lam": 0.03,
     "channels": "shared",
     "eps": 1e-6,
+    # the basis at the sample positions: the training materials evaluated there (exact), not
+    # the grid tables interpolated (abrdf_jax.prior.sample_basis; docs/prior.md)
+    "basis": "models",
     # the fused model's hyper-parameters (``reconstruct --model fused``), chosen on MERL train
     "fused": {k: v for k, v in FUSED_DEFAULTS.items() if k != "chosen_on"},
 }
+
+
+#: The lobe families a recipe may draw, in the order of the draw.
+FAMILIES = ("ggx", "ward", "ashikhmin-shirley")
 
 
 def _draw(rng, recipe):
@@ -49,8 +56,12 @@ def _draw(rng, recipe):
     albedo = np.clip(lightness * np.exp(rng.normal(0.0, 0.35, 3)), 0.0, 0.95)
     if rng.uniform() < recipe["lambert_only_fraction"]:
         return {"albedo": albedo, "lobes": []}
-    fam = list(recipe["families"])
-    family = fam[rng.choice(len(fam), p=list(recipe["families"].values()))]
+    # in a fixed order, not the dict's: a recipe read back from sorted JSON draws the same
+    unknown = set(recipe["families"]) - set(FAMILIES)
+    if unknown:
+        raise InputError(f"recipe: unknown lobe families {sorted(unknown)}; known: {FAMILIES}")
+    fam = [f for f in FAMILIES if f in recipe["families"]]
+    family = fam[rng.choice(len(fam), p=[recipe["families"][f] for f in fam])]
     metal = rng.uniform() < recipe["metal_fraction"]
     if metal:
         albedo = albedo * 0.03
@@ -76,22 +87,28 @@ def _lobe(family, f0, alpha):
     return AshikhminShirley(diffuse=0.0, specular=f0, n_u=n, n_v=n)
 
 
-def default_training_tables(recipe: dict | None = None):
-    """The default prior's training set: ``(tables (n, 81, 81, 3) float32, names)``."""
+def default_training_models(recipe: dict | None = None):
+    """The default prior's training materials as analytic parts: ``(parts, names)``, material
+    ``i`` the sum of the models in ``parts[i]`` (a Lambertian base and its lobes)."""
     from ..materials._analytic import Lambertian
-    from ..materials._registry import dense_table
 
     recipe = DEFAULT_RECIPE if recipe is None else recipe
     rng = np.random.default_rng(recipe["seed"])
-    tables, names = [], []
+    parts, names = [], []
     for i in range(recipe["n"]):
         d = _draw(rng, recipe)
-        t = dense_table(Lambertian(albedo=d["albedo"]), np.float64)
-        for lobe in d["lobes"]:
-            t = t + dense_table(_lobe(*lobe), np.float64)
+        parts.append([Lambertian(albedo=d["albedo"]), *(_lobe(*lobe) for lobe in d["lobes"])])
         kinds = "+".join(f"{f}({a:.3f})" for f, _, a in d["lobes"]) or "lambert"
-        tables.append(t.astype(np.float32))
         names.append(f"analytic-{i:03d}:{kinds}")
+    return parts, names
+
+
+def default_training_tables(recipe: dict | None = None):
+    """The default prior's training set: ``(tables (n, 81, 81, 3) float32, names)``."""
+    from ..materials._registry import dense_table
+
+    parts, names = default_training_models(recipe)
+    tables = [sum(dense_table(p, np.float64) for p in ps).astype(np.float32) for ps in parts]
     return np.stack(tables), names
 
 
@@ -117,6 +134,7 @@ def build_default_prior(recipe: dict | None = None):
     return train_prior(
         tables,
         names,
+        weights=recipe.get("basis") == "models",
         k=recipe["k"],
         lam=recipe["lam"],
         channels=recipe["channels"],

@@ -10,6 +10,9 @@ holding:
   (:mod:`abrdf_jax.prior._fused_settings`).
 - ``mean`` ``(D,)``, ``components`` ``(D, K)``, ``reference`` ``(6561, 3)``, ``lam`` ``()``: float
   arrays, ``D = 6561·3`` (joint) or ``6561`` (shared), ``K ≥ 1``.
+- optionally ``weights`` ``(R, K)``: the components as combinations of the ``R`` training rows
+  (the default prior: its training materials are analytic and evaluated at the exact sample
+  directions, :func:`~abrdf_jax.prior.sample_basis`).
 
 Reading needs numpy only (no JAX): :func:`read_prior_file` and :func:`prior_info`; every problem
 (missing, truncated, corrupt, another format version, missing or inconsistent fields) is an
@@ -33,6 +36,8 @@ from ._fused_settings import check_fused
 #: The file format this version writes and reads.
 PRIOR_FORMAT = "abrdf_jax.prior/1"
 ARRAYS = ("mean", "components", "reference", "lam")
+#: Arrays a prior file may hold (older readers ignore them; the format stays the same).
+OPTIONAL = ("weights",)
 _CHANNEL_WIDTH = {"joint": 3, "shared": 1}
 _PAIRS = 6561
 
@@ -49,6 +54,8 @@ def save_prior(prior, path: str | os.PathLike) -> Path:
     meta = {**prior.metadata, "format": PRIOR_FORMAT, "channels": prior.channels}
     meta["eps"] = float(prior.eps)
     arrays = {name: np.asarray(getattr(prior, name)) for name in ARRAYS}
+    if prior.weights is not None:
+        arrays["weights"] = np.asarray(prior.weights)
     text = json.dumps(meta, sort_keys=True).encode()
     with atomic_write(path, "wb") as f:
         np.savez_compressed(f, metadata=np.frombuffer(text, np.uint8), **arrays)
@@ -82,14 +89,16 @@ def read_prior_file(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dic
         with np.load(path, allow_pickle=False) as z:
             if "metadata" not in held:
                 raise _fail(path, "metadata", "missing (not an abrdf_jax prior file?)")
-            raw = {name: np.array(z[name]) for name in held & {"metadata", *ARRAYS}}
+            raw = {name: np.array(z[name]) for name in held & {"metadata", *ARRAYS, *OPTIONAL}}
     except InputError:
         raise
     except Exception as e:  # noqa: BLE001 - zipfile, zlib and numpy raise many types
         raise located(f"cannot read as a prior .npz (truncated or corrupt?): {e}", path) from e
     meta = _metadata(path, raw.pop("metadata"))
-    for name in ARRAYS:
+    for name in (*ARRAYS, *OPTIONAL):
         if name not in raw:
+            if name in OPTIONAL:
+                continue
             raise _fail(path, name, "missing")
         a = raw[name]
         if not np.issubdtype(a.dtype, np.floating):
@@ -137,6 +146,9 @@ def _check_shapes(path: Path, a: dict, meta: dict) -> None:
     comps = a["components"]
     if comps.ndim != 2 or comps.shape[0] != d or comps.shape[1] < 1:
         raise _fail(path, "components", f"shape {comps.shape}, expected ({d}, K) with K >= 1")
+    w = a.get("weights")
+    if w is not None and (w.ndim != 2 or w.shape[1] != comps.shape[1] or w.shape[0] < 2):
+        raise _fail(path, "weights", f"shape {w.shape}, expected (R, {comps.shape[1]}), R >= 2")
     if not float(a["lam"]) >= 0:
         raise _fail(path, "lam", f"{float(a['lam'])}, expected >= 0")
     if np.any(a["reference"] < 0):

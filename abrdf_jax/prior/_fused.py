@@ -38,7 +38,7 @@ from ._covariance import FusedHyper, covariance, features
 from ._fused_settings import fused_settings
 from ._mapping import inverse_log_relative, log_relative
 from ._model import Prior, SampleBasis
-from ._reconstruct import _alpha, _rows, prior_at_samples
+from ._reconstruct import _alpha, _rows, sample_basis
 
 
 def each(fn, meas: Measurements, alpha, dtype, *batched):
@@ -157,8 +157,8 @@ def posterior_variance(prior: Prior, hyper: FusedHyper, fs: FusedSolve):
 
 
 def fused_basis(prior: Prior, meas: Measurements, alpha=None, reference: str = "log"):
-    """The prior at one measurement's positions (:func:`~abrdf_jax.prior.prior_at_samples`)."""
-    return prior_at_samples(prior, meas, alpha, reference=reference)
+    """The prior at one measurement's positions (:func:`~abrdf_jax.prior.sample_basis`)."""
+    return sample_basis(prior, meas, alpha, reference=reference)
 
 
 def fused_mapped(

@@ -70,22 +70,25 @@ def check_channels(channels: str) -> str:
 
 
 def median_reference(x: np.ndarray, channels: str) -> np.ndarray:
-    """The reference ``x_ref`` of values ``(N, P, 3)``: the median over materials, ``(P, 3)``.
+    """The reference ``x_ref`` of values ``(N, P, 3)``: the median over materials, ``(P, 3)``
+    (numpy or JAX arrays).
 
     ``"joint"``: per position and channel; ``"shared"``: over materials and channels together,
     the same for the three channels.
     """
+    xp = _xp(x)
     if check_channels(channels) == "joint":
-        return np.median(x, axis=0)
-    med = np.median(np.moveaxis(x, -1, 1).reshape(-1, x.shape[1]), 0)
-    return np.broadcast_to(med[:, None], x.shape[1:])
+        return xp.median(x, axis=0)
+    med = xp.median(xp.moveaxis(x, -1, 1).reshape(-1, x.shape[1]), 0)
+    return xp.broadcast_to(med[:, None], x.shape[1:])
 
 
 def to_rows(m: np.ndarray, channels: str) -> np.ndarray:
-    """Mapped values ``(N, P, 3)`` → training rows ``(N, P·3)`` joint or ``(N·3, P)`` shared."""
+    """Mapped values ``(N, P, 3)`` → training rows ``(N, P·3)`` joint or ``(N·3, P)`` shared
+    (numpy or JAX arrays)."""
     if check_channels(channels) == "joint":
         return m.reshape(m.shape[0], -1)
-    return np.moveaxis(m, -1, 1).reshape(-1, m.shape[1])
+    return _xp(m).moveaxis(m, -1, 1).reshape(-1, m.shape[1])
 
 
 def per_position(v, channels: str):

@@ -45,6 +45,11 @@ class Prior(eqx.Module):
         meta: JSON text of the metadata (static): what it was trained on (names, sha256 of the
             inputs), the package version, how K and λ were chosen (the file adds its format,
             ``channels`` and ``eps``).
+        weights: ``(R, K)`` or ``None``: each component as a combination of the ``R`` centred
+            training rows (:class:`~abrdf_jax.prior.PCA`'s ``weights``), kept where the training
+            materials can be evaluated at any direction (the default prior's analytic materials):
+            the basis at the sample positions is then exact, not interpolated from the grid
+            (:func:`~abrdf_jax.prior.sample_basis`).
     """
 
     mean: Float[Array, " D"]
@@ -54,6 +59,7 @@ class Prior(eqx.Module):
     eps: float = eqx.field(static=True)
     channels: str = eqx.field(static=True)
     meta: str = eqx.field(static=True, default="{}")
+    weights: Float[Array, "R K"] | None = None
 
     @property
     def n_components(self) -> int:
@@ -71,13 +77,17 @@ class Prior(eqx.Module):
         """The prior with its first ``k`` components."""
         if not 1 <= k <= self.n_components:
             raise InputError(f"truncate: k must be in [1, {self.n_components}], got {k}")
-        return eqx.tree_at(lambda p: p.components, self, self.components[:, :k])
+        out = eqx.tree_at(lambda p: p.components, self, self.components[:, :k])
+        if self.weights is None:
+            return out
+        return eqx.tree_at(lambda p: p.weights, out, self.weights[:, :k])
 
     def astype(self, dtype) -> "Prior":
         """The prior with its arrays in ``dtype``."""
         arrays = (self.mean, self.components, self.reference, self.lam)
         new = (jnp.asarray(a, dtype) for a in arrays)
-        return Prior(*new, eps=self.eps, channels=self.channels, meta=self.meta)
+        w = None if self.weights is None else jnp.asarray(self.weights, dtype)
+        return Prior(*new, eps=self.eps, channels=self.channels, meta=self.meta, weights=w)
 
     def with_lam(self, lam) -> "Prior":
         return eqx.tree_at(lambda p: p.lam, self, jnp.asarray(lam, self.dtype))
@@ -133,8 +143,12 @@ def _sha256(array) -> str:
     return hashlib.sha256(a.tobytes()).hexdigest()
 
 
-def assemble_prior(reference, pca: PCA, *, eps, channels, lam, meta: dict, dtype) -> Prior:
-    """A :class:`Prior` from a reference ``(6561, 3)`` and a :class:`PCA` of the mapped rows."""
+def assemble_prior(
+    reference, pca: PCA, *, eps, channels, lam, meta: dict, dtype, weights: bool = False
+) -> Prior:
+    """A :class:`Prior` from a reference ``(6561, 3)`` and a :class:`PCA` of the mapped rows
+    (with ``weights``: the PCA's weights kept, for training materials that can be evaluated at
+    any direction)."""
     return Prior(
         mean=jnp.asarray(pca.mean, dtype),
         components=jnp.asarray(pca.components, dtype),
@@ -143,6 +157,7 @@ def assemble_prior(reference, pca: PCA, *, eps, channels, lam, meta: dict, dtype
         eps=float(eps),
         channels=channels,
         meta=json.dumps(meta, sort_keys=True),
+        weights=jnp.asarray(pca.weights, dtype) if weights else None,
     )
 
 
@@ -157,6 +172,7 @@ def train_prior(
     sources=None,
     extra_meta: dict | None = None,
     dtype=jnp.float32,
+    weights: bool = False,
 ) -> Prior:
     """Train a prior from dense ABRDF tables (steps 1–3 of :mod:`abrdf_jax.prior._mapping`).
 
@@ -173,6 +189,8 @@ def train_prior(
             default: the sha256 of each table's float32 bytes.
         extra_meta: more metadata (e.g. how ``k`` and ``λ`` were chosen, provenance).
         dtype: dtype of the prior's arrays (training itself runs in float64).
+        weights: keep the PCA's weights (:attr:`Prior.weights`): for training materials that
+            can be evaluated at any direction (the default prior's analytic ones).
 
     Raises:
         InputError: wrong shape, fewer than 2 tables, non-finite or negative-everywhere input,
@@ -209,7 +227,9 @@ def train_prior(
         "explained_variance": [float(v) for v in pca.variances],
         **(extra_meta or {}),
     }
-    return assemble_prior(ref, pca, eps=eps, channels=channels, lam=lam, meta=meta, dtype=dtype)
+    return assemble_prior(
+        ref, pca, eps=eps, channels=channels, lam=lam, meta=meta, dtype=dtype, weights=weights
+    )
 
 
 def basis_from_training(pca: PCA, x_s, cos_s, weight, *, channels: str, eps: float, dtype):

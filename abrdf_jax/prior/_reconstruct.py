@@ -19,6 +19,7 @@ import numpy as np
 from .._measurements import Measurements
 from .._sampling import interpolate_table, table_corners
 from .._slices import PROTOCOL_ALPHA_DEG
+from ._exact import exact_basis, training_models
 from ._mapping import grid_cos_view, inverse_log_relative, log_relative
 from ._model import Prior, SampleBasis
 
@@ -78,6 +79,17 @@ def prior_at_samples(
     )
 
 
+def sample_basis(prior: Prior, meas: Measurements, alpha=None, reference: str = "linear"):
+    """The prior at one measurement's sample positions: exact where the prior's training
+    materials are models (:func:`abrdf_jax.prior._exact.exact_basis`: the default prior), else
+    interpolated from its grid tables (:func:`prior_at_samples`, whose ``reference`` this is).
+    Every reconstruction with a prior reads its basis here."""
+    models = training_models(prior)
+    if models is None:
+        return prior_at_samples(prior, meas, alpha, reference=reference)
+    return exact_basis(prior, models, meas, _alpha(alpha, prior.dtype))
+
+
 def ridge_operator(basis: SampleBasis, lam) -> jax.Array:
     """``(Q_sᵀ W Q_s + λI)⁻¹ Q_sᵀ W``: centred mapped samples → weights, ``(K, P·C)``."""
     q = basis.components
@@ -131,6 +143,6 @@ def reconstruct_prior(meas: Measurements, prior: Prior, lam=None, alpha=None) ->
     if meas.t.ndim > 2:
         alphas = jnp.broadcast_to(alpha, meas.t.shape[:1])
         return jax.vmap(lambda m, a: reconstruct_prior(m, prior, lam, a))(meas, alphas)
-    basis = prior_at_samples(prior, meas, alpha)
+    basis = sample_basis(prior, meas, alpha)
     s, n = meas.t.shape
     return project(prior, basis, lam, jnp.reshape(meas.y, (s * n, 3)))

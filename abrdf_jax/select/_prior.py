@@ -22,7 +22,7 @@ from .._folds import log_rms, sample_folds
 from .._measurements import Measurements
 from .._values import measurement_eps
 from ..prior._mapping import inverse_log_relative, log_relative
-from ..prior._reconstruct import _rows, prior_at_samples, ridge_operator
+from ..prior._reconstruct import _rows, ridge_operator, sample_basis
 
 
 def prior_fold_data(meas: Measurements, alpha, k: int = 4, budget: str = "aniso204") -> dict:
@@ -45,13 +45,13 @@ def prior_fold_data(meas: Measurements, alpha, k: int = 4, budget: str = "aniso2
 
 def _predict(prior, train: Measurements, test: Measurements, lam, alpha):
     """The prior fitted to ``train``'s samples, at ``test``'s positions: ``(P_test, 3)``."""
-    basis = prior_at_samples(prior, train, alpha)
+    basis = sample_basis(prior, train, alpha)
     joint = prior.channels == "joint"
     y = train.y.reshape(-1, 3)
     z = y.reshape(-1) if joint else y.T  # a row of P·3 values, or one row per channel
     ref_s, cos_s, mean_s = _rows(z, basis.reference, basis.cos_v, basis.mean)
     c = (log_relative(z, ref_s, cos_s, prior.eps) - mean_s) @ ridge_operator(basis, lam).T
-    out = prior_at_samples(prior, test, alpha)
+    out = sample_basis(prior, test, alpha)
     m = c @ out.components.T
     ref_t, cos_t, mean_t = _rows(m, out.reference, out.cos_v, out.mean)
     pred = inverse_log_relative(m + mean_t, ref_t, cos_t, prior.eps)
