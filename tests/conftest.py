@@ -6,8 +6,9 @@ from pathlib import Path
 
 # The tests check numbers, not speed: XLA compiles their programs at its lowest backend
 # optimisation level, without LLVM's expensive passes (the same operations; compiling is most
-# of the suite's time, a few run-heavy tests are slower: `pytest --durations`). Subprocesses
-# inherit it. A user's XLA_FLAGS wins.
+# of the suite's time, a few run-heavy tests are slower: `pytest --durations`; like for like,
+# docs/notes.md "Testing": test_transforms + test_engine faster with it). Subprocesses inherit
+# it. A user's XLA_FLAGS wins.
 os.environ.setdefault(
     "XLA_FLAGS", "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
 )
