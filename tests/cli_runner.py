@@ -1,4 +1,5 @@
-"""The one way the tests run ``abrdf-jax`` in a subprocess: this checkout's package first on the path."""
+"""How the tests run ``abrdf-jax``: in a subprocess (this checkout's package first on the path), or
+``main`` in this process (:func:`call_cli`)."""
 
 import os
 import subprocess
@@ -11,6 +12,44 @@ REPO = Path(__file__).resolve().parents[1]
 def run_cli(*args, cwd, timeout: int = 300):
     """``python -m abrdf_jax.cli ARGS`` in ``cwd``: the completed process (text output)."""
     return run_module("abrdf_jax.cli", *args, cwd=cwd, timeout=timeout)
+
+
+def _x64_off():
+    import jax
+
+    if hasattr(jax, "enable_x64"):
+        return jax.enable_x64(False)
+    from jax.experimental import disable_x64  # JAX before 0.7
+
+    return disable_x64()
+
+
+def call_cli(*args, cwd) -> subprocess.CompletedProcess:
+    """``abrdf_jax.cli.main(ARGS)`` in THIS process, in ``cwd``, its stdout and stderr captured:
+    what :func:`run_cli` returns (exit status, text output), without a fresh interpreter, so
+    JAX's import and the functions compiled by earlier calls are reused. JAX runs as in the
+    command's own process: 64-bit types off (the tests turn them on; ``abrdf-jax`` does not).
+    For tests whose subject is the command's behaviour; a test about the process itself (what it
+    imports, signals, kills, runs at the same time, its environment) keeps :func:`run_cli`."""
+    import contextlib
+    import io
+
+    from abrdf_jax.cli import main
+
+    argv = list(map(str, args))
+    out, err = io.StringIO(), io.StringIO()
+    here = os.getcwd()
+    os.chdir(cwd)
+    try:
+        with (
+            contextlib.redirect_stdout(out),
+            contextlib.redirect_stderr(err),
+            _x64_off(),
+        ):
+            code = main(argv)
+    finally:
+        os.chdir(here)
+    return subprocess.CompletedProcess(["abrdf-jax", *argv], code, out.getvalue(), err.getvalue())
 
 
 def _env() -> dict:

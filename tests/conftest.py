@@ -6,8 +6,9 @@ from pathlib import Path
 
 # The tests check numbers, not speed: XLA compiles their programs at its lowest backend
 # optimisation level, without LLVM's expensive passes (the same operations; compiling is most
-# of the suite's time, a few run-heavy tests are slower: `pytest --durations`). Subprocesses
-# inherit it. A user's XLA_FLAGS wins.
+# of the suite's time, a few run-heavy tests are slower: `pytest --durations`; like for like,
+# docs/notes.md "Testing": test_transforms + test_engine faster with it). Subprocesses inherit
+# it. A user's XLA_FLAGS wins.
 os.environ.setdefault(
     "XLA_FLAGS", "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
 )
@@ -25,7 +26,16 @@ if "ABRDF_JAX_CACHE_DIR" not in os.environ:
     import tempfile
 
     os.environ["ABRDF_JAX_CACHE_DIR"] = tempfile.mkdtemp(prefix="abrdf-jax-test-cache-")
+    os.environ["ABRDF_JAX_TEST_SESSION_CACHE"] = os.environ["ABRDF_JAX_CACHE_DIR"]
     atexit.register(shutil.rmtree, os.environ["ABRDF_JAX_CACHE_DIR"], True)
+# That folder's compilation cache (xla/) is on in the test processes too, from the start: a
+# program compiled once in this session (by either pytest-xdist worker, a test in this process
+# or an `abrdf-jax` subprocess, which use the same folder) is loaded, not compiled, by the
+# others. Only for the session's own folder (the xdist workers inherit the variables), never a
+# user's cache.
+SESSION_CACHE = os.environ.get("ABRDF_JAX_TEST_SESSION_CACHE")
+if SESSION_CACHE is None or SESSION_CACHE != os.environ["ABRDF_JAX_CACHE_DIR"]:
+    SESSION_CACHE = None
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # for tests.scipy_oracle and the benchmarks that the smoke tests run
@@ -46,6 +56,23 @@ STRICT_MODULES = {
 }
 
 
+@pytest.hookimpl(tryfirst=True, optionalhook=True)  # pytest-xdist's hook: none without it
+def pytest_xdist_make_scheduler(config, log):
+    """``-n 2`` without ``--dist``: pytest-xdist's work-stealing scheduler instead of ``load``.
+    ``load`` hands out the tests one by one to whichever worker is free, so both workers run
+    parts of every module and each builds the module's fixtures and compiles its functions;
+    ``worksteal`` gives each worker a contiguous half of the collection and lets an idle worker
+    take the far end of the other's queue, so a module mostly stays on one worker."""
+    args = config.invocation_params.args
+    if config.getvalue("dist") != "load" or any(str(a).startswith(("--dist", "-d")) for a in args):
+        return None
+    try:
+        from xdist.scheduler import WorkStealingScheduling
+    except ImportError:  # pytest-xdist before 3.2
+        return None
+    return WorkStealingScheduling(config, log)
+
+
 def pytest_report_header(config):
     return [f"abrdf_jax test seed: {SEED} (override with ABRDF_TEST_SEED)", f"data: {DATA_DIR}"]
 
@@ -58,6 +85,27 @@ def _strict_promotion(request):
         return
     with jax.numpy_dtype_promotion("strict"), jax.numpy_rank_promotion("raise"):
         yield
+
+
+def _session_compilation_cache() -> None:
+    """Turn the session's compilation cache on (again) in this process, unless it is on."""
+    if SESSION_CACHE is None:
+        return
+    from abrdf_jax._compilation_cache import XLA, enable_compilation_cache
+
+    if jax.config.jax_compilation_cache_dir != str(Path(SESSION_CACHE) / XLA):
+        enable_compilation_cache(Path(SESSION_CACHE))
+
+
+_session_compilation_cache()
+
+
+@pytest.fixture(autouse=True)
+def _compilation_cache_back_on():
+    """A test of the caches (or a CLI call with its own --cache-dir) may point JAX's compilation
+    cache elsewhere or turn it off: the next test finds the session's again."""
+    yield
+    _session_compilation_cache()
 
 
 @pytest.fixture

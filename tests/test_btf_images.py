@@ -8,8 +8,6 @@ import io
 import os
 import shutil
 import struct
-import subprocess
-import sys
 import warnings
 import zipfile
 import zlib
@@ -23,6 +21,7 @@ from abrdf_jax import btf
 from abrdf_jax._errors import InputError
 from abrdf_jax.btf._images import decode_image, srgb_table
 from abrdf_jax.metrics import srgb_decode, srgb_encode
+from cli_runner import call_cli
 
 SIZE, CHUNK = 8, 16
 SEED = int(os.environ.get("ABRDF_TEST_SEED", "0"))  # as conftest.py
@@ -382,9 +381,7 @@ def test_failure_after_the_first_group_removes_the_store(capture, tmp_path, monk
 
 
 def _cli(*args):
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    cmd = [sys.executable, "-m", "abrdf_jax.cli", "btf", "import", *map(str, args), "-q"]
-    return subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=300)
+    return call_cli("btf", "import", *args, "-q", cwd=REPO)
 
 
 def test_cli_import(capture, tmp_path):
@@ -422,10 +419,8 @@ def test_btf_reconstruct_reads_an_image_capture_directly(capture, tmp_path):
     reuses it) and reconstructs them, as import followed by reconstruct does."""
     vals, angles = capture["meas"], capture["angles"]
     archive = _zip(_write_pngs(tmp_path / "png", vals, angles), tmp_path / "cap.zip")
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    cmd = [sys.executable, "-m", "abrdf_jax.cli", "btf", "reconstruct", str(archive)]
-    cmd += ["-o", str(tmp_path / "rec"), "-q", "--chunk", str(CHUNK)]
-    first = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=300)
+    cmd = ["btf", "reconstruct", archive, "-o", tmp_path / "rec", "-q", "--chunk", CHUNK]
+    first = call_cli(*cmd, cwd=REPO)
     assert first.returncode == 0, first.stderr
     assert "importing the images of" in first.stdout
     rec = btf.ChunkedStore.open(tmp_path / "rec")
@@ -433,5 +428,5 @@ def test_btf_reconstruct_reads_an_image_capture_directly(capture, tmp_path):
     imported = btf.ChunkedStore.open(tmp_path / "rec.measurements")
     direct = btf.read_image_pairs(tmp_path / "png", tmp_path / "direct")
     np.testing.assert_array_equal(imported.read(), direct.read())
-    again = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=300)
+    again = call_cli(*cmd, cwd=REPO)
     assert again.returncode == 0 and "reused" in again.stdout, again.stderr

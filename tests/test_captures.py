@@ -5,15 +5,13 @@ needed); accuracy is measured against the material's dense table.
 """
 
 import json
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
 import abrdf_jax as aj
 from abrdf_jax import io, materials, metrics
 from abrdf_jax.cli import main
+from cli_runner import call_cli
 
 ISO, ANISO = "ggx-plastic", "ward-brushed-steel"
 OFF_UBO = ((35.0, 35.0), (35.0, 70.0), (70.0, 35.0), (70.0, 70.0))
@@ -176,7 +174,7 @@ def write(folder, name, samples):
 
 
 def test_every_capture_kind_in_one_folder_call(tmp_path, iso):
-    """Every capture kind of an isotropic material in one subprocess folder call: exit 0, a
+    """Every capture kind of an isotropic material in one folder call: exit 0, a
     valid table each, and the model record says what was used."""
     m, ref = iso
     kinds = {
@@ -192,12 +190,7 @@ def test_every_capture_kind_in_one_folder_call(tmp_path, iso):
     for k, kw in kinds.items():
         write(tmp_path / "in", k, aj.simulate_capture(m, budget="iso102", seed=3, **kw))
     out = tmp_path / "out"
-    r = subprocess.run(
-        [sys.executable, "-m", "abrdf_jax.cli", "reconstruct", str(tmp_path / "in"), "-o", str(out)]
-        + ["-q", "--model", "iso"],
-        capture_output=True,
-        text=True,
-    )
+    r = call_cli("reconstruct", tmp_path / "in", "-o", out, "-q", "--model", "iso", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert "interpolated across the gap" in r.stderr
     record = {e["input"].split("/")[-1][:-4]: e for e in json.loads(out.with_suffix(".model.json").read_text())["inputs"]}  # fmt: skip

@@ -1,6 +1,9 @@
-"""The ``abrdf-jax`` command line, driven as a user would (subprocesses), plus cheap in-process checks.
+"""The ``abrdf-jax`` command line, driven as a user would (subprocesses), plus in-process checks.
 
-Each subprocess pays JAX's start-up (a few seconds), so their number is kept small.
+Each subprocess pays JAX's start-up and compiles (a few seconds), so their number is kept small:
+the workflow and the bad-input cases run the command in a fresh interpreter; the folder mode,
+the demo and the reference run ``main`` in this process (``cli_runner.call_cli``: the same exit
+status and output).
 """
 
 import json
@@ -12,7 +15,7 @@ import pytest
 
 from abrdf_jax import io
 from abrdf_jax.cli import main
-from tests.cli_runner import assert_cli_table, run_cli
+from tests.cli_runner import assert_cli_table, call_cli, run_cli
 
 
 def assert_clean_failure(proc, *names):
@@ -94,7 +97,7 @@ def test_folder_mode_reconstructs_every_file(tmp_path):
             src / f"{name}.csv", aj.sample(_table(k, budget == "aniso204"), config)
         )
     (src / "notes.txt").write_text("not a measurement")  # ignored: only *.csv are inputs
-    proc = run_cli("reconstruct", src, "-o", tmp_path / "out", "--format", "exr", cwd=tmp_path)
+    proc = call_cli("reconstruct", src, "-o", tmp_path / "out", "--format", "exr", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert listing(tmp_path / "out") == ["a.exr", "b.exr", "c.exr"]
     for name in "abc":
@@ -103,7 +106,7 @@ def test_folder_mode_reconstructs_every_file(tmp_path):
 
 
 def test_demo_writes_figure(tmp_path):
-    proc = run_cli("demo", "--materials", "2", "-o", "demo.png", cwd=tmp_path)
+    proc = call_cli("demo", "--materials", "2", "-o", "demo.png", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     data = (tmp_path / "demo.png").read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
@@ -119,19 +122,19 @@ def test_reference_writes_the_dense_table_that_evaluate_reads(tmp_path):
 
     from abrdf_jax import io, materials
 
-    proc = run_cli("reference", "ward-brushed-steel", "-o", "ref.npz", cwd=tmp_path)
+    proc = call_cli("reference", "ward-brushed-steel", "-o", "ref.npz", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert "ref.npz" in proc.stdout
     expected = materials.dense_table("ward-brushed-steel")
     np.testing.assert_array_equal(io.read_table(tmp_path / "ref.npz"), expected)
-    proc = run_cli("reference", "ggx-plastic", "-o", "ref.exr", cwd=tmp_path)
+    proc = call_cli("reference", "ggx-plastic", "-o", "ref.exr", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     np.testing.assert_allclose(
         io.read_table(tmp_path / "ref.exr"), materials.dense_table("ggx-plastic"), rtol=1e-6
     )
-    proc = run_cli("evaluate", "ref.npz", "ref.npz", "--json", cwd=tmp_path)
+    proc = call_cli("evaluate", "ref.npz", "ref.npz", "--json", cwd=tmp_path)
     assert proc.returncode == 0 and '"de76": 0.0' in proc.stdout, proc.stdout + proc.stderr
-    proc = run_cli("reference", "no-such", "-o", "x.npz", cwd=tmp_path)
+    proc = call_cli("reference", "no-such", "-o", "x.npz", cwd=tmp_path)
     assert proc.returncode == 2 and "unknown material 'no-such'" in proc.stderr
     assert listing(tmp_path) == ["ref.exr", "ref.npz"]
 

@@ -27,7 +27,7 @@ from abrdf_jax._prior_operator import PriorModel, prior_entry_key, read_source, 
 from abrdf_jax.prior._default import DEFAULT_RECIPE
 from abrdf_jax.prior._fused_settings import FUSED_DEFAULTS
 
-from cli_runner import run_cli
+from cli_runner import call_cli
 
 ALPHA = np.deg2rad(aj.PROTOCOL_ALPHA_DEG)
 
@@ -119,11 +119,11 @@ def test_cli_model_fused_folder_and_file(small_prior, prior_file, tmp_path):
     samples = {n: _csv(tmp_path / "d" / n, m, "aniso204")
                for n, m in (("pl.csv", "ggx-plastic"), ("an.csv", "ggx-aniso-metal"))}  # fmt: skip
     cache = ["--cache-dir", tmp_path / "cache"]
-    many = run_cli("reconstruct", "d", "-o", "out", "--model", "fused", "--prior", prior_file,
+    many = call_cli("reconstruct", "d", "-o", "out", "--model", "fused", "--prior", prior_file,
                    "-q", *cache, cwd=tmp_path)  # fmt: skip
     assert many.returncode == 0, many.stderr
     assert "2 by the operator" in many.stdout
-    one = run_cli("reconstruct", "d/pl.csv", "-o", "pl.npz", "--model", "fused", "--prior",
+    one = call_cli("reconstruct", "d/pl.csv", "-o", "pl.npz", "--model", "fused", "--prior",
                   prior_file, *cache, cwd=tmp_path)  # fmt: skip
     assert one.returncode == 0, one.stderr
     record = json.loads((tmp_path / "pl.model.json").read_text())
@@ -143,7 +143,7 @@ def test_cli_bad_fused_member_is_an_input_error(small_prior, tmp_path):
         small_prior, meta=json.dumps({"fused": {**FUSED_DEFAULTS, "sigma_n": -1}})
     )
     P.save_prior(bad, tmp_path / "bad.npz")
-    r = run_cli("reconstruct", "m.csv", "-o", "m.npz", "--model", "fused", "--prior", "bad.npz",
+    r = call_cli("reconstruct", "m.csv", "-o", "m.npz", "--model", "fused", "--prior", "bad.npz",
                 cwd=tmp_path)  # fmt: skip
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1, r.stderr

@@ -12,7 +12,7 @@ import pytest
 from abrdf_jax import io
 from abrdf_jax.cli import build_parser
 from abrdf_jax.cli._common import OVERWRITE_POLICY
-from cli_runner import run_cli
+from cli_runner import call_cli
 
 WRITERS = [
     ("sample",),
@@ -56,9 +56,9 @@ def test_readers_do_not_claim_to_write():
 def work(tmp_path_factory):
     """A folder with one measurement (the README's ``sample ggx-plastic -o meas.csv``, twice)."""
     d = tmp_path_factory.mktemp("overwrite")
-    first = run_cli("sample", "ggx-plastic", "-o", "meas.csv", cwd=d)
+    first = call_cli("sample", "ggx-plastic", "-o", "meas.csv", cwd=d)
     assert first.returncode == 0 and "replacing" not in first.stderr, first.stderr
-    again = run_cli("sample", "ggx-plastic", "-o", "meas.csv", "--noise", "0.02", cwd=d)
+    again = call_cli("sample", "ggx-plastic", "-o", "meas.csv", "--noise", "0.02", cwd=d)
     assert again.returncode == 0, again.stderr
     assert again.stderr.count("replacing meas.csv") == 1
     assert len(io.read_sample_columns(d / "meas.csv")) == 102
@@ -67,10 +67,10 @@ def work(tmp_path_factory):
 
 def _replaced_twice(work, name, *argv):
     """Run ``argv`` twice into ``name``: the second says it replaces it, and does."""
-    first = run_cli(*argv, cwd=work)
+    first = call_cli(*argv, cwd=work)
     assert first.returncode == 0, first.stderr
     (work / name).write_bytes(b"stale")  # the rerun must replace this, whatever it is
-    again = run_cli(*argv, cwd=work)
+    again = call_cli(*argv, cwd=work)
     assert again.returncode == 0, again.stderr
     assert again.stderr.count(f"replacing {name}") == 1, again.stderr
     assert (work / name).read_bytes() != b"stale"
@@ -78,15 +78,15 @@ def _replaced_twice(work, name, *argv):
 
 
 def test_single_file_reconstruct_reruns_with_other_flags(work):
-    a = run_cli("reconstruct", "meas.csv", "-o", "rec.npz", "--model", "iso", cwd=work)
+    a = call_cli("reconstruct", "meas.csv", "-o", "rec.npz", "--model", "iso", cwd=work)
     assert a.returncode == 0 and "replacing" not in a.stderr, a.stderr
     iso = io.read_table(work / "rec.npz")
-    b = run_cli("reconstruct", "meas.csv", "-o", "rec.npz", "--preset", "paper", cwd=work)
+    b = call_cli("reconstruct", "meas.csv", "-o", "rec.npz", "--preset", "paper", cwd=work)
     assert b.returncode == 0, b.stderr
     assert b.stderr.count("replacing rec.npz") == 1
     assert not np.array_equal(io.read_table(work / "rec.npz"), iso)  # the paper model's table
     assert json.loads((work / "rec.model.json").read_text())["model"] == "paper"
-    bad = run_cli("reconstruct", "meas.csv", "-o", "rec.npz", "--overwrite", cwd=work)
+    bad = call_cli("reconstruct", "meas.csv", "-o", "rec.npz", "--overwrite", cwd=work)
     assert bad.returncode == 2 and "--overwrite is for an output folder" in bad.stderr
 
 
@@ -97,7 +97,7 @@ def test_reference_and_prior_default_replace(work):
 
 @pytest.mark.skipif(importlib.util.find_spec("mitsuba") is None, reason="render extra")
 def test_render_replaces(work):
-    assert run_cli("reference", "ggx-plastic", "-o", "r.npz", cwd=work).returncode == 0
+    assert call_cli("reference", "ggx-plastic", "-o", "r.npz", cwd=work).returncode == 0
     _replaced_twice(
         work, "fig.png", "render", "r.npz", "-o", "fig.png", "--size", "8", "--spp", "1"
     )
@@ -107,7 +107,7 @@ def test_prior_train_replaces(work):
     """``prior train`` (and ``fit``, whose run is too slow for this file: the same
     ``output_lock`` announces the replacement just before the write)."""
     for m in ("ggx-plastic", "ggx-aniso-metal"):
-        assert run_cli("reference", m, "-o", f"t-{m}.npz", cwd=work).returncode == 0
+        assert call_cli("reference", m, "-o", f"t-{m}.npz", cwd=work).returncode == 0
     train = ["prior", "train", "t-ggx-plastic.npz", "t-ggx-aniso-metal.npz", "-o", "pt.npz"]
     _replaced_twice(work, "pt.npz", *train, "--components", "1", "--lam", "0.1", "-q")
 
@@ -122,19 +122,19 @@ def test_folder_run_resumes_same_settings_refuses_others(work):
     for k in range(2):
         (d / f"m{k}.csv").write_bytes((work / "meas.csv").read_bytes())
     run = ["reconstruct", "measurements", "-o", "out", "-q", "--model", "iso"]
-    assert run_cli(*run, "--format", "npz", cwd=work).returncode == 0
+    assert call_cli(*run, "--format", "npz", cwd=work).returncode == 0
     before, record = _tables(work / "out"), (work / "out.model.json").read_bytes()
-    again = run_cli(*run, "--resume", cwd=work)  # the README's pair: same settings, resumed
+    again = call_cli(*run, "--resume", cwd=work)  # the README's pair: same settings, resumed
     assert again.returncode == 0 and "nothing to do" in again.stdout, again.stderr
     other = ["reconstruct", "measurements", "-o", "out", "-q", "--preset", "paper"]
     for extra in ([], ["--resume"]):
-        refused = run_cli(*other, *extra, cwd=work)
+        refused = call_cli(*other, *extra, cwd=work)
         assert refused.returncode == 2, refused.stderr
         assert "other settings (model, preset differ)" in refused.stderr
         assert "--overwrite" in refused.stderr and "Traceback" not in refused.stderr
         assert _tables(work / "out") == before
         assert (work / "out.model.json").read_bytes() == record
-    done = run_cli(*other, "--overwrite", cwd=work)
+    done = call_cli(*other, "--overwrite", cwd=work)
     assert done.returncode == 0, done.stderr
     assert "replacing the tables of out (--overwrite)" in done.stderr
     after = _tables(work / "out")
@@ -145,20 +145,20 @@ def test_folder_run_resumes_same_settings_refuses_others(work):
 
 def test_btf_store_resumes_same_settings_refuses_others(work):
     gen = ["btf", "generate", "-o", "g", "--size", "4", "--seed", "1", "-q"]
-    r = run_cli(*gen, cwd=work)
+    r = call_cli(*gen, cwd=work)
     assert r.returncode == 0, r.stderr
-    refused = run_cli("btf", "generate", "-o", "g", "--size", "4", "--seed", "2", "-q", cwd=work)
+    refused = call_cli("btf", "generate", "-o", "g", "--size", "4", "--seed", "2", "-q", cwd=work)
     assert refused.returncode == 2 and "pass --overwrite to replace it" in refused.stderr
     rec = ["btf", "reconstruct", "g", "-o", "g/rec", "-q"]
     for _ in range(2):
-        r = run_cli(*rec, cwd=work)
+        r = call_cli(*rec, cwd=work)
         assert r.returncode == 0, r.stderr
     assert "0 chunks computed" in r.stdout  # resumed: nothing left to do
     chunks = {p.name: p.read_bytes() for p in (work / "g" / "rec").rglob("*") if p.is_file()}
-    refused = run_cli(*rec, "--preset", "paper", cwd=work)
+    refused = call_cli(*rec, "--preset", "paper", cwd=work)
     assert refused.returncode == 2 and "pass --overwrite to replace it" in refused.stderr
     kept = {p.name: p.read_bytes() for p in (work / "g" / "rec").rglob("*") if p.is_file()}
     assert kept == chunks
-    r = run_cli(*rec, "--preset", "paper", "--overwrite", cwd=work)
+    r = call_cli(*rec, "--preset", "paper", "--overwrite", cwd=work)
     assert r.returncode == 0 and "0 chunks computed" not in r.stdout, r.stderr
     _replaced_twice(work, "map.png", "btf", "evaluate", "g/rec", "g/reference", "--png", "map.png")

@@ -18,7 +18,7 @@ import abrdf_jax as aj
 from abrdf_jax import prior as P
 from abrdf_jax.io import write_merl_binary
 
-from cli_runner import run_cli
+from cli_runner import call_cli
 
 F64 = jnp.float64
 EPS = 1e-6
@@ -298,7 +298,7 @@ def test_default_prior_is_built_once_and_cached(tmp_path):
 def test_cli_train_and_info(tmp_path, rng):
     tables, _ = _low_rank_tables(rng, 8, 3)
     np.savez(tmp_path / "stack.npz", abrdf=tables.astype(np.float32))
-    proc = run_cli(
+    proc = call_cli(
         "prior",
         "train",
         "stack.npz",
@@ -312,12 +312,12 @@ def test_cli_train_and_info(tmp_path, rng):
     )
     assert proc.returncode == 0, proc.stderr
     assert "K=3" in proc.stdout
-    proc = run_cli("prior", "info", "p.npz", "--json", cwd=tmp_path)
+    proc = call_cli("prior", "info", "p.npz", "--json", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     info = json.loads(proc.stdout)
     assert info["n_components"] == 3 and info["lam"] == pytest.approx(0.1)
     assert [t["name"] for t in info["trained_on"]] == [f"stack[{i}]" for i in range(8)]
-    proc = run_cli(
+    proc = call_cli(
         "prior",
         "train",
         "stack.npz",
@@ -333,7 +333,7 @@ def test_cli_train_and_info(tmp_path, rng):
     assert proc.returncode == 0, proc.stderr
     assert "cross-validated" in proc.stdout
     (tmp_path / "bad.npz").write_bytes(b"nope")
-    proc = run_cli("prior", "info", "bad.npz", cwd=tmp_path)
+    proc = call_cli("prior", "info", "bad.npz", cwd=tmp_path)
     assert proc.returncode == 2 and "bad.npz" in proc.stderr and "Traceback" not in proc.stderr
 
 

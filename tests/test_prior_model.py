@@ -23,7 +23,7 @@ from abrdf_jax._prior_entry import PriorEntry
 from abrdf_jax._prior_operator import PriorModel, build_prior_entry, read_source
 from abrdf_jax.prior._default import DEFAULT_RECIPE
 
-from cli_runner import run_cli
+from cli_runner import call_cli
 
 ALPHA = np.deg2rad(aj.PROTOCOL_ALPHA_DEG)
 
@@ -120,10 +120,10 @@ def test_cli_model_prior_file_and_folder(small_prior, prior_file, tmp_path):
     cases = {"iso.csv": ("ggx-plastic", "iso102"), "an.csv": ("rough-fabric", "aniso204")}
     samples = {n: _csv(tmp_path / "d", n, *mb) for n, mb in cases.items()}
     cache = ["--cache-dir", tmp_path / "cache"]
-    one = run_cli("reconstruct", "d/an.csv", "-o", "an.npz", "--model", "prior", "--prior",
+    one = call_cli("reconstruct", "d/an.csv", "-o", "an.npz", "--model", "prior", "--prior",
                   prior_file, *cache, cwd=tmp_path)  # fmt: skip
     assert one.returncode == 0, one.stderr
-    many = run_cli("reconstruct", "d", "-o", "out", "--model", "prior", "--prior", prior_file,
+    many = call_cli("reconstruct", "d", "-o", "out", "--model", "prior", "--prior", prior_file,
                    "-q", *cache, cwd=tmp_path)  # fmt: skip
     assert many.returncode == 0, many.stderr
     assert "2 by the operator" in many.stdout
@@ -147,11 +147,11 @@ def test_cli_bad_prior_file_is_an_input_error(prior_file, tmp_path):
     raw = prior_file.read_bytes()
     (tmp_path / "cut.npz").write_bytes(raw[: len(raw) // 2])
     for bad in ("cut.npz", "missing.npz"):
-        r = run_cli("reconstruct", "m.csv", "-o", "m.npz", "--model", "prior", "--prior", bad,
+        r = call_cli("reconstruct", "m.csv", "-o", "m.npz", "--model", "prior", "--prior", bad,
                     cwd=tmp_path)  # fmt: skip
         assert r.returncode == 2 and bad in r.stderr and "Traceback" not in r.stderr, r.stderr
         assert not (tmp_path / "m.npz").exists()
-    r = run_cli("reconstruct", "m.csv", "-o", "m.npz", "--model", "iso", "--prior", prior_file,
+    r = call_cli("reconstruct", "m.csv", "-o", "m.npz", "--model", "iso", "--prior", prior_file,
                 cwd=tmp_path)  # fmt: skip
     assert r.returncode == 2 and "--prior" in r.stderr
 
@@ -160,7 +160,7 @@ def test_cli_auto_with_prior(prior_file, tmp_path):
     (tmp_path / "d").mkdir()
     _csv(tmp_path / "d", "aniso.csv", "ggx-aniso-metal", "aniso204")
     _csv(tmp_path / "d", "plastic.csv", "ggx-plastic", "aniso204")
-    r = run_cli("reconstruct", "d", "-o", "out", "--prior", prior_file, "-q",
+    r = call_cli("reconstruct", "d", "-o", "out", "--prior", prior_file, "-q",
                 "--cache-dir", tmp_path / "cache", cwd=tmp_path)  # fmt: skip
     assert r.returncode == 0, r.stderr
     entries = json.loads((tmp_path / "out.model.json").read_text())["inputs"]

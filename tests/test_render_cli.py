@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 import pytest
-from cli_runner import REPO, run_cli
+from cli_runner import REPO, call_cli
 
 pytest.importorskip("mitsuba")
 
@@ -28,13 +28,13 @@ def tables(tmp_path_factory):
     d = tmp_path_factory.mktemp("render")
     np.savez(d / "const.npz", abrdf=np.full((81, 81, 3), 0.05, np.float32))
     np.savez(d / "shape.npz", abrdf=np.zeros((80, 81, 3), np.float32))
-    proc = run_cli("reference", "ggx-aniso-metal", "-o", "ref.npz", cwd=d)
+    proc = call_cli("reference", "ggx-aniso-metal", "-o", "ref.npz", cwd=d)
     assert proc.returncode == 0, proc.stderr
     return d
 
 
 def test_render_a_constant_table(tables):
-    proc = run_cli("render", "const.npz", "-o", "const.png", *SMALL, cwd=tables)
+    proc = call_cli("render", "const.npz", "-o", "const.png", *SMALL, cwd=tables)
     assert proc.returncode == 0, proc.stderr
     lines = [x for x in proc.stderr.splitlines() if x.startswith("abrdf-jax: rendered")]
     assert len(lines) == 2  # sphere and cylinder, env light, no reference
@@ -47,7 +47,7 @@ def test_render_a_constant_table(tables):
 
 def test_identical_reference_gives_a_zero_map_and_quiet_is_quiet(tables):
     args = ["render", "ref.npz", "ref.npz", "-o", "same.png", *SMALL, "--light", "both", "-q"]
-    proc = run_cli(*args, cwd=tables)
+    proc = call_cli(*args, cwd=tables)
     assert proc.returncode == 0, proc.stderr
     assert "rendered" not in proc.stderr
     stats = [x for x in proc.stdout.splitlines() if "ΔE76 mean" in x]

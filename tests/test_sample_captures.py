@@ -2,9 +2,10 @@
 
 The API: sample counts, the statistics of the positional jitter (recorded at the true angles) and of
 the value noise, the gap (exactly the near-retro samples are missing), reproducible seeds, and an
-``InputError`` for every bad argument. The command line (subprocesses, as a user runs it): a dense
-jittered noisy capture and one at other elevation pairs, MERL files, and one clean failure naming
-the flag for every bad value, and for a table source (a table is known only on the UBO grid).
+``InputError`` for every bad argument. The command line: a dense jittered noisy capture and one
+at other elevation pairs, MERL files (``main`` in this process, ``cli_runner.call_cli``), one
+clean failure naming the flag for every bad value (subprocesses, as a user runs it), and for a
+table source (a table is known only on the UBO grid).
 """
 
 import os
@@ -15,7 +16,7 @@ import pytest
 import abrdf_jax as aj
 from abrdf_jax import io
 from abrdf_jax.materials import get_material
-from tests.cli_runner import run_cli
+from tests.cli_runner import call_cli, run_cli
 
 SEED = int(os.environ.get("ABRDF_TEST_SEED", "0"))
 ALPHA = 15.0
@@ -155,7 +156,7 @@ def test_bad_arguments_raise(model, kwargs, name):
 
 
 def test_cli_capture_flags(tmp_path, model):
-    proc = run_cli(
+    proc = call_cli(
         "sample",
         "ggx-aniso-metal",
         "-o",
@@ -174,12 +175,12 @@ def test_cli_capture_flags(tmp_path, model):
     assert "800 samples (aniso204" in proc.stdout and "--jitter 0.5" in proc.stdout
     got = io.read_samples_csv(tmp_path / "dense.csv")
     want = aj.simulate_capture(model, per_slice=100, jitter_deg=0.5, noise=0.02, seed=3)
-    # the same capture (the subprocess computes the slice angles in float32, this one in float64)
+    # the same capture (the command computes the slice angles in float32, this one in float64)
     assert np.allclose(angles(got), angles(want), atol=1e-4)
     assert np.allclose(np.asarray(got.rgb), np.asarray(want.rgb), rtol=1e-3, atol=1e-7)
     # other pairs, one count per pair, another alpha and a gap, isotropic budget
     args = ["--pairs", "35/35,35/70,70/35,70/70", "--per-slice", "30,30,40,40", "--alpha", "30"]
-    proc = run_cli(
+    proc = call_cli(
         "sample", "ggx-plastic", "-o", "iso.csv", *args, "--gap", "20", "--budget", "iso102",
         cwd=tmp_path,
     )  # fmt: skip
@@ -200,7 +201,7 @@ def test_cli_capture_flags(tmp_path, model):
 def test_cli_capture_of_a_merl_file(tmp_path):
     rho = np.array([0.2, 0.4, 0.6])
     io.write_merl_binary(tmp_path / "lambert.binary", np.broadcast_to(rho / np.pi, io.MERL_SHAPE))
-    proc = run_cli(
+    proc = call_cli(
         "sample", "lambert.binary", "-o", "m.csv", "--per-slice", "40", "--jitter", "0.25",
         cwd=tmp_path,
     )  # fmt: skip
@@ -249,9 +250,9 @@ def test_cli_bad_capture_values(tmp_path, flags, name):
 def test_cli_table_source_refuses_capture_flags(tmp_path):
     io.write_table(tmp_path / "t.npz", np.full((81, 81, 3), 0.1, np.float32))
     for flags in (["--jitter", "0.5"], ["--per-slice", "100"], ["--seed", "2"]):
-        proc = run_cli("sample", "t.npz", "-o", "m.csv", *flags, cwd=tmp_path)
+        proc = call_cli("sample", "t.npz", "-o", "m.csv", *flags, cwd=tmp_path)
         assert proc.returncode == 2, proc.stderr
         assert f"abrdf-jax: error: {flags[0]}: t.npz is a table" in proc.stderr, proc.stderr
         assert not (tmp_path / "m.csv").exists()
-    proc = run_cli("sample", "t.npz", "-o", "m.csv", cwd=tmp_path)  # without them: as before
+    proc = call_cli("sample", "t.npz", "-o", "m.csv", cwd=tmp_path)  # without them: as before
     assert proc.returncode == 0 and len(io.read_samples_csv(tmp_path / "m.csv")) == 204
