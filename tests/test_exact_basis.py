@@ -111,3 +111,20 @@ def test_weights_round_trip_and_a_bad_shape_is_rejected(prior, tmp_path):
     with pytest.raises(aj.InputError, match="'weights'") as e:
         P.load_prior(tmp_path / "bad.npz")
     assert "bad.npz" in str(e.value)
+
+
+def test_models_cached_in_float64_serve_a_float32_trace(prior):
+    """The training models are cached; a later float32 trace (the command line runs without
+    x64) must get float32 parameters, not the float64 ones of the first caller."""
+    import equinox as eqx
+    from cli_runner import _x64_off
+
+    assert P.training_models(prior) is not None  # made, and cached, with x64 on
+    with _x64_off():
+        p32 = prior.astype(jnp.float32)
+        cfg = aj.Config(budget="iso102")
+        par = aj.Params.default(cfg, dtype=jnp.float32)
+        meas = aj.sample(aj.materials.get_material("ggx-plastic"), cfg, par, as_measurements=True)
+        b = eqx.filter_jit(P.sample_basis)(p32, meas, jnp.float32(np.deg2rad(15.0)))
+        assert b.components.dtype == jnp.float32
+        assert np.all(np.isfinite(np.asarray(b.components)))

@@ -41,9 +41,13 @@ class TrainingModels(eqx.Module):
 
     def __call__(self, wi, wv) -> jax.Array:
         """Values ``(n, ..., 3)`` of every material at directions ``wi, wv`` ``(..., 3)``."""
+        wv = jnp.asarray(wv, wi.dtype)
         shape = jnp.broadcast_shapes(wi.shape, wv.shape)[:-1]
         out = jnp.zeros((self.n, *shape, 3), wi.dtype)
         for stacked, owner in zip(self.parts, self.owners):
+            # the parameters in the directions' dtype, whatever JAX's x64 switch was when the
+            # (cached) models were made or is now
+            stacked = jax.tree.map(lambda a: jnp.asarray(a, wi.dtype), stacked)
             vals = jax.vmap(lambda m: m(wi, wv))(stacked)
             out = out.at[owner].add(vals.astype(wi.dtype))
         return out
@@ -60,7 +64,9 @@ def stack_models(parts_per_material) -> TrainingModels:
     stacked, owner_idx = [], []
     for mods, owners in groups.values():
         # numpy leaves: constants, never tracers of whatever trace first asked (the result is cached)
-        stacked.append(jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *mods))
+        stacked.append(
+            jax.tree.map(lambda *xs: np.stack([np.asarray(x, np.float64) for x in xs]), *mods)
+        )
         owner_idx.append(np.asarray(owners, np.int32))
     return TrainingModels(tuple(stacked), tuple(owner_idx), len(parts_per_material))
 
