@@ -1,13 +1,16 @@
 """The fused model's fixed hyper-parameters for the default prior, chosen on the MERL *train*
 split only (issue 14, "Operator and batch"): what ``abrdf-jax reconstruct --model fused`` uses.
 
-Run: ``python -m benchmarks.fused_defaults [--steps N]`` → ``results/fused_defaults.json``.
+Run: ``python -m benchmarks.fused_defaults [--steps N] [--from-defaults]`` →
+``results/fused_defaults.json``.
 
 The default prior is trained on the package's analytic draws (docs/prior.md), so every MERL train
 material is held out from it: the hyper-parameters are fitted by Adam on the mean ΔE76
 (PROTOCOL.md) of the fused reconstruction of the 54 MERL train materials from their exact iso102
 slice samples, started at the population fit of ``python -m benchmarks.fused --quick`` (itself
-fitted within MERL train), keeping the best step. The MERL test split is not read. The numbers go
+fitted within MERL train; ``--from-defaults``: at the current ``FUSED_DEFAULTS``, to continue a
+fit), keeping the best step. The prior is ``default_prior()`` as the command line reads it (its
+basis at the exact sample directions). The MERL test split is not read. The numbers go
 into ``DEFAULT_RECIPE["fused"]`` by hand (a changed recipe is a new default prior key).
 """
 
@@ -40,17 +43,29 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=12, help="Adam steps (default 12)")
     ap.add_argument("--lr", type=float, default=0.1)
+    ap.add_argument(
+        "--from-defaults",
+        action="store_true",
+        help="start at the current FUSED_DEFAULTS instead of the population fit",
+    )
     args = ap.parse_args(argv)
     t0 = time.time()
-    recipe = {k: v for k, v in P.DEFAULT_RECIPE.items() if k != "fused"}
-    prior = P.train_prior(*P.default_training_tables(recipe), k=recipe["k"], lam=recipe["lam"])
+    # the default prior as the command line reads it: its basis at the exact sample directions
+    # (docs/prior.md "The basis at the samples"); its own fused numbers are not read here
+    prior = P.default_prior()
     names, models, ref, _ = merl_split("train")
     meas = sample_batch(models, aj.Config(budget="iso102"))
     prior_only = float(
         jax.numpy.mean(jax.vmap(delta_e76)(eqx.filter_jit(P.reconstruct_prior)(meas, prior), ref))
     )
     _log(f"default prior alone, MERL train iso102: dE76 {prior_only:.4f}")
-    init = P.FusedHyper.create(**START)
+    start = START
+    if args.from_defaults:
+        d = P.FUSED_DEFAULTS
+        start = dict(
+            widths=tuple(d["widths"]), **{k: d[k] for k in ("sigma_p", "sigma_k", "sigma_n")}
+        )
+    init = P.FusedHyper.create(**start)
     hyper, losses = P.fit_population(
         np.asarray(ref), meas, init, steps=args.steps, lr=args.lr, prior=prior, log=_log
     )
@@ -60,7 +75,7 @@ def main(argv=None) -> int:
         load_average=[round(x, 2) for x in os.getloadavg()],
         steps=args.steps,
         lr=args.lr,
-        start=START,
+        start=start,
         prior_only_train_de76=prior_only,
         losses=losses,
         best_train_de76=best,
