@@ -235,16 +235,9 @@ def prior_entry_key(model, meas, params) -> str:
 
 def _ridge_gain(prior, meas, alpha, lam, index):
     """``(ridge operator, x_ref,s, cos θv,s, μ_s)`` on the valid samples ``index`` (traced)."""
-    import jax.numpy as jnp
-
-    from .prior._model import SampleBasis
     from .prior._reconstruct import ridge_operator, sample_basis
 
-    full = sample_basis(prior, meas, alpha)
-    w = full.width
-    rows = (index[:, None] * w + jnp.arange(w)).reshape(-1)  # SampleBasis.take, traced
-    fields = (full.mean, full.reference, full.cos_v, full.components, full.weight)
-    basis = SampleBasis(*(a[rows] for a in fields), w)
+    basis = sample_basis(prior, meas, alpha).take(index)
     return ridge_operator(basis, lam), basis.reference, basis.cos_v, basis.mean
 
 

@@ -117,9 +117,10 @@ class SampleBasis(eqx.Module):
     width: int = eqx.field(static=True)
 
     def take(self, positions) -> "SampleBasis":
-        """The basis at some of its positions (indices into ``P``), in that order."""
-        pos = np.asarray(positions)
-        rows = (pos[:, None] * self.width + np.arange(self.width)).reshape(-1)
+        """The basis at some of its positions (indices into ``P``, numpy or traced), in that
+        order."""
+        pos = jnp.asarray(positions)
+        rows = (pos[:, None] * self.width + jnp.arange(self.width)).reshape(-1)
         return SampleBasis(
             self.mean[rows],
             self.reference[rows],
