@@ -47,8 +47,6 @@ class FusedModel(LearnedModel):
 def _grid_gain(prior, hyper, meas, alpha, reference: str, index):
     """``(Mᵀ, x_ref,s, cos θv,s, μ_s)`` on the valid samples ``index`` (jitted: one compile
     instead of an eager dispatch per operation)."""
-    import jax.numpy as jnp
-
     from .prior._fused import factor, fused_basis, grid_features, grid_sample_covariance
     from .prior._fused import sample_features
 
@@ -56,10 +54,9 @@ def _grid_gain(prior, hyper, meas, alpha, reference: str, index):
     x_g = grid_features(hyper, prior.dtype)
     fs = factor(hyper, basis, sample_features(hyper, meas, alpha).astype(prior.dtype), x_g)
     gain = grid_sample_covariance(prior, hyper, fs)  # (D, N): cov(grid, samples)
-    w = basis.width
-    cols = (index[:, None] * w + jnp.arange(w)).reshape(-1)  # the valid samples' rows
-    mt = fs.solve(gain.T)[cols]  # C⁻¹ is symmetric: C⁻¹ gainᵀ = Mᵀ, (n_w, D)
-    return mt, basis.reference[cols], basis.cos_v[cols], basis.mean[cols]
+    valid = basis.take(index)  # the valid samples' rows
+    mt = fs.solve(gain.T)[basis.rows(index)]  # C⁻¹ is symmetric: C⁻¹ gainᵀ = Mᵀ, (n_w, D)
+    return mt, valid.reference, valid.cos_v, valid.mean
 
 
 @functools.cache

@@ -105,6 +105,12 @@ class Measurements(eqx.Module):
         index = jnp.broadcast_to(jnp.arange(self.t.shape[-1], dtype=self.count.dtype), self.t.shape)
         return index < self.count[..., None]
 
+    def slice_cos_view(self) -> np.ndarray:
+        """``cos θv`` of each slice, ``(S,)`` float64 (host): slice ``s`` lies on the view ring of
+        ``pairs[s // 2]``, so every sample of it shares one ``θv``."""
+        tv = np.repeat(np.asarray([p[1] for p in self.pairs], np.float64), 2)
+        return np.cos(np.deg2rad(tv))
+
     def replace(self, **fields) -> "Measurements":
         """A copy with some fields replaced (``t``, ``y``, ``count``, ``pairs``, ``has_axial``)."""
         unknown = set(fields) - {"t", "y", "count", "pairs", "has_axial", "centre_azimuths"}

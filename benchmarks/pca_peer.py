@@ -100,8 +100,7 @@ def sample_mask(meas: aj.Measurements) -> np.ndarray:
 def sample_cos_view(meas: aj.Measurements) -> np.ndarray:
     """``cos θv`` of every valid sample position, ``(n,)`` in the order of :func:`flat_samples`."""
     mask = sample_mask(meas)
-    tv = np.asarray([meas.pairs[s // 2][1] for s in range(mask.shape[0])])
-    return np.broadcast_to(np.cos(np.deg2rad(tv))[:, None], mask.shape)[mask]
+    return np.broadcast_to(meas.slice_cos_view()[:, None], mask.shape)[mask]
 
 
 def flat_samples(meas: aj.Measurements) -> Float[Array, "... n 3"]:

@@ -73,6 +73,36 @@ def pytest_xdist_make_scheduler(config, log):
     return WorkStealingScheduling(config, log)
 
 
+# ABRDF_TEST_COMPILE_LOG=FILE: each test's JAX tracing, lowering and XLA compile seconds (this
+# process only, set-up included; a CLI subprocess is not counted) and count of compiles are appended to FILE as
+# tab-separated lines, to see where the suite's time goes (docs/notes.md, "Testing").
+_COMPILE_LOG = os.environ.get("ABRDF_TEST_COMPILE_LOG")
+_COMPILE_TIMES: dict[str, float] = {}
+if _COMPILE_LOG:
+    from jax import monitoring
+
+    def _on_duration(event: str, duration: float, **_) -> None:
+        if event.startswith("/jax/core/compile/"):
+            key = event.rsplit("/", 1)[1]
+            _COMPILE_TIMES[key] = _COMPILE_TIMES.get(key, 0.0) + duration
+            if key == "backend_compile_duration":
+                _COMPILE_TIMES["n_compiles"] = _COMPILE_TIMES.get("n_compiles", 0) + 1
+
+    monitoring.register_event_duration_secs_listener(_on_duration)
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        _COMPILE_TIMES.clear()
+        yield
+        t = _COMPILE_TIMES
+        with open(_COMPILE_LOG, "a") as f:
+            f.write(
+                f"{item.nodeid}\t{t.get('jaxpr_trace_duration', 0):.2f}"
+                f"\t{t.get('jaxpr_to_mlir_module_duration', 0):.2f}"
+                f"\t{t.get('backend_compile_duration', 0):.2f}\t{int(t.get('n_compiles', 0))}\n"
+            )
+
+
 def pytest_report_header(config):
     return [f"abrdf_jax test seed: {SEED} (override with ABRDF_TEST_SEED)", f"data: {DATA_DIR}"]
 

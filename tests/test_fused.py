@@ -170,6 +170,36 @@ def test_evidence_fit_raises_the_evidence(setup):
     np.testing.assert_allclose(rec[1], P.reconstruct_fused(meas, prior, h1), rtol=1e-6)
 
 
+def test_population_fit_loss_is_the_held_out_error_and_falls(setup):
+    """``fit_population``'s first loss is the mean ΔE76 of the fused reconstructions at the start
+    (computed here the direct way, the basis inside each reconstruction); it keeps the best."""
+    from abrdf_jax.metrics import delta_e76
+
+    prior, _, _ = setup
+    tables = _tables(np.random.default_rng(8), 4, 4)
+    cfg = aj.Config(budget="iso102")
+    params = aj.Params.default(cfg, dtype=F64)
+    meas = aj.stack_measurements(
+        [aj.sample(jnp.asarray(t), cfg, params, as_measurements=True) for t in tables]
+    )
+    h0 = _hyper(sigma_k=0.05, sigma_n=0.5)
+    bases = F.fused_bases(prior, meas)
+    np.testing.assert_allclose(
+        P.reconstruct_fused(meas, prior, h0, basis=bases),
+        P.reconstruct_fused(meas, prior, h0),
+        rtol=1e-12,
+    )
+    direct = float(
+        np.mean([delta_e76(r, t) for r, t in zip(P.reconstruct_fused(meas, prior, h0), tables)])
+    )
+    h, losses = P.fit_population(tables, meas, h0, steps=3, lr=0.2, prior=prior)
+    assert len(losses) == 3 and np.all(np.isfinite(losses)) and min(losses) < losses[0]
+    np.testing.assert_allclose(losses[0], direct, rtol=1e-6)
+    rec = P.reconstruct_fused(meas, prior, h)  # the kept parameters are the best step's
+    got = float(np.mean([delta_e76(r, t) for r, t in zip(rec, tables)]))
+    np.testing.assert_allclose(got, min(losses), rtol=1e-6)
+
+
 def test_rescaling_keeps_the_mean_and_fits_the_amplitude(setup):
     prior, meas, _ = setup
     h = _hyper()

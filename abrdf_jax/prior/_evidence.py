@@ -23,7 +23,7 @@ import numpy as np
 from .._errors import InputError
 from .._measurements import Measurements
 from ._covariance import FusedHyper
-from ._fused import each, evidence, reconstruct_fused
+from ._fused import each, evidence, fused_basis, fused_bases, reconstruct_fused
 from ._model import Prior, train_prior
 
 
@@ -100,10 +100,11 @@ def fit_evidence(
             prior.dtype,
         )
     params, static = eqx.partition(init, eqx.is_array)
+    basis = fused_basis(prior, meas, alpha, reference)  # once, not at every step
 
     def loss(p):
         h = eqx.combine(p, static)
-        lml, n = evidence(meas, prior, h, alpha, reference=reference)
+        lml, n = evidence(meas, prior, h, alpha, reference=reference, basis=basis)
         dev = jax.tree_util.tree_map(lambda a, b: jnp.sum((a - b) ** 2), p, params)
         return -lml / n + 0.5 * sum(jax.tree_util.tree_leaves(dev)) / (tau**2 * n)
 
@@ -163,13 +164,18 @@ def fit_population(
         prior = train_prior(tables[fold != f], k=kf, channels=channels, eps=eps, dtype=dtype)
         m = jax.tree_util.tree_map(lambda x: x[te], meas)
         split.append((prior, m, jnp.asarray(tables[te])))
+    # The prior at each material's samples does not depend on the hyper-parameters: computed
+    # once here, not at every step (the default prior's exact basis evaluates its training
+    # draws there, by far the largest part of a step's program).
+    bases = eqx.filter_jit(fused_bases)
+    split = [(p_, m, ref, bases(p_, m, None, reference)) for p_, m, ref in split]
     params, static = eqx.partition(init, eqx.is_array)
 
     def loss(p, split):  # the data as an argument: closed-over arrays would be constant-folded
         h = eqx.combine(p, static)
         total = 0.0
-        for prior, m, ref in split:
-            rec = reconstruct_fused(m, prior, h, reference=reference)
+        for prior, m, ref, basis in split:
+            rec = reconstruct_fused(m, prior, h, reference=reference, basis=basis)
             total = total + jnp.sum(jax.vmap(delta_e76)(rec, ref))
         return total / n
 

@@ -81,15 +81,25 @@ def _recipe_models(recipe_json: str) -> TrainingModels:
         return stack_models(parts)
 
 
+@functools.lru_cache(maxsize=16)
+def _models_recipe(meta: str) -> str | None:
+    """The recipe (canonical JSON) of a prior's metadata text where its basis is ``"models"``;
+    parsed once per metadata text, not at every trace."""
+    recipe = json.loads(meta).get("recipe")
+    if not isinstance(recipe, dict) or recipe.get("basis") != "models":
+        return None
+    return json.dumps(recipe, sort_keys=True)
+
+
 def training_models(prior: Prior) -> TrainingModels | None:
     """The prior's training materials as models, or ``None`` where it has none (trained on
     tables) or carries no :attr:`~abrdf_jax.prior.Prior.weights`."""
     if prior.weights is None:
         return None
-    recipe = prior.metadata.get("recipe")
-    if not isinstance(recipe, dict) or recipe.get("basis") != "models":
+    recipe = _models_recipe(prior.meta)
+    if recipe is None:
         return None
-    models = _recipe_models(json.dumps(recipe, sort_keys=True))
+    models = _recipe_models(recipe)
     rows = models.n * (3 if prior.channels == "shared" else 1)
     return models if rows == prior.weights.shape[0] else None
 
@@ -103,8 +113,7 @@ def exact_basis(prior: Prior, models: TrainingModels, meas, alpha) -> SampleBasi
     mask = jnp.reshape(meas.mask, (s * n,))
     x = models(wi.reshape(-1, 3), wv.reshape(-1, 3))  # (N, P, 3)
     x = jnp.where(mask[None, :, None], x, 1.0)  # padding: any positive value (weight 0)
-    tv = np.asarray([meas.pairs[i // 2][1] for i in range(s)], np.float64)
-    cos = jnp.asarray(np.repeat(np.cos(np.deg2rad(tv)), n)[:, None], dt)  # (P, 1)
+    cos = jnp.asarray(np.repeat(meas.slice_cos_view(), n)[:, None], dt)  # (P, 1)
     ref = median_reference(x, prior.channels)
     rows = to_rows(log_relative(x, ref, cos, prior.eps), prior.channels)
     mu = jnp.mean(rows, 0)

@@ -161,6 +161,11 @@ def fused_basis(prior: Prior, meas: Measurements, alpha=None, reference: str = "
     return sample_basis(prior, meas, alpha, reference=reference)
 
 
+def fused_bases(prior: Prior, meas: Measurements, alpha=None, reference: str = "log"):
+    """:func:`fused_basis` of each member of a stack ``(B, S, nmax)``, stacked ``(B,)``."""
+    return each(lambda m, a: fused_basis(prior, m, a, reference), meas, alpha, prior.dtype)
+
+
 def fused_mapped(
     meas: Measurements,
     prior: Prior,
@@ -169,11 +174,14 @@ def fused_mapped(
     *,
     reference: str = "log",
     return_variance: bool = False,
+    basis: SampleBasis | None = None,
 ):
     """Mapped posterior mean ``(81, 81, 3)`` (and latent variance ``(81, 81, 3)``) of one
-    measurement, plus its log marginal likelihood."""
+    measurement, plus its log marginal likelihood; ``basis``: the prior at its positions, where
+    already computed (:func:`fused_basis`: it does not depend on ``hyper``)."""
     alpha = _alpha(alpha, prior.dtype)
-    basis = fused_basis(prior, meas, alpha, reference)
+    if basis is None:
+        basis = fused_basis(prior, meas, alpha, reference)
     x_s = sample_features(hyper, meas, alpha).astype(prior.dtype)
     x_g = grid_features(hyper, prior.dtype)
     fs = factor(hyper, basis, x_s, x_g)
@@ -188,18 +196,28 @@ def fused_mapped(
     return mean, var, lml
 
 
-def _sample_solve(meas, prior, hyper, alpha, reference):
+def _sample_solve(meas, prior, hyper, alpha, reference, basis=None):
     alpha = _alpha(alpha, prior.dtype)
-    basis = fused_basis(prior, meas, alpha, reference)
+    if basis is None:
+        basis = fused_basis(prior, meas, alpha, reference)
     fs = factor(hyper, basis, sample_features(hyper, meas, alpha).astype(prior.dtype))
     s, n = meas.t.shape
     r = residuals(prior, basis, jnp.reshape(meas.y, (s * n, 3)).astype(prior.dtype))
     return fs, r
 
 
-def evidence(meas: Measurements, prior: Prior, hyper: FusedHyper, alpha=None, *, reference="log"):
-    """``(log marginal likelihood, number of mapped values)`` of one measurement (no grid)."""
-    fs, r = _sample_solve(meas, prior, hyper, alpha, reference)
+def evidence(
+    meas: Measurements,
+    prior: Prior,
+    hyper: FusedHyper,
+    alpha=None,
+    *,
+    reference="log",
+    basis: SampleBasis | None = None,
+):
+    """``(log marginal likelihood, number of mapped values)`` of one measurement (no grid);
+    ``basis`` as in :func:`fused_mapped`."""
+    fs, r = _sample_solve(meas, prior, hyper, alpha, reference, basis)
     return log_marginal_likelihood(fs, r), jnp.sum(fs.weight) * r.shape[1]
 
 
@@ -262,6 +280,7 @@ def reconstruct_fused(
     *,
     reference: str = "log",
     return_variance: bool = False,
+    basis: SampleBasis | None = None,
 ):
     """Reconstruct the full table(s) with the fused model (module docstring).
 
@@ -275,6 +294,9 @@ def reconstruct_fused(
         alpha: slice offset α in radians (default the protocol's 15°); scalar or ``(B,)``.
         reference: how the prior's reference is interpolated at the samples (``"log"``).
         return_variance: also return the latent predictive variance in mapped space.
+        basis: the prior at the samples, where already computed (:func:`fused_bases`; it does
+            not depend on ``hyper``, so a fit of ``hyper`` computes it once), stacked ``(B,)``
+            for a stack.
 
     Returns:
         ``(..., 81, 81, 3)`` non-negative tables; with ``return_variance`` a tuple
@@ -283,19 +305,30 @@ def reconstruct_fused(
     """
     if meas.t.ndim > 2:
 
-        def one(m, a, h=hyper):
+        def one(m, a, b, h=hyper):
             return reconstruct_fused(
-                m, prior, h, a, reference=reference, return_variance=return_variance
+                m, prior, h, a, reference=reference, return_variance=return_variance, basis=b
             )
 
         if jnp.ndim(hyper.log_sigma_p) > 0:  # one hyper per member
             params, static = eqx.partition(hyper, eqx.is_array)
             return each(
-                lambda m, a, p: one(m, a, eqx.combine(p, static)), meas, alpha, prior.dtype, params
+                lambda m, a, b, p: one(m, a, b, eqx.combine(p, static)),
+                meas,
+                alpha,
+                prior.dtype,
+                basis,
+                params,
             )
-        return each(one, meas, alpha, prior.dtype)
+        return each(one, meas, alpha, prior.dtype, basis)
     mean, var, _ = fused_mapped(
-        meas, prior, hyper, alpha, reference=reference, return_variance=return_variance
+        meas,
+        prior,
+        hyper,
+        alpha,
+        reference=reference,
+        return_variance=return_variance,
+        basis=basis,
     )
     table = to_linear(prior, mean)
     return (table, var) if return_variance else table

@@ -116,11 +116,16 @@ class SampleBasis(eqx.Module):
     weight: Array
     width: int = eqx.field(static=True)
 
+    def rows(self, positions) -> Array:
+        """The row indices (into ``P·C``) of some positions (indices into ``P``, numpy or
+        traced), in that order."""
+        pos = jnp.asarray(positions)
+        return (pos[:, None] * self.width + jnp.arange(self.width)).reshape(-1)
+
     def take(self, positions) -> "SampleBasis":
         """The basis at some of its positions (indices into ``P``, numpy or traced), in that
         order."""
-        pos = jnp.asarray(positions)
-        rows = (pos[:, None] * self.width + jnp.arange(self.width)).reshape(-1)
+        rows = self.rows(positions)
         return SampleBasis(
             self.mean[rows],
             self.reference[rows],

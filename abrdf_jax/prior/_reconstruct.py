@@ -62,8 +62,7 @@ def prior_at_samples(
     mean = interpolate_table(prior.mean.reshape(81, 81, c), corners)
     comps = interpolate_table(prior.components.reshape(81, 81, c, k), corners)
     s, n = meas.t.shape
-    tv = np.asarray([meas.pairs[i // 2][1] for i in range(s)], np.float64)
-    cos = jnp.broadcast_to(jnp.asarray(np.cos(np.deg2rad(tv)), dt)[:, None, None], (s, n, c))
+    cos = jnp.broadcast_to(jnp.asarray(meas.slice_cos_view(), dt)[:, None, None], (s, n, c))
     weight = jnp.broadcast_to(meas.mask[..., None], (s, n, c)).astype(dt)
     if reference == "log":  # the slice's θv is one ring: cos θv is the same at every corner
         ref = (jnp.exp(log_ref) - prior.eps) / cos[..., :1]

@@ -81,8 +81,7 @@ def _flat(meas):
     """``(N, S·nmax, 3)`` values, ``(S·nmax,)`` mask and ``cos θv`` of stacked measurements."""
     n, s, m = meas.t.shape
     mask = np.asarray(meas.mask[0]).reshape(-1)
-    tv = np.asarray([meas.pairs[i // 2][1] for i in range(s)], np.float64)
-    cos = np.repeat(np.cos(np.deg2rad(tv)), m)
+    cos = np.repeat(meas.slice_cos_view(), m)
     return np.asarray(meas.y, np.float64).reshape(n, s * m, 3), mask, cos
 
 
