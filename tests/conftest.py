@@ -5,12 +5,16 @@ import sys
 from pathlib import Path
 
 # The tests check numbers, not speed: XLA compiles their programs at its lowest backend
-# optimisation level, without LLVM's expensive passes (the same operations; compiling is most
-# of the suite's time, a few run-heavy tests are slower: `pytest --durations`; like for like,
-# docs/notes.md "Testing": test_transforms + test_engine faster with it). Subprocesses inherit
-# it. A user's XLA_FLAGS wins.
+# optimisation level, without LLVM's expensive passes and with the CPU backend's older
+# (non-MLIR) fusion emitters (the same operations; compiling is most of the suite's time, a few
+# run-heavy tests are slower: `pytest --durations`; like for like, docs/notes.md "Testing":
+# test_transforms + test_engine faster with the first two; the emitters took two of the
+# heaviest tests' XLA compile time from 51 s to 30 s). Subprocesses inherit it. A user's
+# XLA_FLAGS wins.
 os.environ.setdefault(
-    "XLA_FLAGS", "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
+    "XLA_FLAGS",
+    "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true "
+    "--xla_cpu_use_fusion_emitters=false",
 )
 
 import jax  # noqa: E402 - after XLA_FLAGS
