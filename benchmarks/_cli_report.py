@@ -201,7 +201,8 @@ def markdown(payload: dict) -> str:
         f"{payload['load_average_before']} / {payload['load_average_after']}; "
         f"{payload['seconds']:.0f} s in all. Each row is one process (wall time around it, peak "
         "RSS of that process); `$WORK` is the run's temporary folder. "
-        f"{payload['inputs']['what']} {payload['caches']} {payload['peer_note']}",
+        f"{payload['inputs']['what']} {payload['caches']} {payload.get('bytecode', '')} "
+        f"{payload['peer_note']}",
         "",
         "| run | who | command | files | s | files/s | s per file | ratio | peak RSS MiB | exit |",
         "|---|---|---|---|---|---|---|---|---|---|",
