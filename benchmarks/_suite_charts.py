@@ -23,6 +23,7 @@ GROUP_STYLE = {  # colour of each group on the chart
     "mean fill": "#000000",
     "tuned": "#ff9896",
     "operator": "#393b79",
+    "learned (default prior)": "#e6550d",
 }
 
 

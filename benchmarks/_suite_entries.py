@@ -92,6 +92,21 @@ def _operator_build(preset: str, tuned: bool = False, **config_kw):
     return build
 
 
+def _learned_build(fused: bool):
+    """The package's default prior (trained on its own analytic draws, no MERL data) alone or
+    fused with a kernel on the residual, as the numpy operator that ``abrdf-jax reconstruct
+    --model prior|fused`` applies (:func:`abrdf_jax.compile_numpy_operator`; float32)."""
+
+    def build(ctx, lay, dtype):
+        from abrdf_jax.prior import default_prior
+
+        template = jax.tree_util.tree_map(lambda x: x[0], ctx.batch("merl-test", lay, dtype).meas)
+        op = aj.compile_numpy_operator(default_prior(), template, budget=lay.budget, fused=fused)
+        return lambda batch: op.apply(np.asarray(batch.meas.y))
+
+    return build
+
+
 def _mean_fill_build(ctx, lay, dtype):
     fn = jax.jit(mean_fill)
     return lambda batch: fn(batch.meas)
@@ -312,6 +327,21 @@ def register_defaults() -> None:
                 "the sample directions",
             )
         )
+        for fused, what in ((False, "prior only"), (True, "fused")):
+            register(
+                Entry(
+                    f"{what} (default prior) {lay}",
+                    "learned (default prior)",
+                    lay,
+                    _learned_build(fused),
+                    modes=fq,
+                    datasets=ds,
+                    jit=False,
+                    note="abrdf-jax reconstruct --model "
+                    + ("fused" if fused else "prior")
+                    + ": the default prior (analytic draws, no MERL data), numpy operator",
+                )
+            )
         register(
             Entry(
                 f"PCA peer {lay} (basis interpolated)",
