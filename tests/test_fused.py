@@ -175,7 +175,7 @@ def test_population_fit_loss_is_the_held_out_error_and_falls(setup):
     (computed here the direct way, the basis inside each reconstruction); it keeps the best."""
     from abrdf_jax.metrics import delta_e76
 
-    prior, _, _ = setup
+    prior, one, _ = setup
     tables = _tables(np.random.default_rng(8), 4, 4)
     cfg = aj.Config(budget="iso102")
     params = aj.Params.default(cfg, dtype=F64)
@@ -189,6 +189,8 @@ def test_population_fit_loss_is_the_held_out_error_and_falls(setup):
         P.reconstruct_fused(meas, prior, h0),
         rtol=1e-12,
     )
+    with pytest.raises(aj.InputError, match="basis: mean of shape"):
+        P.reconstruct_fused(meas, prior, h0, basis=F.fused_basis(prior, one))  # not stacked
     direct = float(
         np.mean([delta_e76(r, t) for r, t in zip(P.reconstruct_fused(meas, prior, h0), tables)])
     )

@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
+from .._errors import InputError
 from .._grid import ubo_target_vectors
 from .._measurements import Measurements
 from .._slices import slice_directions
@@ -166,6 +167,18 @@ def fused_bases(prior: Prior, meas: Measurements, alpha=None, reference: str = "
     return each(lambda m, a: fused_basis(prior, m, a, reference), meas, alpha, prior.dtype)
 
 
+def _check_basis(basis: SampleBasis, meas: Measurements) -> None:
+    """A precomputed basis matches ``meas``: the same leading (stack) axes, ``S·nmax`` positions."""
+    lead = tuple(meas.t.shape[:-2])
+    rows = meas.t.shape[-2] * meas.t.shape[-1] * basis.width
+    if tuple(basis.mean.shape) != (*lead, rows):
+        raise InputError(
+            f"basis: mean of shape {tuple(basis.mean.shape)}, expected {(*lead, rows)} (one per "
+            f"measurement of the stack {lead}, at its {meas.t.shape[-2]}x{meas.t.shape[-1]} "
+            "positions: fused_basis for one, fused_bases for a stack)"
+        )
+
+
 def fused_mapped(
     meas: Measurements,
     prior: Prior,
@@ -217,6 +230,8 @@ def evidence(
 ):
     """``(log marginal likelihood, number of mapped values)`` of one measurement (no grid);
     ``basis`` as in :func:`fused_mapped`."""
+    if basis is not None:
+        _check_basis(basis, meas)
     fs, r = _sample_solve(meas, prior, hyper, alpha, reference, basis)
     return log_marginal_likelihood(fs, r), jnp.sum(fs.weight) * r.shape[1]
 
@@ -302,7 +317,13 @@ def reconstruct_fused(
         ``(..., 81, 81, 3)`` non-negative tables; with ``return_variance`` a tuple
         ``(tables, variance)`` (variance ``(..., 81, 81, 3)`` in mapped space; :func:`band` gives
         the multiplicative band in linear space).
+
+    Raises:
+        InputError: ``basis`` is not one per measurement (stacked like ``meas``) or has another
+            number of positions than ``meas``.
     """
+    if basis is not None:
+        _check_basis(basis, meas)
     if meas.t.ndim > 2:
 
         def one(m, a, b, h=hyper):
