@@ -54,9 +54,9 @@ def _grid_gain(prior, hyper, meas, alpha, reference: str, index):
     x_g = grid_features(hyper, prior.dtype)
     fs = factor(hyper, basis, sample_features(hyper, meas, alpha).astype(prior.dtype), x_g)
     gain = grid_sample_covariance(prior, hyper, fs)  # (D, N): cov(grid, samples)
-    valid = basis.take(index)  # the valid samples' rows
-    mt = fs.solve(gain.T)[basis.rows(index)]  # C⁻¹ is symmetric: C⁻¹ gainᵀ = Mᵀ, (n_w, D)
-    return mt, valid.reference, valid.cos_v, valid.mean
+    rows = basis.rows(index)  # the valid samples' rows
+    mt = fs.solve(gain.T)[rows]  # C⁻¹ is symmetric: C⁻¹ gainᵀ = Mᵀ, (n_w, D)
+    return mt, basis.reference[rows], basis.cos_v[rows], basis.mean[rows]
 
 
 @functools.cache

@@ -8,8 +8,8 @@ from pathlib import Path
 # optimisation level, without LLVM's expensive passes and with the CPU backend's older
 # (non-MLIR) fusion emitters (the same operations; compiling is most of the suite's time, a few
 # run-heavy tests are slower: `pytest --durations`; like for like, docs/notes.md "Testing":
-# test_transforms + test_engine faster with the first two; the emitters took two of the
-# heaviest tests' XLA compile time from 51 s to 30 s). Subprocesses inherit it. A user's
+# test_transforms + test_engine faster with the first two; the emitters: docs/notes.md
+# "Where the suite's time goes", the command and figures). Subprocesses inherit it. A user's
 # XLA_FLAGS wins.
 os.environ.setdefault(
     "XLA_FLAGS",
@@ -77,9 +77,9 @@ def pytest_xdist_make_scheduler(config, log):
     return WorkStealingScheduling(config, log)
 
 
-# ABRDF_TEST_COMPILE_LOG=FILE: each test's JAX tracing, lowering and XLA compile seconds (this
-# process only, set-up included; a CLI subprocess is not counted) and count of compiles are appended to FILE as
-# tab-separated lines, to see where the suite's time goes (docs/notes.md, "Testing").
+# ABRDF_TEST_COMPILE_LOG=FILE: each test's JAX tracing, lowering and XLA compile seconds and its
+# number of compiles (this process only, set-up included; a CLI subprocess is not counted) are
+# appended to FILE as tab-separated lines, to see where the suite's time goes (docs/notes.md).
 _COMPILE_LOG = os.environ.get("ABRDF_TEST_COMPILE_LOG")
 _COMPILE_TIMES: dict[str, float] = {}
 if _COMPILE_LOG:
