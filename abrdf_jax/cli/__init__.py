@@ -43,12 +43,26 @@ SUBCOMMANDS = (
 )
 
 
+class _Version(argparse.Action):
+    """``--version``: the installed version, looked up only when asked (the metadata look-up
+    costs ~50 ms, which every other call would pay at parser construction)."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        kwargs.setdefault("nargs", 0)
+        kwargs.setdefault("default", argparse.SUPPRESS)
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"{parser.prog} {version()}")  # on stdout, as argparse's own version action
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``abrdf-jax`` argument parser (imports no JAX)."""
     about = "Reconstruct a material's full ABRDF (81x81 light x view directions, RGB) from sparse "
     about += "slice measurements (Filip, ICPR 2012)."
     p = argparse.ArgumentParser(prog=PROG, parents=[verbose_parent()], description=about)
-    p.add_argument("--version", action="version", version=f"%(prog)s {version()}")
+    p.add_argument("--version", action=_Version, help="show the version and exit")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for module in SUBCOMMANDS:
         module.register(sub)
