@@ -11,7 +11,9 @@ command forked straight from this process would inherit this process's RSS as it
 - the package: ``abrdf-jax --help`` (the installed entry point), a bad CSV (exit 2), one iso102
   file ``python -m abrdf_jax.cli reconstruct m.csv -o m.npz`` cold (``ABRDF_JAX_CACHE_DIR`` a fresh
   empty folder) and warm (the same folder, the median of ``--repeats`` further calls), one
-  aniso204 file with ``--model auto`` and with ``--model aniso`` (cold and warm each), and folders
+  aniso204 file with ``--model auto``, with ``--model aniso`` and with ``--model auto --prior
+  default`` (the learned models join the choice), one iso102 file with the last (cold and warm
+  each), and folders
   ``reconstruct DIR -o OUT -q`` of 100 and 1000 iso102 files and 1000 aniso204 files, each with a
   fresh cache (so compile is included, as the issue's targets say), then once more with the
   cache that run filled (warm: what a repeat run on the machine costs);
@@ -234,6 +236,13 @@ def scale_peer(run: dict, files: int, startup: float) -> dict:
     return run | {"files": files, "seconds": scaled, "measured_seconds": t, "scaled_from": n}
 
 
+#: The automatic choice with the default prior (RBF, prior only and fused compared by held-out
+#: errors; numpy entries when warm).
+PRIOR_AUTO = ["--model", "auto", "--prior", "default"]
+#: The single aniso204 file's runs: ``tag: extra arguments``.
+SINGLE_ANISO = {"auto": ["--model", "auto"], "aniso": ["--model", "aniso"], "prior": PRIOR_AUTO}
+
+
 def single_file(r: Runner, key: str, csv: Path, extra: list[str], repeats: int) -> dict:
     """``reconstruct CSV -o OUT.npz EXTRA``: cold (fresh cache), then ``repeats`` warm calls."""
     py = sys.executable
@@ -321,15 +330,21 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int) -> dict:
 
     log("one aniso204 file")
     peer_aniso = peer_one(aniso_csv)
-    for model in ("auto", "aniso"):
-        res = single_file(r, f"aniso1_{model}", aniso_csv, ["--model", model], repeats)
+    for tag, extra in SINGLE_ANISO.items():
+        res = single_file(r, f"aniso1_{tag}", aniso_csv, extra, repeats)
         for state in ("cold", "warm"):
-            runs[f"aniso1_{model}_{state}"] = {
-                "what": f"one aniso204 file, --model {model}, {state} cache",
+            runs[f"aniso1_{tag}_{state}"] = {
+                "what": f"one aniso204 file, {' '.join(extra)}, {state} cache",
                 "files": 1,
                 "package": res[state],
                 "peer": peer_aniso,
             }
+    log("one iso102 file, --model auto --prior default")
+    res = single_file(r, "iso1_prior", iso_csv, PRIOR_AUTO, repeats)
+    for state in ("cold", "warm"):
+        what = f"one iso102 file, {' '.join(PRIOR_AUTO)}, {state} cache"
+        runs[f"iso1_prior_{state}"] = {"what": what, "files": 1, "package": res[state]}
+        runs[f"iso1_prior_{state}"]["peer"] = peer_iso
 
     for key, folder in folders.items():
         n = sizes[key]

@@ -239,8 +239,8 @@ def test_warm_reconstruct_imports_no_jax(tmp_path):
 
 
 def test_warm_prior_reconstruct_imports_no_jax(tmp_path):
-    """``--model prior`` (and ``--model fused``, issue 14) with its entry in the operator store
-    runs in numpy: a prior file and the default prior (found in the cache folder without JAX),
+    """``--model prior`` (and ``--model fused``, issue 14) with its entry in the operator store,
+    and ``--model auto --prior`` with the held-out entries of every candidate, run in numpy: a prior file and the default prior (found in the cache folder without JAX),
     one file and a folder; the tables are bit-identical to the cold call's."""
     import abrdf_jax as aj
     from abrdf_jax import io, materials
@@ -264,10 +264,12 @@ def test_warm_prior_reconstruct_imports_no_jax(tmp_path):
             (["reconstruct", "iso.csv", "-o", f"d-{tag}.npz", *common], 0),  # the default prior
             (["reconstruct", "dir", "-o", f"out-{tag}", "-q", "--prior", "p.npz", *common], 0),
             (["reconstruct", "iso.csv", "-o", f"u-{tag}.npz", *fused], 0),
+            # --model auto with the prior: held-out entries of the learned models too
+            (["reconstruct", "iso.csv", "-o", f"a-{tag}.npz", "--prior", "p.npz", *common[2:]], 0),
         ]
 
     cold, err = _run(cases("cold"), tmp_path)
-    assert [c[1] for c in cold] == [0, 0, 0, 0], err
+    assert [c[1] for c in cold] == [0, 0, 0, 0, 0], err
     for case in cases("warm"):  # each in a fresh interpreter
         ((argv, code, jax_loaded),), err = _run([case], tmp_path)
         assert code == 0, (argv, err)
@@ -276,6 +278,7 @@ def test_warm_prior_reconstruct_imports_no_jax(tmp_path):
         ("f-cold.npz", "f-warm.npz"),
         ("d-cold.npz", "d-warm.npz"),
         ("u-cold.npz", "u-warm.npz"),
+        ("a-cold.npz", "a-warm.npz"),
     ]
     pairs += [(f"out-cold/m{k}.npz", f"out-warm/m{k}.npz") for k in range(3)]
     for a, b in pairs:

@@ -177,3 +177,43 @@ def test_prior_model_is_hashable_and_names_its_budget(prior_file):
     src = read_source(prior_file)
     a, b = PriorModel(src, "iso102"), PriorModel(read_source(prior_file), "iso102")
     assert a == b and hash(a) == hash(b) and a != PriorModel(src, "aniso204")
+
+
+@pytest.mark.parametrize("name", ["prior", "fused"])
+def test_learned_held_out_entry_equals_the_jax_held_out_errors(small_prior, prior_file, name):
+    """The numpy held-out entry of a learned model (what a warm ``--model auto --prior`` reads)
+    gives the JAX path's held-out errors (float64 oracle) to float32 rounding, on both budgets,
+    for a material of the prior's family and one unlike it; a tampered entry is rejected by the
+    store (named, rebuilt), never used."""
+    from abrdf_jax.select._fused import fused_held_out_error
+    from abrdf_jax.select._learned_entry import (
+        LearnedHeldOutEntry,
+        build_entry,
+        cached_entry,
+        learned_model,
+    )
+    from abrdf_jax.select._prior import prior_held_out_error
+
+    src = read_source(prior_file)
+    metas = [_meas(n, "aniso204") for n in ("ggx-plastic", "ggx-aniso-metal")]
+    y = np.stack([np.asarray(m.y) for m in metas])
+    held_out = prior_held_out_error if name == "prior" else fused_held_out_error
+    p64 = small_prior.astype(jnp.float64)
+    for budget in ("iso102", "aniso204"):
+        entry = build_entry(learned_model(name, src, budget), metas[0], 15.0, 4)
+        want = [held_out(m.astype(jnp.float64), p64, ALPHA, 4, budget) for m in metas]
+        np.testing.assert_allclose(entry.errors(y), want, rtol=2e-4)
+    assert want[1] > 2 * want[0]  # the anisotropic material is held out far worse
+    store, warned = OperatorStore(Path(prior_file).parent / f"store-{name}"), []
+    model = learned_model(name, src, "aniso204")
+    first = cached_entry(store, model, metas[0], 15.0, 4, warned.append)
+    (path,) = store.entries()
+    again = cached_entry(
+        store, model, metas[0], 15.0, 4, warned.append, lambda: pytest.fail("built again")
+    )
+    np.testing.assert_array_equal(again.errors(y), first.errors(y))
+    bad = LearnedHeldOutEntry(**{**first.arrays(), "gain": first.gain[:, :-1]}, **first.meta())
+    store.save(path.stem, bad)
+    rebuilt = cached_entry(store, model, metas[0], 15.0, 4, warned.append)
+    assert warned and "malformed" in warned[0] and str(path) in warned[0]
+    np.testing.assert_array_equal(rebuilt.errors(y), first.errors(y))

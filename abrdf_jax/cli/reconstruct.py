@@ -156,8 +156,9 @@ def choose(item: common.Measured, args, forced: str | None, caches: "common.Cach
 
 def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
     """The automatic choice of every input: without JAX where one candidate is left or the
-    held-out errors are matrices in the operator store (``abrdf_jax.select._held_out_entry``:
-    a single file, or a layout shared by ``MIN_GROUP`` inputs), else by held-out errors in JAX,
+    held-out errors are matrices in the operator store (``abrdf_jax.select._held_out_entry``,
+    and ``_learned_entry`` for the prior's models: a single file, or a layout shared by
+    ``MIN_GROUP`` inputs), else by held-out errors in JAX,
     the folds of several inputs in batches (:func:`abrdf_jax.select.select_models`). The same
     choices either way (errors within float32 rounding)."""
     from ..select import LEVEL, MIN_EFFECT, TOL
@@ -168,22 +169,21 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
     if args.noise is None and forced is None:
         estimates = estimate_noise_many([it.meas for it in items], slices="axial")
     tol = {} if args.tol is None else {"tol": args.tol}
-    sels = [None] * len(items)  # with a prior every material compares candidates (JAX)
-    if caches.prior is None:
-        sels = entry_selections(
-            [(it.meas, it.alpha) for it in items],
-            store=caches.store,
-            warn=common.warn,
-            budget=forced,
-            tol=TOL if args.tol is None else args.tol,
-            noise=args.noise,
-            level=LEVEL,
-            min_effect=MIN_EFFECT,
-            min_group=1 if len(items) == 1 else MIN_GROUP,
-            before_build=caches.numerics,
-            where=[it.path for it in items],
-            estimates=estimates,
-        )
+    sels = entry_selections(
+        [(it.meas, it.alpha) for it in items],
+        store=caches.store,
+        warn=common.warn,
+        budget=forced,
+        tol=TOL if args.tol is None else args.tol,
+        noise=args.noise,
+        level=LEVEL,
+        min_effect=MIN_EFFECT,
+        min_group=1 if len(items) == 1 else MIN_GROUP,
+        before_build=caches.numerics,
+        where=[it.path for it in items],
+        estimates=estimates,
+        learned=caches.prior,
+    )
     rest = [k for k, s in enumerate(sels) if s is None]
     if rest:
         caches.numerics()

@@ -18,35 +18,33 @@ import jax.numpy as jnp
 
 from .._measurements import Measurements
 from ..prior._covariance import FusedHyper, covariance
-from ..prior._fused import (
-    _kron_eye,
-    factor,
-    fused_basis,
-    prior_fused,
-    residuals,
-    sample_features,
-)
-from ..prior._mapping import inverse_log_relative
-from ._prior import fold_error, prior_fold_data
+from ..prior._fused import _kron_eye, factor, fused_basis, prior_fused, sample_features
+from ._prior import affine_map, fold_error, predict, prior_fold_data
 
 
-def fused_predict(prior, hyper: FusedHyper, train: Measurements, test: Measurements, alpha, ref):
-    """The fused posterior mean given ``train``'s samples, at ``test``'s positions: ``(P, 3)``."""
+def fused_map(prior, hyper: FusedHyper, train: Measurements, test: Measurements, alpha, ref):
+    """The fused posterior mean given ``train``'s samples, at ``test``'s positions, as the fold's
+    :class:`~abrdf_jax.select._prior.HeldOutMap`: ``gain = cov(test, train) C⁻¹ W``."""
     dt = prior.dtype
     basis = fused_basis(prior, train, alpha, ref)
     x_s = sample_features(hyper, train, alpha).astype(dt)
     fs = factor(hyper, basis, x_s)
-    s, n = train.t.shape
-    weights = fs.solve(residuals(prior, basis, jnp.reshape(train.y, (s * n, 3)).astype(dt)))
     out = fused_basis(prior, test, alpha, ref)
     k_ts = _kron_eye(
         covariance(hyper, sample_features(hyper, test, alpha).astype(dt), x_s), basis.width
     )
-    gain = hyper.sigma_p.astype(dt) * (out.components @ fs.u.T)
-    gain = gain + hyper.sigma_k.astype(dt) ** 2 * k_ts * fs.weight[None, :]
-    m = gain @ weights + out.mean[:, None]  # (P·w, R): shared (P, 3), joint (P·3, 1)
-    pred = inverse_log_relative(m, out.reference[:, None], out.cos_v[:, None], prior.eps)
-    return pred.reshape(-1, 3)
+    cov = hyper.sigma_p.astype(dt) * (out.components @ fs.u.T)
+    cov = cov + hyper.sigma_k.astype(dt) ** 2 * k_ts * fs.weight[None, :]
+    gain = fs.solve(cov.T).T * fs.weight[None, :]  # C⁻¹ is symmetric: cov C⁻¹ = (C⁻¹ covᵀ)ᵀ
+    return affine_map(prior, gain, basis, out)
+
+
+def fused_predict(prior, hyper: FusedHyper, train: Measurements, test: Measurements, alpha, ref):
+    """The fused posterior mean given ``train``'s samples, at ``test``'s positions: ``(P, 3)``."""
+    hm = fused_map(prior, hyper, train, test, alpha, ref)
+    s, n = train.t.shape
+    y = jnp.reshape(train.y, (s * n, 3)).astype(prior.dtype)
+    return predict(hm, y, prior.eps, 3 if prior.channels == "joint" else 1)
 
 
 def _held_out(data: dict, prior, hyper, ref):

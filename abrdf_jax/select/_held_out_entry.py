@@ -32,7 +32,10 @@ from .._engine import OPERATOR_MIN_GROUP
 from .._rules import AFFINE, combine
 from .._smoothing import smooth_compact, smoothing_from_json, smoothing_to_json
 from .._spikes import cap_samples
-from ._choice import finish, group_configs, plan
+from ._candidates import LEARNED
+from ._choice import finish, group_configs, plan, rbf_configs, with_prior
+from ._learned_entry import cached_entry as learned_entry
+from ._learned_entry import learned_model
 
 #: Inputs of one layout (α, candidates) that make a held-out entry worth building in a call of
 #: several: the reconstruction operators' threshold; a single file passes 1.
@@ -291,7 +294,7 @@ def entry_groups(configs: dict) -> list[tuple[tuple[str, ...], tuple[Config, ...
 def entry_plan(p) -> bool:
     """Whether a plan's candidates can be scored by held-out entries: every rule affine in the
     slice terms (:mod:`abrdf_jax._rules`), no log after the rule, a sparse centre layout, every
-    diagonal slice measured, no prior."""
+    diagonal slice measured (the learned candidates have entries of their own)."""
     count = np.asarray(p.meas.count)
     return (
         p.meas.centre_azimuths is None
@@ -300,7 +303,7 @@ def entry_plan(p) -> bool:
             isinstance(c, Config)
             and c.subspace_rule in AFFINE
             and c.value_space not in LOG_SUBSPACE
-            for c in p.configs.values()
+            for c in rbf_configs(p.configs).values()
         )
     )
 
@@ -320,6 +323,7 @@ def entry_selections(
     before_build=None,
     where=None,
     estimates=None,
+    learned=None,
 ):
     """:func:`abrdf_jax.select.select_model` (``candidates="auto"``) of grouped measurements
     ``items`` (``(meas, alpha_deg)`` pairs) wherever it needs no JAX: one candidate left (as
@@ -328,8 +332,11 @@ def entry_selections(
     ``store``). ``None`` where the caller must run the JAX path
     (:func:`~abrdf_jax.select.select_models`). ``where``: each input's name, put before the
     message of an :class:`~abrdf_jax.InputError` of its plan; ``estimates``: each input's
-    noise estimate (:func:`~abrdf_jax.select.estimate_noise_many`), if at hand. Parameters are
-    numpy values (:class:`abrdf_jax._config.ParamValues`)."""
+    noise estimate (:func:`~abrdf_jax.select.estimate_noise_many`), if at hand; ``learned``: a
+    prior (:class:`abrdf_jax._prior_operator.PriorSource`) whose prior-only and fused models join
+    the candidates (as :func:`~abrdf_jax.select.select_model`'s ``prior``), scored by their own
+    held-out entries (:mod:`abrdf_jax.select._learned_entry`). Parameters are numpy values
+    (:class:`abrdf_jax._config.ParamValues`)."""
     from .._engine import layout_key
 
     t0 = time.perf_counter()
@@ -337,7 +344,8 @@ def entry_selections(
     estimates = [None] * len(items) if estimates is None else estimates
     for i, ((m, a), est) in enumerate(zip(items, estimates)):
         try:
-            plans.append(plan(m, a, "auto", budget, noise, level, min_effect, est))
+            p = plan(m, a, "auto", budget, noise, level, min_effect, est)
+            plans.append(p if learned is None else with_prior(p, fused=True))
         except InputError as e:
             raise InputError(f"{where[i]}: {e}" if where is not None else str(e)) from e
     out = [finish(p, None, tol, k, 0.0) if len(p.configs) == 1 else None for p in plans]
@@ -352,10 +360,15 @@ def entry_selections(
         p0 = plans[members[0]]
         ys = np.stack([np.asarray(plans[i].meas.y) for i in members])
         errors = [{} for _ in members]
-        for names, cfgs in entry_groups(p0.configs):
+        for names, cfgs in entry_groups(rbf_configs(p0.configs)):
             entry = cached_entry(store, p0.meas, p0.alpha, names, cfgs, k, warn, before_build)
             for row, err in zip(errors, entry.errors(ys)):
                 row.update({n: float(e) for n, e in zip(names, err)})
+        for name in (n for n in p0.configs if n in LEARNED):
+            model = learned_model(name, learned, p0.configs[name].budget)
+            entry = learned_entry(store, model, p0.meas, p0.alpha, k, warn, before_build)
+            for row, err in zip(errors, entry.errors(ys)):
+                row[name] = float(err)
         for i, err in zip(members, errors):
             out[i] = finish(plans[i], err, tol, k, 0.0)
     share = (time.perf_counter() - t0) / max(len(items), 1)

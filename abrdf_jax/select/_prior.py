@@ -12,6 +12,8 @@ like with like. One compiled, vmapped call per layout for a batch of materials
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -21,8 +23,7 @@ from .._config import Config
 from .._folds import log_rms, sample_folds
 from .._measurements import Measurements
 from .._values import measurement_eps
-from ..prior._mapping import inverse_log_relative, log_relative
-from ..prior._reconstruct import _rows, ridge_operator, sample_basis
+from ..prior._reconstruct import ridge_operator, sample_basis
 
 
 def prior_fold_data(meas: Measurements, alpha, k: int = 4, budget: str = "aniso204") -> dict:
@@ -43,19 +44,55 @@ def prior_fold_data(meas: Measurements, alpha, k: int = 4, budget: str = "aniso2
     }
 
 
+class HeldOutMap(NamedTuple):
+    """One fold's prediction of a learned model as an affine map of its training samples' log
+    values (``w`` = 1 for a ``shared`` prior, one row per channel; 3 for ``joint``, rows of
+    ``P·3``): ``m = gain · ln(max(y, 0) cos θv,train + ε) + offset``, prediction
+    ``max((exp(m) − ε) / cos θv,test, 0)`` (the inverse map, the reference folded into
+    ``offset``). The JAX held-out errors and the numpy entries of the command line
+    (:mod:`abrdf_jax.select._learned_entry`) both predict through it.
+
+    Attributes:
+        gain: ``(P_test·w, P_train·w)``; offset: ``(P_test·w,)``.
+        cos_train: ``(P_train·w,)``; cos_test: ``(P_test·w,)``.
+    """
+
+    gain: object
+    offset: object
+    cos_train: object
+    cos_test: object
+
+
+def affine_map(prior, gain, basis, out) -> HeldOutMap:
+    """The :class:`HeldOutMap` of a fold whose mapped prediction is ``gain`` times the centred
+    mapped training samples plus the prior's mean at the held-out positions (``basis``/``out``:
+    the prior at the training/held-out positions)."""
+    eps = prior.eps
+    shift = jnp.log(basis.reference * basis.cos_v + eps) + basis.mean
+    offset = out.mean + jnp.log(out.reference * out.cos_v + eps) - gain @ shift
+    return HeldOutMap(gain, offset, basis.cos_v, out.cos_v)
+
+
+def prior_map(prior, train: Measurements, test: Measurements, lam, alpha) -> HeldOutMap:
+    """The prior fitted to ``train``'s samples (ridge weights), at ``test``'s positions."""
+    basis = sample_basis(prior, train, alpha)
+    out = sample_basis(prior, test, alpha)
+    return affine_map(prior, out.components @ ridge_operator(basis, lam), basis, out)
+
+
+def predict(hm: HeldOutMap, y, eps: float, width: int):
+    """The prediction ``(P_test, 3)`` of training values ``y`` ``(P_train, 3)`` (numpy or JAX)."""
+    xp = np if isinstance(hm.gain, np.ndarray) else jnp
+    z = y.reshape(-1, 1) if width == 3 else y  # rows of the map, one column per right side
+    x = xp.log(xp.maximum(z, 0) * hm.cos_train[:, None] + eps)
+    m = hm.gain @ x + hm.offset[:, None]
+    return xp.maximum((xp.exp(m) - eps) / hm.cos_test[:, None], 0).reshape(-1, 3)
+
+
 def _predict(prior, train: Measurements, test: Measurements, lam, alpha):
     """The prior fitted to ``train``'s samples, at ``test``'s positions: ``(P_test, 3)``."""
-    basis = sample_basis(prior, train, alpha)
-    joint = prior.channels == "joint"
-    y = train.y.reshape(-1, 3)
-    z = y.reshape(-1) if joint else y.T  # a row of P·3 values, or one row per channel
-    ref_s, cos_s, mean_s = _rows(z, basis.reference, basis.cos_v, basis.mean)
-    c = (log_relative(z, ref_s, cos_s, prior.eps) - mean_s) @ ridge_operator(basis, lam).T
-    out = sample_basis(prior, test, alpha)
-    m = c @ out.components.T
-    ref_t, cos_t, mean_t = _rows(m, out.reference, out.cos_v, out.mean)
-    pred = inverse_log_relative(m + mean_t, ref_t, cos_t, prior.eps)
-    return pred.reshape(-1, 3) if joint else pred.T
+    hm = prior_map(prior, train, test, lam, alpha)
+    return predict(hm, train.y.reshape(-1, 3), prior.eps, 3 if prior.channels == "joint" else 1)
 
 
 def _held_out(data: dict, prior, lam):
