@@ -165,6 +165,7 @@ def build_entry(model, meas, alpha_deg: float, k: int) -> LearnedHeldOutEntry:
     from .. import _cache
     from .._config import Config
     from .._engine import as_jax
+    from .._prior_operator import f32
     from ._prior import prior_fold_data
 
     meas, _ = as_jax(meas, None)
@@ -186,7 +187,6 @@ def build_entry(model, meas, alpha_deg: float, k: int) -> LearnedHeldOutEntry:
             hm = _jitted_maps()(p, lam, folds, data["alpha"], None)
         gain, offset, cos_train, cos_test = (np.asarray(a, np.float64) for a in hm)
     slots_train, slots_test = fold_slots(np.asarray(meas.count), meas.t.shape[-1], k)
-    f32 = lambda a: np.ascontiguousarray(a, np.float32)  # noqa: E731
     return LearnedHeldOutEntry(
         gain=f32(gain),
         offset=f32(offset),
