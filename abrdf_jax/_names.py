@@ -64,7 +64,9 @@ FOLD_KINDS = ("pairs", "samples")
 LOSSES = ("lab", "log", "lab+log")
 WIDTH_MODES = ("per_dim", "shared", "fixed")
 BTF_BACKENDS = ("auto", "operator", "pipeline")
-BTF_MODELS = ("fixed", "auto")
+#: The models that read a learned prior (``--model NAME``), in rank order.
+LEARNED_MODELS = ("prior", "fused")
+BTF_MODELS = ("fixed", "auto", *LEARNED_MODELS)
 #: dtypes of the values in a chunked BTF store
 STORE_DTYPES = ("float16", "float32")
 #: storage backends of a BTF store (``abrdf_jax.btf.FORMATS``), the default first

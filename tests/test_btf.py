@@ -634,3 +634,50 @@ def test_per_texel_model_choice(tmp_path):
         )
     with pytest.raises(InputError, match="model must be"):
         btf.reconstruct_btf(meas, tmp_path / "rec3", chunk=4, progress=False, model="best")
+
+
+def test_learned_models_per_texel_equal_their_numpy_entry(generated, tmp_path, capsys):
+    """``model="prior"|"fused"`` (issue 14, "folder and BTF runs use it"): every texel through the
+    learned model's entry collapsed to one matrix, in JAX, equals the numpy entry that
+    ``abrdf-jax reconstruct --model prior|fused`` applies to that texel's samples (float32
+    rounding); the command line writes the same store from a prior file, reports the backend,
+    and refuses ``--prior`` with an RBF model and a corrupt prior file (exit 2, named)."""
+    from abrdf_jax import prior as P
+    from abrdf_jax.btf._chunkfn import grouping
+    from abrdf_jax.prior._default import DEFAULT_RECIPE
+
+    root, paths = generated
+    tables, names = P.default_training_tables({**DEFAULT_RECIPE, "n": 12})
+    small = P.train_prior(tables, names, k=6, lam=0.03)
+    pfile = P.save_prior(small, tmp_path / "p.npz")
+    meas = btf.ChunkedStore.open(paths["measurements"])
+    config = btf.default_config(meas.geometry["budget"])
+    alpha = float(meas.geometry.get("alpha_deg", aj.PROTOCOL_ALPHA_DEG))
+    template, group = grouping(meas.geometry, config.pairs, alpha)
+    y = meas.read(0, 6).astype(np.float32)
+    slices = np.einsum("pn,cnk->cpk", group, y).reshape(6, *np.asarray(template.t).shape, 3)
+    params = aj.Params.default(config, alpha_deg=alpha)
+    for model in ("prior", "fused"):
+        out = btf.reconstruct_btf(
+            meas, tmp_path / model, chunk=CHUNK, progress=False, dtype="float32",
+            model=model, prior=small,
+        )  # fmt: skip
+        got = out.read(0, 6).reshape(6, 81, 81, 3)
+        entry = aj.compile_numpy_operator(
+            small, template, params, budget=config.budget, fused=model == "fused"
+        )
+        want = entry.apply(slices)
+        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5 * np.abs(want).max())
+        assert out.attrs["job"]["model"] == model and out.attrs["job"]["prior"]["sha256"]
+    cli = tmp_path / "cli"
+    argv = ["btf", "reconstruct", str(paths["measurements"]), "-o", str(cli), "--chunk"]
+    argv += [str(CHUNK), "--dtype", "float32", "--model", "fused", "--prior", str(pfile), "-q"]
+    assert main(argv) == 0
+    assert "fused backend" in capsys.readouterr().out
+    np.testing.assert_array_equal(btf.ChunkedStore.open(cli).read(), out.read())
+    bad = ["btf", "reconstruct", str(paths["measurements"]), "-o", str(tmp_path / "x")]
+    assert main([*bad, "--prior", str(pfile)]) == 2
+    assert "--prior is read by --model prior|fused" in capsys.readouterr().err
+    (tmp_path / "broken.npz").write_bytes(b"not a prior")
+    assert main([*bad, "--model", "prior", "--prior", str(tmp_path / "broken.npz")]) == 2
+    assert "broken.npz" in capsys.readouterr().err and not (tmp_path / "x").exists()

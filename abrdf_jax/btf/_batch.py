@@ -25,11 +25,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from .._names import BTF_MODELS
+from .._names import BTF_MODELS, LEARNED_MODELS
 from .._params import Config, Params, preset
 from ..select._isotropy import LEVEL, MIN_EFFECT
-from ._chunkfn import BACKENDS, N_PAIRS, grouping, texel_isotropy
-from ._chunkfn import make_chunk_fn, make_model_choice_fn
+from ._chunkfn import BACKENDS, N_PAIRS, _alpha_deg, grouping, make_chunk_fn
+from ._chunkfn import make_model_choice_fn, texel_isotropy
+from ._learned import make_learned_chunk_fn, prior_identity
 from ._devices import DEFAULT_BLOCK, ShardedRunner, resolve_devices
 from ._backend import DEFAULT_FORMAT, open_store, store_class
 from ._store import ABRDF_GEOMETRY, ChunkedStore, pad_rows, progress_bar
@@ -68,17 +69,25 @@ def store_identity(store: ChunkedStore) -> str:
 _CHUNK_FNS: dict = {}
 
 
-def _chunk_fn(config, params, geometry, backend, dtype, model="fixed"):
-    """:func:`make_chunk_fn` (``model="auto"``: :func:`make_model_choice_fn`), remembered for the
-    last few settings (building an operator costs a factorisation and a pass of the pipeline; a
-    resumed or repeated run reuses it)."""
+def _chunk_fn(config, params, geometry, backend, dtype, model="fixed", prior=None):
+    """:func:`make_chunk_fn` (``model="auto"``: :func:`make_model_choice_fn`; ``"prior"`` or
+    ``"fused"``: :func:`~abrdf_jax.btf._learned.make_learned_chunk_fn` of ``prior``), remembered
+    for the last few settings (building an operator costs a factorisation and a pass of the
+    pipeline; a resumed or repeated run reuses it)."""
     key = (repr(config), json.dumps(_params_doc(params)), json.dumps(geometry, sort_keys=True))
     key += (backend, jnp.dtype(dtype).name, model)
+    if prior is not None:
+        key += (json.dumps(prior_identity(prior), sort_keys=True),)
     if key not in _CHUNK_FNS:
         while len(_CHUNK_FNS) >= 4:
             _CHUNK_FNS.pop(next(iter(_CHUNK_FNS)))
-        make = make_model_choice_fn if model == "auto" else make_chunk_fn
-        _CHUNK_FNS[key] = make(config, params, geometry, backend=backend, dtype=dtype)
+        if model in LEARNED_MODELS:
+            template, group = grouping(geometry, config.pairs, _alpha_deg(geometry, params))
+            fn = make_learned_chunk_fn(prior, model, template, group, params, config.budget, dtype)
+        else:
+            make = make_model_choice_fn if model == "auto" else make_chunk_fn
+            fn = make(config, params, geometry, backend=backend, dtype=dtype)
+        _CHUNK_FNS[key] = fn
     return _CHUNK_FNS[key]
 
 
@@ -104,6 +113,7 @@ def reconstruct_btf(
     stats: dict | None = None,
     model: str = "fixed",
     format: str = DEFAULT_FORMAT,
+    prior=None,
 ) -> ChunkedStore:
     """Reconstruct every texel of a measured BTF into a chunked ABRDF store.
 
@@ -128,10 +138,16 @@ def reconstruct_btf(
         model: ``"fixed"`` (``config`` for every texel) or ``"auto"``: per texel, the isotropy
             test of :mod:`abrdf_jax.select` on its axial slices picks the diagonal-only model
             (``default_config("iso102")``, default parameters) or ``config`` (which must be
-            ``aniso204``); see :func:`isotropy_map` for the decisions.
+            ``aniso204``); see :func:`isotropy_map` for the decisions; ``"prior"`` or
+            ``"fused"``: every texel with the learned model of ``prior`` (the prior alone, or
+            fused with a kernel on its residual at the prior's own hyper-parameters) on the
+            slices of ``config``'s budget, one matrix product per chunk
+            (:mod:`abrdf_jax.btf._learned`; ``backend`` does not apply).
         format: the output's storage backend, ``"npy"`` (:class:`ChunkedStore`, the default)
             or ``"zarr"`` (a zarr v3 group; ``chunk`` a multiple of the width or a divisor of
             it, so chunks are tiles; see ``docs/btf.md``).
+        prior: the :class:`abrdf_jax.prior.Prior` of ``model="prior"|"fused"`` (default the
+            package's default prior, :func:`abrdf_jax.prior.default_prior`).
         stats: if given, filled with ``chunks_done``, ``chunks_skipped``, ``seconds`` (the
             whole call), ``first_chunk_seconds`` (compilation included), ``backend``,
             ``devices``, ``batch``, ``build_seconds`` (the chunk map: operator or pipeline
@@ -155,7 +171,13 @@ def reconstruct_btf(
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if model not in BTF_MODELS:
-        raise InputError(f"model must be 'fixed' or 'auto', got {model!r}")
+        raise InputError(f"model must be one of {BTF_MODELS}, got {model!r}")
+    if prior is not None and model not in LEARNED_MODELS:
+        raise InputError(f"prior is read only by model='prior' or 'fused', not {model!r}")
+    if model in LEARNED_MODELS and prior is None:
+        from ..prior import default_prior
+
+        prior = default_prior()
     if model == "auto" and {config.budget, geometry.get("budget", "aniso204")} != {"aniso204"}:
         raise InputError(
             "model='auto' chooses between iso102 and aniso204 per texel: it needs an aniso204 "
@@ -164,6 +186,8 @@ def reconstruct_btf(
     # The job is what the results depend on; "auto" resolves the same way every time.
     job = dict(input=store_identity(meas), config=repr(config), params=_params_doc(params))
     job.update(backend=backend, compute_dtype=compute_dtype, model=model)
+    if prior is not None:
+        job.update(prior=prior_identity(prior))
     attrs = dict(job=job, source=meas.attrs)
     shape = dict(texel_shape=meas.texel_shape, item_shape=(N_PAIRS, 3), dtype=dtype, chunk=chunk)
     out = store_class(format).create(
@@ -180,7 +204,7 @@ def reconstruct_btf(
     info.update(build_seconds=0.0, read_seconds=0.0, compute_seconds=0.0, write_seconds=0.0)
     if todo:  # build (or reuse) the chunk map only when there is work
         t = time.perf_counter()
-        chunk_fn = _chunk_fn(config, params, geometry, backend, work, model)
+        chunk_fn = _chunk_fn(config, params, geometry, backend, work, model, prior)
         info["build_seconds"] = time.perf_counter() - t
         runner = ShardedRunner(chunk_fn, devices, np.dtype(dtype), block)
         info.update(backend=chunk_fn.backend, batch=runner.batch_size(chunk))

@@ -9,11 +9,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from .._errors import InputError
+from .._names import LEARNED_MODELS
 
-PRIOR_MODEL = "prior"
-FUSED_MODEL = "fused"
-#: The models that read a prior (``--model NAME``), in rank order.
-LEARNED_MODELS = (PRIOR_MODEL, FUSED_MODEL)
+PRIOR_MODEL, FUSED_MODEL = LEARNED_MODELS
 
 
 def wants_prior(args) -> bool:

@@ -21,7 +21,8 @@ import time
 from pathlib import Path
 
 from .._errors import InputError
-from .._names import AZIMUTHS, BTF_BACKENDS, BTF_MODELS, PRESETS, STORE_DTYPES, STORE_FORMATS
+from .._names import AZIMUTHS, BTF_BACKENDS, BTF_MODELS, LEARNED_MODELS, PRESETS
+from .._names import STORE_DTYPES, STORE_FORMATS
 from . import _common as common
 
 #: The configuration without ``--preset``/``--params``: linear in the log of the samples, so the
@@ -45,7 +46,11 @@ HELP = {
     "recommended and paper run the pipeline)",
     "--params": "fitted configuration and parameters ('abrdf-jax fit'; instead of --preset)",
     "--model": "auto: per texel, the isotropy test picks the diagonal-only or the anisotropic "
-    "model (two matrix products per chunk); fixed: one model for every texel (default)",
+    "model (two matrix products per chunk); fixed: one model for every texel (default); "
+    "prior / fused: every texel with a learned prior alone / fused with a kernel on its "
+    "residual (one matrix product per chunk; docs/prior.md)",
+    "--prior": "the prior of --model prior|fused: a prior file ('abrdf-jax prior train') or "
+    "'default' (the built-in prior, also without the flag)",
     "--devices": "shard over the first N local devices",
     "hosts": "several hosts (jax.distributed; the stores on a shared file system)",
     "--distributed": "initialise jax.distributed from the environment",
@@ -162,6 +167,17 @@ def cmd_reconstruct(args) -> int:
             "configuration; give one"
         )
     common.check_params_file(args.params)  # before any work, without JAX
+    learned = args.model in LEARNED_MODELS
+    if args.prior is not None and not learned:
+        raise InputError(f"--prior is read by --model prior|fused, not --model {args.model}")
+    if learned and (args.preset is not None or args.params is not None):
+        flag = "--preset" if args.preset is not None else "--params"
+        raise InputError(f"{flag} sets an RBF model; --model {args.model} reads a prior")
+    source = None
+    if learned and args.prior not in (None, "default"):
+        from .._prior_operator import read_source
+
+        source = read_source(args.prior)  # a bad file: named, before any work (no JAX)
     _init_distributed(args)
     from abrdf_jax import btf
 
@@ -185,6 +201,11 @@ def cmd_reconstruct(args) -> int:
     opts = dict(chunk=args.chunk, progress=not args.quiet, dtype=args.dtype, devices=args.devices)
     opts |= dict(backend=args.backend, overwrite=args.overwrite, stats=stats, model=args.model)
     opts |= dict(format=args.format)
+    if learned:
+        from .._prior_operator import resolve_prior
+
+        source = source or resolve_prior(args.prior, args.cache_dir)
+        opts |= dict(prior=source.load())
     # one writer of the store (several hosts of one jax.distributed job share it on purpose)
     with common.output_lock(out) if jax.process_count() == 1 else contextlib.nullcontext():
         store = _refusing(btf.reconstruct_btf, meas, out, config, params, **opts)
@@ -350,6 +371,7 @@ def register(sub) -> None:
     common.budget_flags(r, anisotropic=False)
     add("--backend", choices=BTF_BACKENDS, default=BTF_BACKENDS[0])
     add("--model", choices=BTF_MODELS, default=BTF_MODELS[0])
+    add("--prior", metavar="FILE")
     add("--format", choices=STORE_FORMATS, default=STORE_FORMATS[0])
     add("--devices", type=common.positive("--devices"), metavar="N")
     add("--overwrite", action="store_true", help="replace an output store of other settings")
