@@ -6,10 +6,12 @@ btf_learned.{json,md}``.
 A procedural BTF (``abrdf_jax.btf.generate_btf``, seed 1, 204 samples a texel, the reference
 beside it) is reconstructed by ``reconstruct_btf`` (what ``abrdf-jax btf reconstruct`` runs) with
 ``model="fixed"`` (the default RBF operator), ``"prior"`` and ``"fused"`` (the package's default
-prior, one matrix product per chunk, :mod:`abrdf_jax.btf`), float16 store, chunks of 1024 texels,
+prior, one matrix product per chunk, :mod:`abrdf_jax.btf`), float32 store (a learned model's
+overshoot can exceed float16's range), chunks of 1024 texels,
 all in this process: each model once cold (its chunk map built and compiled) and once warm into a
 new folder; wall seconds, texels per second and the busy seconds of the compute stage, and the
-mean ΔE76 / LogErr over every 16th texel against the reference. The procedural material is
+mean ΔE76 / LogErr over every 16th texel against the reference, and the fraction of texels whose
+table's maximum exceeds 100 times their largest sample (overshoot). The procedural material is
 anisotropic (self-shadowing of a height field), unlike the prior's isotropic database: the
 accuracy column says what a user gets on such a texture, the time column the throughput class.
 """
@@ -30,14 +32,29 @@ MODELS = ("fixed", "prior", "fused")
 CHUNK = 1024
 
 
-def _errors(store, ref) -> dict:
+#: A texel "overshoots" where its table's maximum exceeds this multiple of its largest sample
+#: (the procedural truth's own ratio is at most about 50).
+OVERSHOOT = 100.0
+
+
+def _errors(store, ref, meas) -> dict:
     from abrdf_jax.metrics import evaluate_batch
 
     idx = np.arange(0, store.n_texels, 16)
     rec = store.read().reshape(-1, 81, 81, 3)[idx].astype(np.float32)
     truth = ref.read().reshape(-1, 81, 81, 3)[idx].astype(np.float32)
     per = evaluate_batch(rec, truth)
-    return {k: float(np.mean(np.asarray(per[k]))) for k in ("de76", "logerr")}
+    out = {k: float(np.mean(np.asarray(per[k]))) for k in ("de76", "logerr")}
+    peak = store.read().reshape(store.n_texels, -1).max(axis=1)
+    ratio = peak / np.maximum(meas.read().reshape(store.n_texels, -1).max(axis=1), 1e-30)
+    truth_ratio = ref.read().reshape(store.n_texels, -1).max(axis=1).astype(np.float64)
+    truth_ratio /= np.maximum(meas.read().reshape(store.n_texels, -1).max(axis=1), 1e-30)
+    return out | {
+        "overshoot_fraction": float(np.mean(ratio > OVERSHOOT)),
+        "max_peak_ratio": float(ratio.max()),
+        "truth_overshoot_fraction": float(np.mean(truth_ratio > OVERSHOOT)),
+        "truth_max_peak_ratio": float(truth_ratio.max()),
+    }
 
 
 def run(size: int, log=print) -> dict:
@@ -47,6 +64,7 @@ def run(size: int, log=print) -> dict:
     with tempfile.TemporaryDirectory(prefix="btf-learned-") as tmp:
         paths = btf.generate_btf(Path(tmp) / "gen", size, seed=1, chunk=CHUNK)
         ref = btf.ChunkedStore.open(paths["reference"])
+        meas = btf.ChunkedStore.open(paths["measurements"])
         for model in MODELS:
             row = {}
             for state in ("cold", "warm"):
@@ -54,7 +72,7 @@ def run(size: int, log=print) -> dict:
                 t = time.perf_counter()
                 store = btf.reconstruct_btf(
                     paths["measurements"], Path(tmp) / f"{model}-{state}", chunk=CHUNK,
-                    progress=False, dtype="float16", model=model, stats=stats,
+                    progress=False, dtype="float32", model=model, stats=stats,
                 )  # fmt: skip
                 s = time.perf_counter() - t
                 row[state] = {
@@ -64,10 +82,11 @@ def run(size: int, log=print) -> dict:
                     "build_seconds": stats["build_seconds"],
                     "backend": stats["backend"],
                 }
-            row |= _errors(store, ref)
+            row |= _errors(store, ref, meas)
             log(
                 f"{model:6s} cold {row['cold']['seconds']:.1f} s, warm {row['warm']['seconds']:.2f}"
-                f" s ({row['warm']['texels_per_second']:.0f} texels/s), dE76 {row['de76']:.2f}"
+                f" s ({row['warm']['texels_per_second']:.0f} texels/s), dE76 {row['de76']:.2f}, "
+                f"overshoot {100 * row['overshoot_fraction']:.1f}% of texels"
             )
             out[model] = row
     return out
@@ -75,22 +94,29 @@ def run(size: int, log=print) -> dict:
 
 def markdown(payload: dict) -> str:
     n = payload["size"]
+    first = next(iter(payload["models"].values()))
     lines = [
         f"# Learned models on a {n}x{n} BTF (`python -m benchmarks.btf_learned --size {n}`)",
         "",
         f"{payload['machine'].get('date')}, load {payload['load_before']} → "
-        f"{payload['load_after']}, {payload['seconds']:.0f} s. `reconstruct_btf`, float16 store, "
-        f"chunks of {CHUNK}; ΔE76 / LogErr: mean over every 16th texel against the reference.",
+        f"{payload['load_after']}, {payload['seconds']:.0f} s. `reconstruct_btf`, float32 store, "
+        f"chunks of {CHUNK}; ΔE76 / LogErr: mean over every 16th texel against the reference; "
+        f"overshoot: texels whose table's maximum exceeds {OVERSHOOT:g}× their largest sample "
+        "(the largest such ratio beside it; the reference itself: "
+        f"{100 * first['truth_overshoot_fraction']:.1f} % of texels, largest ratio "
+        f"{first['truth_max_peak_ratio']:.1f}).",
         "",
-        "| model | backend | cold s | warm s | warm texels/s | warm compute s | ΔE76 | LogErr |",
-        "|---|---|---|---|---|---|---|---|",
+        "| model | backend | cold s | warm s | warm texels/s | warm compute s | ΔE76 | LogErr "
+        "| overshoot (largest ratio) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for model, r in payload["models"].items():
         w = r["warm"]
         lines.append(
             f"| {model} | {w['backend']} | {r['cold']['seconds']:.1f} | {w['seconds']:.2f} | "
             f"{w['texels_per_second']:,.0f} | {w['compute_seconds']:.2f} | {r['de76']:.2f} | "
-            f"{r['logerr']:.3f} |"
+            f"{r['logerr']:.3f} | {100 * r['overshoot_fraction']:.1f} % "
+            f"({r['max_peak_ratio']:.3g}) |"
         )
     return "\n".join(lines) + "\n"
 
