@@ -194,10 +194,11 @@ def test_store_round_trip_and_corruption(tmp_path):
         overwrite=True,
     )
     assert s2.done_chunks() == [] and not any((tmp_path / "float32" / "chunks").iterdir())
-    with pytest.raises(ValueError, match="NaN"):
+    with pytest.raises(InputError, match="NaN or infinite values .first at texel 0.; the chunk"):
         s2.write_chunk(0, np.full((5, 5, 3), np.nan))
     half = btf.ChunkedStore.open(tmp_path / "float16")
-    with pytest.raises(ValueError, match="float16"):
+    # finite values beyond float16's range: a setting the user can change (exit 2 on the CLI)
+    with pytest.raises(InputError, match=r"up to 1e\+06, beyond float16.*--dtype float32"):
         half.write_chunk(0, np.full((4, 5, 3), 1e6))
     with pytest.raises(ValueError, match="shape"):
         half.write_chunk(0, np.zeros((3, 5, 3)))

@@ -81,6 +81,32 @@ _FLOAT_BITS = {
 _FINITE_BLOCK = 1 << 18
 
 
+def stored_chunk(path, k: int, start: int, values: np.ndarray, dtype) -> np.ndarray:
+    """``values`` of chunk ``k`` (first texel ``start``) as the store's contiguous ``dtype``.
+
+    Raises:
+        InputError: (a store never holds them; nothing of the chunk is written) finite values
+            beyond the store's float16 range (65504: ``--dtype float32`` stores them), or NaN
+            or infinite values (the reconstruction is not finite there, as
+            :func:`abrdf_jax.reconstruct`'s checks report it for one material).
+    """
+    with np.errstate(over="ignore", invalid="ignore"):  # reported below, with the texel
+        arr = np.ascontiguousarray(values, dtype=dtype)
+    if all_finite(arr):
+        return arr
+    bad = int(np.argwhere(~np.isfinite(arr))[0][0]) + start
+    if np.dtype(dtype) == np.float16 and all_finite(np.asarray(values)):
+        top = float(np.max(np.abs(values)))
+        raise InputError(
+            f"{path}: chunk {k} has values up to {top:.3g}, beyond float16's range (65504; "
+            f"first at texel {bad}): store float32 (--dtype float32, Python dtype='float32')"
+        )
+    raise InputError(
+        f"{path}: chunk {k}: the reconstruction holds NaN or infinite values (first at texel "
+        f"{bad}); the chunk is not written"
+    )
+
+
 def all_finite(arr: np.ndarray) -> bool:
     """Whether every value of ``arr`` is finite; for float16/float32 one integer pass over the
     bits (the magnitude is below the all-ones exponent), several times faster than numpy's
@@ -289,22 +315,16 @@ class ChunkedStore(ChunkIndex):
             values: ``(stop - start, *item_shape)``; cast to the store dtype.
 
         Raises:
-            ValueError: wrong shape, or values that are NaN or infinite (also after the cast,
-                e.g. a float16 overflow): a store never holds them.
+            ValueError: wrong shape.
+            InputError: values that are NaN or infinite, also after the cast (a float16
+                overflow): a store never holds them (:func:`stored_chunk`).
         """
         start, stop = self.chunk_range(k)
         arr = np.asarray(values)
         want = (stop - start, *self.item_shape)
         if arr.shape != want:
             raise ValueError(f"{self.path}: chunk {k} has shape {arr.shape}, expected {want}")
-        with np.errstate(over="ignore", invalid="ignore"):  # reported below, with the texel
-            arr = np.ascontiguousarray(arr, dtype=self.dtype)
-        if not all_finite(arr):
-            bad = int(np.argwhere(~np.isfinite(arr))[0][0]) + start
-            raise ValueError(
-                f"{self.path}: chunk {k} holds NaN or infinite values (first at texel {bad}); "
-                + ("float16 overflows above 65504, use float32" if self.dtype == np.float16 else "")
-            )
+        arr = stored_chunk(self.path, k, start, arr, self.dtype)
         # The .npy header, then the array's own memory: no serialised copy of the chunk.
         head = io.BytesIO()
         np.lib.format.write_array_header_1_0(head, np.lib.format.header_data_from_array_1_0(arr))

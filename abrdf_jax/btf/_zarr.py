@@ -30,7 +30,7 @@ from .._errors import InputError
 from .._grid import ubo_grid
 from ..io._atomic import remove_stale_temps
 from ._chunked import ChunkIndex
-from ._store import CORRUPT, FORMAT, KINDS, VERSION, all_finite, make_folder
+from ._store import CORRUPT, FORMAT, KINDS, VERSION, make_folder, stored_chunk
 
 ARRAY = "abrdf"
 DIMS = ("y", "x", "light", "view", "rgb")
@@ -251,10 +251,7 @@ class ZarrStore(ChunkIndex):
         arr = np.asarray(values)
         if arr.shape != (b - a, *self.item_shape):
             raise ValueError(f"{self.path}: chunk {k} has shape {arr.shape}")
-        with np.errstate(over="ignore", invalid="ignore"):
-            arr = np.ascontiguousarray(arr, dtype=self.dtype)
-        if not all_finite(arr):
-            raise ValueError(f"{self.path}: chunk {k} holds NaN or infinite values")
+        arr = stored_chunk(self.path, k, a, arr, self.dtype)
         _, (rows, cols) = self._index(k)
         shape = (rows.stop - rows.start, cols.stop - cols.start, 81, 81, 3)
         self.array[rows, cols] = arr.reshape(shape)
