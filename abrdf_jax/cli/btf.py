@@ -208,7 +208,15 @@ def cmd_reconstruct(args) -> int:
         opts |= dict(prior=source.load())
     # one writer of the store (several hosts of one jax.distributed job share it on purpose)
     with common.output_lock(out) if jax.process_count() == 1 else contextlib.nullcontext():
-        store = _refusing(btf.reconstruct_btf, meas, out, config, params, **opts)
+        try:
+            store = _refusing(btf.reconstruct_btf, meas, out, config, params, **opts)
+        except InputError as e:
+            if not learned or "chunk" not in str(e):
+                raise
+            raise InputError(
+                f"{e} (--model {args.model} extrapolates its database's lobes onto texels "
+                "unlike it: docs/btf.md, 'Learned models per texel'; --model fixed is the RBF)"
+            ) from e
     done, seconds = stats["chunks_done"], stats["seconds"]
     head = (
         f"{out}: {store.n_texels} texels ({done} chunks computed, {stats['chunks_skipped']} "
