@@ -384,20 +384,20 @@ def build_entry(meas, config, params, *, build_dtype: str = BUILD_DTYPE) -> Oper
             ``compile_operator`` does (the rules ``"filip2012"``/``"log"`` on aniso204, or
             ``value_space="log"``).
     """
-    from ._engine import as_jax
-    from ._operator import compile_operator
+    from ._operator import operator_matrix
     from ._values import value_space
 
-    meas, params = as_jax(meas, params)
+    # Host inputs straight into the one compiled build: no eager JAX operation (each compiles
+    # a small program on a cold call; _operator.operator_matrix).
     with x64_scope(build_dtype == "float64"):
-        op = compile_operator(config, params, meas, dtype=build_dtype, build_dtype=build_dtype)
-        matrix = np.asarray(op.matrix)
+        matrix, index, keep, _ = operator_matrix(config, params, meas, build_dtype=build_dtype)
+        matrix = np.asarray(matrix)
     return OperatorEntry(
         matrix=np.ascontiguousarray(matrix.astype(np.float32)),
-        index=np.asarray(op.index, np.int64),
-        t=np.asarray(op.t, np.float32),
-        count=np.asarray(op.count, np.int32),
-        keep=np.asarray(op.keep, np.int32),
+        index=np.asarray(index, np.int64),
+        t=np.asarray(meas.t, np.float32),
+        count=np.asarray(meas.count, np.int32),
+        keep=np.asarray(keep, np.int32),
         log_samples=value_space(config.value_space).log_samples,
         log_eps=float(config.log_eps),
         spike_cap=config.spike_cap,

@@ -178,11 +178,12 @@ def centre_vectors(pairs, dtype, azimuths: int | None = None):
     return jnp.concatenate(wi).astype(dtype), jnp.concatenate(wv).astype(dtype)
 
 
-def ubo_target_vectors(dtype):
+def ubo_target_vectors(dtype, xp=jnp):
+    """The 6561 UBO pairs' unit vectors ``(wi, wv)``, ``(6561, 3)`` each, as ``xp`` arrays."""
     ti, pi_, tv, pv = pair_grid()
     wi = to_vector(np.deg2rad(ti), np.deg2rad(pi_), np)  # once a build: on the host
     wv = to_vector(np.deg2rad(tv), np.deg2rad(pv), np)
-    return jnp.asarray(wi, dtype), jnp.asarray(wv, dtype)
+    return xp.asarray(wi, dtype), xp.asarray(wv, dtype)
 
 
 def _centre_target_index(pairs, azimuths=None) -> tuple[np.ndarray, np.ndarray]:

@@ -332,7 +332,8 @@ def _build(
     azimuths=None,
 ):
     TRACE_COUNT["build"] += 1
-    params = params.astype(dtype)
+    # Params or numpy ParamValues (the command line's): made traced Params here, not eagerly.
+    params = Params(*(jnp.asarray(v, dtype) for v in (params.alpha, params.widths, params.reg)))
     if stage == "single":
         s, nmax = t.shape
         n_in = index.shape[0]
@@ -355,6 +356,84 @@ def _build(
     # coordinates and polynomial tail for tens of seconds.
     out = rbf_map(vals, pairs, config, params, (grid_wi, grid_wv), azimuths=azimuths)
     return keep_centres(out, vals, pairs, azimuths)
+
+
+def _template_layout(template) -> tuple[np.ndarray, np.ndarray]:
+    """The template's slice positions ``(S, nmax)`` and counts ``(S,)`` as numpy arrays."""
+    t, count = np.asarray(template.t), np.asarray(template.count)
+    if t.ndim == 3:  # a stacked template: every member must share the layout
+        if not (np.all(count == count[:1]) and np.all(t == t[:1])):
+            raise InputError(
+                "the stacked template's members have different slice layouts; pass one measurement"
+            )
+        t, count = t[0], count[0]
+    if t.ndim != 2 or count.shape != (t.shape[0],):
+        raise InputError(f"template.t must have shape (S, nmax), got {template.t.shape}")
+    return t, count
+
+
+def operator_matrix(
+    config: Config, params, template, *, build_dtype, targets=None, nonlinear="raise"
+):
+    """``(matrix, index, keep, stage)`` of :func:`compile_operator`, from host inputs.
+
+    ``params`` may be :class:`Params` or numpy ``ParamValues`` and ``template`` anything with
+    the slice arrays of a :class:`Measurements` (``t``, ``count``, ``pairs``, ``has_axial``,
+    ``centre_azimuths``; numpy or JAX): the inputs go into the one compiled build as they are,
+    so a build from numpy inputs (the operator store's, ``abrdf_jax._cache.build_entry``)
+    dispatches no eager JAX operation (each of which compiles a small program on a cold call).
+    ``matrix`` is a JAX array of ``build_dtype``; ``keep`` the grid rows kept from the centres
+    (empty for ``targets``).
+    """
+    if nonlinear not in NONLINEAR_MODES:
+        raise InputError(f"nonlinear must be one of {NONLINEAR_MODES}, got {nonlinear!r}")
+    if config.budget == "aniso204" and not template.has_axial:
+        raise InputError(
+            "Config(budget='aniso204') needs axial slices, but the template has none; use budget='iso102'"
+        )
+    t, count = _template_layout(template)
+    rule_linear = get_rule(config.subspace_rule).linear
+    linear = rule_linear and not value_space(config.value_space).log_subspace
+    if not linear and nonlinear == "raise":
+        why = (
+            f"rule={config.subspace_rule!r} is not linear in the samples"
+            if not rule_linear
+            else f"value_space={config.value_space!r} takes the log after the subspace rule"
+        )
+        raise InputError(
+            f"compile_operator: {why}; use Config(rule='crossing' or 'average' or budget='iso102') with "
+            f"value_space='linear' or 'logsamples', or pass nonlinear='two_stage' (slower: per-material subspace step)"
+        )
+    nmax = t.shape[1]
+    index = np.nonzero((np.arange(nmax)[None, :] < count[:, None]).reshape(-1))[0]
+    if targets is not None:
+        targets = tuple(jnp.asarray(v, build_dtype) for v in targets)
+        if (
+            len(targets) != 2
+            or targets[0].shape != targets[1].shape
+            or targets[0].shape[-1:] != (3,)
+        ):
+            raise InputError("targets must be (wi, wv) unit vectors of equal shape (q, 3)")
+    stage = "single" if linear else "two_stage"
+    grid_wi, grid_wv = ubo_target_vectors(build_dtype, xp=np)
+    values = params if isinstance(params, Params) else type(params)(*map(np.asarray, params))
+    matrix = _build(
+        t,
+        count,
+        index,
+        values,
+        config,
+        template.pairs,
+        template.has_axial,
+        targets,
+        grid_wi,
+        grid_wv,
+        stage,
+        jnp.dtype(build_dtype),
+        template.centre_azimuths,
+    )
+    keep = _centre_target_index(template.pairs, template.centre_azimuths)[1]
+    return matrix, index, (keep if targets is None else np.zeros(0, int)), stage
 
 
 def compile_operator(
@@ -393,68 +472,17 @@ def compile_operator(
         raise InputError("compile_operator needs a Config and a Params")
     if not isinstance(template, Measurements):
         raise InputError(f"template must be a Measurements, got {type(template).__name__}")
-    if nonlinear not in NONLINEAR_MODES:
-        raise InputError(f"nonlinear must be one of {NONLINEAR_MODES}, got {nonlinear!r}")
-    if config.budget == "aniso204" and not template.has_axial:
-        raise InputError(
-            "Config(budget='aniso204') needs axial slices, but the template has none; use budget='iso102'"
-        )
-    t, count = np.asarray(template.t), np.asarray(template.count)
-    if t.ndim == 3:  # a stacked template: every member must share the layout
-        if not (np.all(count == count[:1]) and np.all(t == t[:1])):
-            raise InputError(
-                "the stacked template's members have different slice layouts; pass one measurement"
-            )
-        t, count = t[0], count[0]
-    if t.ndim != 2 or count.shape != (t.shape[0],):
-        raise InputError(f"template.t must have shape (S, nmax), got {template.t.shape}")
-    rule_linear = get_rule(config.subspace_rule).linear
-    linear = rule_linear and not value_space(config.value_space).log_subspace
-    if not linear and nonlinear == "raise":
-        why = (
-            f"rule={config.subspace_rule!r} is not linear in the samples"
-            if not rule_linear
-            else f"value_space={config.value_space!r} takes the log after the subspace rule"
-        )
-        raise InputError(
-            f"compile_operator: {why}; use Config(rule='crossing' or 'average' or budget='iso102') with "
-            f"value_space='linear' or 'logsamples', or pass nonlinear='two_stage' (slower: per-material subspace step)"
-        )
     dtype = jnp.dtype(dtype or template.y.dtype)
     if build_dtype is None:
         build_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
-    nmax = t.shape[1]
-    index = np.nonzero((np.arange(nmax)[None, :] < count[:, None]).reshape(-1))[0]
-    if targets is not None:
-        targets = tuple(jnp.asarray(v, build_dtype) for v in targets)
-        if (
-            len(targets) != 2
-            or targets[0].shape != targets[1].shape
-            or targets[0].shape[-1:] != (3,)
-        ):
-            raise InputError("targets must be (wi, wv) unit vectors of equal shape (q, 3)")
-    stage = "single" if linear else "two_stage"
-    grid_wi, grid_wv = ubo_target_vectors(build_dtype)
-    matrix = _build(
-        jnp.asarray(t),
-        jnp.asarray(count),
-        jnp.asarray(index),
-        params,
-        config,
-        template.pairs,
-        template.has_axial,
-        targets,
-        grid_wi,
-        grid_wv,
-        stage,
-        jnp.dtype(build_dtype),
-        template.centre_azimuths,
+    matrix, index, keep, stage = operator_matrix(
+        config, params, template, build_dtype=build_dtype, targets=targets, nonlinear=nonlinear
     )
-    keep = _centre_target_index(template.pairs, template.centre_azimuths)[1]
+    t, count = _template_layout(template)
     return ReconstructionOperator(
         matrix.astype(dtype),
         jnp.asarray(index, jnp.int32),
-        jnp.asarray(keep if targets is None else np.zeros(0, int), jnp.int32),
+        jnp.asarray(keep, jnp.int32),
         jnp.asarray(t, dtype),
         jnp.asarray(count, jnp.int32),
         params.astype(dtype),

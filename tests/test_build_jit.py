@@ -5,6 +5,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from abrdf_jax._build_jit import build_jit
 
@@ -49,3 +50,31 @@ def test_differentiable_through_the_build():
     eps = 1e-3
     fd = (loss(jnp.asarray(1.2 + eps)) - loss(jnp.asarray(1.2 - eps))) / (2 * eps)
     np.testing.assert_allclose(float(g), float(fd), rtol=2e-2)
+
+
+def test_a_jaxlib_without_an_option_compiles_with_the_others(monkeypatch):
+    """An XLA option this jaxlib does not know (e.g. the fusion emitters' switch of an older
+    one) is not fatal: the build compiles with the remaining options, the same numbers."""
+    import abrdf_jax._build_jit as bj
+
+    monkeypatch.setattr(bj, "FAST_COMPILE", {**bj.SAFE_COMPILE, "xla_no_such_option_zz": False})
+    monkeypatch.setattr(bj, "_FAST_OK", [None])
+    x = np.linspace(0.0, 1.0, 20)
+    y = np.sin(5 * x)
+    a = bj.build_jit(_kernel_solve)(x, jnp.asarray(y), 0.3)
+    assert bj._FAST_OK == [False]
+    b = eqx.filter_jit(_kernel_solve)(x, jnp.asarray(y), 0.3)
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-4)
+
+
+def test_other_compile_errors_are_not_swallowed(monkeypatch):
+    import abrdf_jax._build_jit as bj
+
+    monkeypatch.setattr(bj, "_FAST_OK", [None])
+
+    def bad(x):
+        raise ValueError("a bug in the traced function")
+
+    with pytest.raises(ValueError, match="a bug"):
+        bj.build_jit(bad)(np.ones(3))
+    assert bj._FAST_OK == [None]
