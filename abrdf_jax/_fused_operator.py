@@ -22,7 +22,7 @@ from ._fused_entry import FusedEntry
 from ._prior_operator import LearnedModel, entry_layout, f32, float64_template
 
 #: Version of the fused entry key; bump it when the entry changes meaning.
-ENTRY_FORMAT = 1
+ENTRY_FORMAT = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,9 +61,9 @@ def _grid_gain(prior, hyper, meas, alpha, reference: str, index):
 
 @functools.cache
 def _jitted_gain():
-    import equinox as eqx
+    from ._build_jit import build_jit  # built once per layout: compiled cheaply
 
-    return eqx.filter_jit(_grid_gain)
+    return build_jit(_grid_gain)
 
 
 def build_fused_entry(prior, meas, alpha, settings: dict, counts) -> FusedEntry:
@@ -89,5 +89,5 @@ def build_fused_entry(prior, meas, alpha, settings: dict, counts) -> FusedEntry:
     offset = offset - (np.log(ref_s * cos_s + eps) + mean_s) @ mt
     return FusedEntry(
         matrix=f32(np.concatenate([mt, offset[None, :]], 0)),
-        **entry_layout(index, meas, cos_s, cos_g, eps, 3 if prior.channels == "joint" else 1),
+        **entry_layout(prior, index, meas, cos_s, ref_g, cos_g),
     )

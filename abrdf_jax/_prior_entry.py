@@ -41,9 +41,10 @@ def sample_rows(x, width: int) -> tuple[np.ndarray, int]:
     return x.reshape(b, -1), b
 
 
-def grid_tables(m: np.ndarray, floor: np.ndarray, b: int, width: int) -> np.ndarray:
-    """The inverse map of mapped grid rows ``m`` (``exp``, minus ``floor``, clamped at 0; in
-    place) as tables ``(B, 81, 81, 3)``."""
+def grid_tables(m: np.ndarray, floor: np.ndarray, top: np.ndarray, b: int, width: int):
+    """The inverse map of mapped grid rows ``m`` (clipped at ``top``, ``exp``, minus ``floor``,
+    clamped at 0; in place) as tables ``(B, 81, 81, 3)``."""
+    np.minimum(m, top, out=m)
     np.exp(m, out=m)
     m -= floor
     np.maximum(m, np.float32(0.0), out=m)
@@ -115,6 +116,8 @@ class PriorEntry(MappedEntry):
         offset: ``(6561·w,)`` ``μ + ln((x_ref cos θv + ε) / cos θv)`` on the grid.
         cos_in: ``(n_in·w,)`` ``cos θv`` at the valid samples.
         floor: ``(6561·w,)`` ``ε / cos θv`` on the grid.
+        top: ``(6561·w,)`` the clip before the ``exp`` (the prior's ceiling,
+            :func:`abrdf_jax._prior_operator.entry_layout`).
         index, t, count: the template's layout as :class:`OperatorEntry`'s (``count`` of the
             template; ``index`` only the samples the model reads).
         eps: ε of the prior's map; width: ``w``, 1 (``shared`` channels: one row per channel) or
@@ -127,6 +130,7 @@ class PriorEntry(MappedEntry):
     offset: np.ndarray
     cos_in: np.ndarray
     floor: np.ndarray
+    top: np.ndarray
     index: np.ndarray
     t: np.ndarray
     count: np.ndarray
@@ -134,7 +138,7 @@ class PriorEntry(MappedEntry):
     width: int
 
     KIND = "prior"
-    ARRAYS = ("right", "shift", "left", "offset", "cos_in", "floor", "index", "t", "count")
+    ARRAYS = ("right", "shift", "left", "offset", "cos_in", "floor", "top", "index", "t", "count")
 
     @functools.cached_property
     def _grid_map(self) -> np.ndarray:
@@ -149,12 +153,12 @@ class PriorEntry(MappedEntry):
         np.matmul(z, self.right.T, out=c[:, :-1])
         c[:, :-1] -= self.shift
         c[:, -1] = 1.0
-        return grid_tables(c @ self._grid_map, self.floor, b, self.width)
+        return grid_tables(c @ self._grid_map, self.floor, self.top, b, self.width)
 
     @staticmethod
     def check(arrays: dict[str, np.ndarray], meta: dict) -> str | None:
         """What is wrong with stored arrays and scalars (``None``: nothing)."""
-        floats = ("right", "shift", "left", "offset", "cos_in", "floor")
+        floats = ("right", "shift", "left", "offset", "cos_in", "floor", "top")
         problem = MappedEntry.check_floats(arrays, meta, floats)
         if problem:
             return problem
@@ -164,7 +168,9 @@ class PriorEntry(MappedEntry):
         k, n_w = r.shape
         d = PAIRS * w
         shapes = {"shift": (k,), "left": (d, k), "offset": (d,), "cos_in": (n_w,)}
-        if any(arrays[n].shape != s for n, s in shapes.items()) or arrays["floor"].shape != (d,):
+        if any(arrays[n].shape != s for n, s in shapes.items()) or any(
+            arrays[n].shape != (d,) for n in ("floor", "top")
+        ):
             return "malformed (inconsistent array shapes)"
         if n_w % w or left.size == 0:
             return "malformed (inconsistent array shapes)"

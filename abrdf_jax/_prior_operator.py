@@ -35,7 +35,7 @@ from .io._atomic import file_sha256 as _file_sha256
 #: ``--prior default``: the package's default prior (docs/prior.md), built on first use.
 DEFAULT = "default"
 #: Version of the prior entry key; bump it when the entry changes meaning.
-ENTRY_FORMAT = 2
+ENTRY_FORMAT = 3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,7 +141,8 @@ def _in_memory(prior) -> PriorSource:
     """A prior that has no file (the default prior with the cache off)."""
     from ._operator_entry import digest
 
-    arrays = {n: np.asarray(getattr(prior, n)) for n in ("mean", "components", "reference", "lam")}
+    names = ("mean", "components", "reference", "lam", "weights", "ceiling")
+    arrays = {n: np.asarray(getattr(prior, n)) for n in names if getattr(prior, n) is not None}
     meta = {**prior.metadata, "format": None, "channels": prior.channels, "eps": prior.eps}
     sha = hashlib.sha256((digest(arrays) + json.dumps(meta, sort_keys=True)).encode()).hexdigest()
     src = _summary(None, sha, arrays, meta, default=True)
@@ -245,9 +246,9 @@ def _ridge_gain(prior, meas, alpha, lam, index):
 def _jitted_ridge_gain():
     """:func:`_ridge_gain` jitted: one compile instead of an eager dispatch per operation (the
     exact basis evaluates the prior's training materials)."""
-    import equinox as eqx
+    from ._build_jit import build_jit  # built once per layout: compiled cheaply
 
-    return eqx.filter_jit(_ridge_gain)
+    return build_jit(_ridge_gain)
 
 
 def build_prior_entry(prior, meas, alpha, lam, counts) -> PriorEntry:
@@ -273,7 +274,7 @@ def build_prior_entry(prior, meas, alpha, lam, counts) -> PriorEntry:
         shift=f32(r @ (np.log(ref_s * cos_s + eps) + mean_s)),
         left=f32(comps),
         offset=f32(mean + np.log((ref_g * cos_g + eps) / cos_g)),
-        **entry_layout(index, meas, cos_s, cos_g, eps, 3 if prior.channels == "joint" else 1),
+        **entry_layout(prior, index, meas, cos_s, ref_g, cos_g),
     )
 
 
@@ -297,17 +298,30 @@ def float64_template(meas, counts):
     return index, m
 
 
-def entry_layout(index, meas, cos_s, cos_g, eps: float, width: int) -> dict:
-    """The fields every learned model's entry shares: the map's ``cos θv`` at the samples and
-    floor on the grid, the template's layout, ε and the width."""
+def entry_layout(prior, index, meas, cos_s, ref_g, cos_g) -> dict:
+    """The fields every learned model's entry shares: the map's ``cos θv`` at the samples,
+    floor and clip (``top``) on the grid, the template's layout, ε and the width.
+
+    ``top``: the prior's ceiling (:func:`abrdf_jax.prior.below_ceiling`) in the units of the
+    entry's product, ``ln((x cos θv + ε) / cos θv)``: ``ceiling + CEILING_MARGIN +
+    ln((x_ref cos θv + ε) / cos θv)``; float32's largest value for a prior without one."""
+    from .prior._mapping import CEILING_MARGIN
+
+    eps = float(prior.eps)
+    if prior.ceiling is None:
+        top = np.full(np.shape(cos_g), np.finfo(np.float32).max, np.float32)
+    else:
+        top = np.asarray(prior.ceiling, np.float64) + CEILING_MARGIN
+        top = f32(top + np.log((ref_g * cos_g + eps) / cos_g))
     return dict(
         cos_in=f32(cos_s),
         floor=f32(eps / cos_g),
+        top=top,
         index=index.astype(np.int64),
         t=f32(np.asarray(meas.t)),
         count=np.asarray(meas.count, np.int32),
         eps=eps,
-        width=width,
+        width=3 if prior.channels == "joint" else 1,
     )
 
 

@@ -84,6 +84,24 @@ def test_entry_equals_the_fused_posterior_mean(iso_entry):
     np.testing.assert_allclose(entry.apply(y2)[1], entry.apply(y2[1:])[0], rtol=1e-6)
 
 
+def test_entries_clip_at_the_ceiling_as_the_library_does(small_prior):
+    """The numpy entries (fused and prior only) clip at the prior's ceiling exactly as the JAX
+    reconstructions do (oracle: float64 library), here with a ceiling lowered so that most of
+    the table is clipped; the BTF chunk map collapses the same entry (tests/test_btf.py)."""
+    from abrdf_jax._prior_operator import build_prior_entry
+
+    low = eqx.tree_at(lambda p: p.ceiling, small_prior, small_prior.mean - 3.0)
+    meas = _meas("ggx-plastic", "aniso204")
+    counts = np.asarray(meas.count)
+    fused = build_fused_entry(low, meas, ALPHA, FUSED_DEFAULTS, counts).apply(meas.y[None])[0]
+    want = _oracle(low, meas)
+    np.testing.assert_allclose(fused, want, rtol=0, atol=1e-5 * want.max())
+    assert want.max() < 0.5 * _oracle(small_prior, meas).max()  # the lowered ceiling bites
+    alone = build_prior_entry(low, meas, ALPHA, float(low.lam), counts).apply(meas.y[None])[0]
+    want = np.asarray(P.reconstruct_prior(meas.astype(jnp.float64), low.astype(jnp.float64)))
+    np.testing.assert_allclose(alone, want, rtol=0, atol=1e-5 * want.max())
+
+
 def test_store_round_trip_and_key(iso_entry, prior_file, tmp_path):
     meas, entry, _ = iso_entry
     warned = []

@@ -145,6 +145,55 @@ def test_save_load_round_trip_is_bit_exact(rng, tmp_path):
     assert info["format"] == P.PRIOR_FORMAT and info["n_components"] == 4
 
 
+def test_ceiling_is_the_training_maximum_round_trips_and_is_checked(rng, tmp_path):
+    """The ceiling is the mapped training rows' maximum per position (oracle: the rows); it is
+    kept bit for bit by the file; a file without it reads as before (no clip); a bad one is an
+    error naming the field."""
+    tables, _ = _low_rank_tables(rng, 8, 6)
+    prior = P.train_prior(tables, k=4, eps=EPS, dtype=F64)
+    _, rows = P.mapped_rows(tables.reshape(8, -1, 3), P.grid_cos_view(), "shared", EPS)
+    np.testing.assert_array_equal(np.asarray(prior.ceiling), rows.max(axis=0))
+    path = P.save_prior(prior.astype(jnp.float32), tmp_path / "p.npz")
+    back = P.load_prior(path)
+    np.testing.assert_array_equal(np.asarray(back.ceiling), np.float32(rows.max(axis=0)))
+    old = P.load_prior(_rewrite(path, tmp_path / "old.npz", ceiling=None))
+    assert old.ceiling is None
+    for name, value in {
+        "short.npz": np.zeros(6560, np.float32),
+        "nan.npz": np.full(6561, np.nan, np.float32),
+    }.items():
+        with pytest.raises(aj.InputError, match="'ceiling'") as e:
+            P.load_prior(_rewrite(path, tmp_path / name, ceiling=value))
+        assert name in str(e.value)
+
+
+def test_reconstructions_are_clipped_at_the_ceiling(rng, tmp_path):
+    """A prediction above ``ceiling + CEILING_MARGIN`` is clipped there (oracle: the unclipped
+    reconstruction clipped in the mapped space); without a ceiling nothing changes. The
+    ceiling is lowered below the training mean so that the clip bites."""
+    tables, _ = _low_rank_tables(rng, 8, 6)
+    trained = P.train_prior(tables, k=4, eps=EPS, dtype=F64)
+    prior = eqx.tree_at(lambda p: p.ceiling, trained, trained.mean - 3.0)
+    meas = aj.sample(tables[0], aj.Config(budget="aniso204"), as_measurements=True)
+    free = eqx.tree_at(lambda p: p.ceiling, prior, None, is_leaf=lambda x: x is None)
+    np.testing.assert_array_equal(
+        np.asarray(P.reconstruct_prior(meas, free)),
+        np.asarray(
+            P.reconstruct_prior(meas, P.load_prior(P.save_prior(free, tmp_path / "free.npz")))
+        ),
+    )
+    unclipped = np.asarray(P.reconstruct_prior(meas, free))
+    clipped = np.asarray(P.reconstruct_prior(meas, prior))
+    ref = np.asarray(prior.reference)[:, 0][:, None]
+    cos = P.grid_cos_view()[:, None]
+    m = P.log_relative(unclipped.reshape(6561, 3), ref, cos, EPS)
+    top = np.asarray(prior.ceiling)[:, None] + P.CEILING_MARGIN
+    assert np.mean(m > top) > 0.1  # the case clips
+    want = P.inverse_log_relative(np.minimum(m, top), ref, cos, EPS).reshape(81, 81, 3)
+    np.testing.assert_allclose(clipped, want, rtol=1e-9, atol=0)
+    assert np.all(P.log_relative(clipped.reshape(6561, 3), ref, cos, EPS) <= top + 1e-9)
+
+
 def _rewrite(src, dst, **changes):
     """Copy a prior file with some members replaced (``None`` removes one)."""
     with np.load(src) as z:

@@ -3,7 +3,7 @@
 ``btf reconstruct --model prior|fused`` reconstructs each texel with a learned prior
 (:mod:`abrdf_jax.prior`), as ``abrdf-jax reconstruct --model prior|fused`` does for one file: the
 numpy entry of the sample geometry (:func:`abrdf_jax.compile_numpy_operator`: built once in
-float64) is the map ``x → max(exp(ln(max(x, 0) cos θv + ε) · A + b) − floor, 0)`` on the valid
+float64) is the map ``x → max(exp(min(ln(max(x, 0) cos θv + ε) · A + b, top)) − floor, 0)`` on the valid
 samples, one row per channel (``shared`` prior) or per texel (``joint``). Here it is collapsed to
 that one matrix ``A`` and bias ``b`` (the prior-only entry's two products multiplied out) and run
 in JAX, so a chunk is one matrix product, like the RBF operator's, and shards over devices the
@@ -32,6 +32,7 @@ class LearnedChunkFunction(eqx.Module):
     matrix: Float[Array, "n_w D"]
     bias: Float[Array, " D"]
     floor: Float[Array, " D"]
+    top: Float[Array, " D"]  # the clip before the exp (the prior's ceiling)
 
     def __call__(self, y: Float[Array, "C n 3"]) -> Float[Array, "C 6561 3"]:
         c = y.shape[0]
@@ -39,7 +40,8 @@ class LearnedChunkFunction(eqx.Module):
         # rows of the map: one per texel and channel (shared) or per texel (joint)
         rows = jnp.swapaxes(x, 1, 2).reshape(c * 3, -1) if self.width == 1 else x.reshape(c, -1)
         z = jnp.log(jnp.maximum(rows, 0) * self.cos_in + self.eps)
-        out = jnp.maximum(jnp.exp(z @ self.matrix + self.bias) - self.floor, 0)
+        log_out = jnp.minimum(z @ self.matrix + self.bias, self.top)
+        out = jnp.maximum(jnp.exp(log_out) - self.floor, 0)
         if self.width == 1:
             return jnp.swapaxes(out.reshape(c, 3, N_PAIRS), 1, 2)
         return out.reshape(c, N_PAIRS, 3)
@@ -82,6 +84,7 @@ def make_learned_chunk_fn(
         matrix=jnp.asarray(a, dtype),
         bias=jnp.asarray(b, dtype),
         floor=jnp.asarray(entry.floor, dtype),
+        top=jnp.asarray(entry.top, dtype),
     )
 
 

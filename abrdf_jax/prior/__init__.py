@@ -22,10 +22,12 @@ from .._lazy import lazy_exports
 # public name -> private module that defines it (the one place this package's API is listed)
 _EXPORTS = {
     "_mapping": (
+        "CEILING_MARGIN",
         "CHANNELS",
         "DEFAULT_EPS",
         "NIELSEN_EPS",
         "PCA",
+        "below_ceiling",
         "grid_cos_view",
         "inverse_log_relative",
         "log_relative",

@@ -114,9 +114,11 @@ def default_training_tables(recipe: dict | None = None):
 
 def recipe_key(recipe: dict) -> str:
     from .. import __version__
-    from ._file import PRIOR_FORMAT
+    from ._file import OPTIONAL, PRIOR_FORMAT
 
-    text = json.dumps({"recipe": recipe, "version": __version__, "format": PRIOR_FORMAT})
+    # the optional members too: a new one (the ceiling) rebuilds a default prior cached without it
+    doc = {"recipe": recipe, "version": __version__, "format": PRIOR_FORMAT, "members": OPTIONAL}
+    text = json.dumps(doc)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

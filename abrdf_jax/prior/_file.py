@@ -13,6 +13,9 @@ holding:
 - optionally ``weights`` ``(R, K)``: the components as combinations of the ``R`` training rows
   (the default prior: its training materials are analytic and evaluated at the exact sample
   directions, :func:`~abrdf_jax.prior.sample_basis`).
+- optionally ``ceiling`` ``(D,)``: the largest mapped training value of each position (the
+  reconstructions' clip, :attr:`~abrdf_jax.prior.Prior.ceiling`); a file without it is read as
+  before (no clip).
 
 Reading needs numpy only (no JAX): :func:`read_prior_file` and :func:`prior_info`; every problem
 (missing, truncated, corrupt, another format version, missing or inconsistent fields) is an
@@ -37,7 +40,7 @@ from ._fused_settings import check_fused
 PRIOR_FORMAT = "abrdf_jax.prior/1"
 ARRAYS = ("mean", "components", "reference", "lam")
 #: Arrays a prior file may hold (older readers ignore them; the format stays the same).
-OPTIONAL = ("weights",)
+OPTIONAL = ("weights", "ceiling")
 _CHANNEL_WIDTH = {"joint": 3, "shared": 1}
 _PAIRS = 6561
 
@@ -54,8 +57,9 @@ def save_prior(prior, path: str | os.PathLike) -> Path:
     meta = {**prior.metadata, "format": PRIOR_FORMAT, "channels": prior.channels}
     meta["eps"] = float(prior.eps)
     arrays = {name: np.asarray(getattr(prior, name)) for name in ARRAYS}
-    if prior.weights is not None:
-        arrays["weights"] = np.asarray(prior.weights)
+    for name in OPTIONAL:
+        if getattr(prior, name) is not None:
+            arrays[name] = np.asarray(getattr(prior, name))
     text = json.dumps(meta, sort_keys=True).encode()
     with atomic_write(path, "wb") as f:
         np.savez_compressed(f, metadata=np.frombuffer(text, np.uint8), **arrays)
@@ -149,6 +153,9 @@ def _check_shapes(path: Path, a: dict, meta: dict) -> None:
     w = a.get("weights")
     if w is not None and (w.ndim != 2 or w.shape[1] != comps.shape[1] or w.shape[0] < 2):
         raise _fail(path, "weights", f"shape {w.shape}, expected (R, {comps.shape[1]}), R >= 2")
+    top = a.get("ceiling")
+    if top is not None and (top.shape != (d,) or not np.all(np.isfinite(top))):
+        raise _fail(path, "ceiling", f"shape {top.shape}, expected ({d},) finite values")
     if not float(a["lam"]) >= 0:
         raise _fail(path, "lam", f"{float(a['lam'])}, expected >= 0")
     if np.any(a["reference"] < 0):

@@ -37,7 +37,7 @@ from .._measurements import Measurements
 from .._slices import slice_directions
 from ._covariance import FusedHyper, covariance, features
 from ._fused_settings import fused_settings
-from ._mapping import inverse_log_relative, log_relative
+from ._mapping import below_ceiling, inverse_log_relative, log_relative
 from ._model import Prior, SampleBasis
 from ._reconstruct import _alpha, _rows, sample_basis
 
@@ -254,6 +254,14 @@ def rescaled(meas: Measurements, prior: Prior, hyper: FusedHyper, alpha=None, *,
     )
 
 
+def grid_ceiling(prior: Prior):
+    """The prior's ceiling as a table ``(81, 81, 3)`` (``None`` without one)."""
+    if prior.ceiling is None:
+        return None
+    top = prior.ceiling if prior.channels == "joint" else jnp.repeat(prior.ceiling[:, None], 3, 1)
+    return top.reshape(81, 81, 3)
+
+
 def to_linear(prior: Prior, m):
     """Mapped values ``(..., 81, 81, 3)`` → ABRDF values (the prior's inverse map)."""
     ref_g, cos_g = prior.grid_layout()
@@ -351,7 +359,7 @@ def reconstruct_fused(
         return_variance=return_variance,
         basis=basis,
     )
-    table = to_linear(prior, mean)
+    table = to_linear(prior, below_ceiling(mean, grid_ceiling(prior)))
     return (table, var) if return_variance else table
 
 

@@ -50,6 +50,25 @@ def log_relative(x, ref, cos_v, eps):
     return xp.log((xp.maximum(x, 0) * cos_v + eps) / (ref * cos_v + eps))
 
 
+#: How far above its prior's ceiling (the largest mapped training value of each position, in
+#: log units: 2 is a factor e² ≈ 7.4) a learned model's prediction may go before it is clipped.
+#: No value of the 108 measured tables in ../shared/data (MERL and Nielsen fits, train and test)
+#: exceeds the default prior's ceiling by 2; the analytic rough-grooves exceeds it on 0.12 % of
+#: its cells (``python -m benchmarks.prior_ceiling``, docs/prior.md "The ceiling").
+CEILING_MARGIN = 2.0
+
+
+def below_ceiling(m, ceiling, margin: float = CEILING_MARGIN):
+    """Mapped values ``m`` clipped at ``ceiling + margin`` (``ceiling`` broadcast against ``m``'s
+    last axes; ``None``: ``m`` as it is). Where a learned model extrapolates far beyond
+    everything it was trained on (an unmeasured direction of a material unlike its database),
+    its prediction is bounded by its own training data instead of growing without limit."""
+    if ceiling is None:
+        return m
+    xp = _xp(m)
+    return xp.minimum(m, ceiling + margin)
+
+
 def inverse_log_relative(m, ref, cos_v, eps):
     """The inverse of :func:`log_relative`, clamped at 0 (an ABRDF is non-negative)."""
     xp = _xp(m)

@@ -50,6 +50,10 @@ class Prior(eqx.Module):
             materials can be evaluated at any direction (the default prior's analytic materials):
             the basis at the sample positions is then exact, not interpolated from the grid
             (:func:`~abrdf_jax.prior.sample_basis`).
+        ceiling: ``(D,)`` or ``None``: the largest mapped training value of each position; a
+            reconstruction is clipped at ``ceiling + CEILING_MARGIN``
+            (:func:`~abrdf_jax.prior.below_ceiling`). ``None`` (a prior file written before it
+            existed): no clip.
     """
 
     mean: Float[Array, " D"]
@@ -60,6 +64,7 @@ class Prior(eqx.Module):
     channels: str = eqx.field(static=True)
     meta: str = eqx.field(static=True, default="{}")
     weights: Float[Array, "R K"] | None = None
+    ceiling: Float[Array, " D"] | None = None
 
     @property
     def n_components(self) -> int:
@@ -87,7 +92,10 @@ class Prior(eqx.Module):
         arrays = (self.mean, self.components, self.reference, self.lam)
         new = (jnp.asarray(a, dtype) for a in arrays)
         w = None if self.weights is None else jnp.asarray(self.weights, dtype)
-        return Prior(*new, eps=self.eps, channels=self.channels, meta=self.meta, weights=w)
+        top = None if self.ceiling is None else jnp.asarray(self.ceiling, dtype)
+        return Prior(
+            *new, eps=self.eps, channels=self.channels, meta=self.meta, weights=w, ceiling=top
+        )
 
     def with_lam(self, lam) -> "Prior":
         return eqx.tree_at(lambda p: p.lam, self, jnp.asarray(lam, self.dtype))
@@ -150,11 +158,20 @@ def _sha256(array) -> str:
 
 
 def assemble_prior(
-    reference, pca: PCA, *, eps, channels, lam, meta: dict, dtype, weights: bool = False
+    reference,
+    pca: PCA,
+    *,
+    eps,
+    channels,
+    lam,
+    meta: dict,
+    dtype,
+    weights: bool = False,
+    ceiling=None,
 ) -> Prior:
     """A :class:`Prior` from a reference ``(6561, 3)`` and a :class:`PCA` of the mapped rows
     (with ``weights``: the PCA's weights kept, for training materials that can be evaluated at
-    any direction)."""
+    any direction; ``ceiling``: the mapped rows' maximum per position, :attr:`Prior.ceiling`)."""
     return Prior(
         mean=jnp.asarray(pca.mean, dtype),
         components=jnp.asarray(pca.components, dtype),
@@ -164,6 +181,7 @@ def assemble_prior(
         channels=channels,
         meta=json.dumps(meta, sort_keys=True),
         weights=jnp.asarray(pca.weights, dtype) if weights else None,
+        ceiling=None if ceiling is None else jnp.asarray(ceiling, dtype),
     )
 
 
@@ -234,7 +252,15 @@ def train_prior(
         **(extra_meta or {}),
     }
     return assemble_prior(
-        ref, pca, eps=eps, channels=channels, lam=lam, meta=meta, dtype=dtype, weights=weights
+        ref,
+        pca,
+        eps=eps,
+        channels=channels,
+        lam=lam,
+        meta=meta,
+        dtype=dtype,
+        weights=weights,
+        ceiling=rows.max(axis=0),
     )
 
 

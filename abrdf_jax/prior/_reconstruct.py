@@ -20,7 +20,7 @@ from .._measurements import Measurements
 from .._sampling import interpolate_table, table_corners
 from .._slices import PROTOCOL_ALPHA_DEG
 from ._exact import exact_basis, training_models
-from ._mapping import grid_cos_view, inverse_log_relative, log_relative
+from ._mapping import below_ceiling, grid_cos_view, inverse_log_relative, log_relative
 from ._model import Prior, SampleBasis
 
 
@@ -115,7 +115,8 @@ def project(prior: Prior, basis: SampleBasis, lam, y) -> jax.Array:
     c = (log_relative(z, ref_s, cos_s, prior.eps) - mean_s) @ r.T
     m = c @ prior.components.T
     ref_g, cos_g, mean_g = _rows(m, *prior.grid_layout(), prior.mean)
-    out = inverse_log_relative(m + mean_g, ref_g, cos_g, prior.eps)
+    top = None if prior.ceiling is None else _rows(m, prior.ceiling)[0]
+    out = inverse_log_relative(below_ceiling(m + mean_g, top), ref_g, cos_g, prior.eps)
     if prior.channels == "joint":
         return out.reshape(*lead, 81, 81, 3)
     return jnp.swapaxes(out, -1, -2).reshape(*lead, 81, 81, 3)

@@ -221,9 +221,9 @@ def _maps(prior, numbers, folds, alpha, ref):
 
 @functools.cache
 def _jitted_maps():
-    import equinox as eqx
+    from .._build_jit import build_jit  # built once per layout: compiled cheaply
 
-    return eqx.filter_jit(_maps)
+    return build_jit(_maps)
 
 
 def cached_entry(store, model, meas, alpha_deg: float, k: int, warn, before_build=None):
