@@ -6,8 +6,7 @@ result is stored (``abrdf_jax._cache``) and applied many times without JAX. On a
 XLA compile of that one-off program is most of the time, its run a small part: so it is
 compiled at XLA's lowest backend optimisation level, without LLVM's expensive passes and with
 the CPU backend's older (non-MLIR) fusion emitters (a cold ``abrdf-jax reconstruct`` of one
-iso102 file: ``python -m benchmarks.cli``; the emitters alone took the operator build's XLA
-compile from about 0.8 to 0.33 s, quiet, the matrix equal bit for bit). The numbers are
+iso102 file: ``python -m benchmarks.cli``). The numbers are
 those of the optimised program to rounding: the same operations, in the same order, without
 the optimiser's fusions (tests/test_build_jit.py compares them). A jaxlib that does not know
 an option compiles with the others (:data:`FAST_COMPILE` is tried first, then

@@ -390,14 +390,14 @@ def build_entry(meas, config, params, *, build_dtype: str = BUILD_DTYPE) -> Oper
     # Host inputs straight into the one compiled build: no eager JAX operation (each compiles
     # a small program on a cold call; _operator.operator_matrix).
     with x64_scope(build_dtype == "float64"):
-        matrix, index, keep, _ = operator_matrix(config, params, meas, build_dtype=build_dtype)
-        matrix = np.asarray(matrix)
+        built = operator_matrix(config, params, meas, build_dtype=build_dtype)
+        matrix = np.asarray(built.matrix)
     return OperatorEntry(
         matrix=np.ascontiguousarray(matrix.astype(np.float32)),
-        index=np.asarray(index, np.int64),
-        t=np.asarray(meas.t, np.float32),
-        count=np.asarray(meas.count, np.int32),
-        keep=np.asarray(keep, np.int32),
+        index=np.asarray(built.index, np.int64),
+        t=np.asarray(built.t, np.float32),
+        count=np.asarray(built.count, np.int32),
+        keep=np.asarray(built.keep, np.int32),
         log_samples=value_space(config.value_space).log_samples,
         log_eps=float(config.log_eps),
         spike_cap=config.spike_cap,

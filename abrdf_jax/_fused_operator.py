@@ -19,7 +19,7 @@ import functools
 import numpy as np
 
 from ._fused_entry import FusedEntry
-from ._prior_operator import LearnedModel, entry_layout, f32, float64_template
+from ._prior_operator import LearnedModel, entry_layout, f32, float64_template, grid_lift
 
 #: Version of the fused entry key; bump it when the entry changes meaning.
 ENTRY_FORMAT = 2
@@ -85,7 +85,7 @@ def build_fused_entry(prior, meas, alpha, settings: dict, counts) -> FusedEntry:
         ref_g, cos_g = (np.asarray(v, np.float64) for v in p.grid_layout())
         mean_g = np.asarray(p.mean)
     eps = float(prior.eps)
-    offset = mean_g + np.log((ref_g * cos_g + eps) / cos_g)
+    offset = mean_g + grid_lift(ref_g, cos_g, eps)
     offset = offset - (np.log(ref_s * cos_s + eps) + mean_s) @ mt
     return FusedEntry(
         matrix=f32(np.concatenate([mt, offset[None, :]], 0)),

@@ -32,6 +32,7 @@ slice parameters and counts (checked on the host when the input is a concrete
 """
 
 from functools import partial
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -372,18 +373,29 @@ def _template_layout(template) -> tuple[np.ndarray, np.ndarray]:
     return t, count
 
 
+class BuiltMatrix(NamedTuple):
+    """What :func:`operator_matrix` builds: the matrix (a JAX array of the build dtype), the
+    flat index of the valid samples, the grid rows kept from the centres (empty for other
+    targets), the stage, and the template's slice positions and counts (numpy)."""
+
+    matrix: jax.Array
+    index: np.ndarray
+    keep: np.ndarray
+    stage: str
+    t: np.ndarray
+    count: np.ndarray
+
+
 def operator_matrix(
     config: Config, params, template, *, build_dtype, targets=None, nonlinear="raise"
-):
-    """``(matrix, index, keep, stage)`` of :func:`compile_operator`, from host inputs.
+) -> BuiltMatrix:
+    """The :class:`BuiltMatrix` of :func:`compile_operator`, from host inputs.
 
     ``params`` may be :class:`Params` or numpy ``ParamValues`` and ``template`` anything with
     the slice arrays of a :class:`Measurements` (``t``, ``count``, ``pairs``, ``has_axial``,
     ``centre_azimuths``; numpy or JAX): the inputs go into the one compiled build as they are,
     so a build from numpy inputs (the operator store's, ``abrdf_jax._cache.build_entry``)
     dispatches no eager JAX operation (each of which compiles a small program on a cold call).
-    ``matrix`` is a JAX array of ``build_dtype``; ``keep`` the grid rows kept from the centres
-    (empty for ``targets``).
     """
     if nonlinear not in NONLINEAR_MODES:
         raise InputError(f"nonlinear must be one of {NONLINEAR_MODES}, got {nonlinear!r}")
@@ -418,22 +430,12 @@ def operator_matrix(
     grid_wi, grid_wv = ubo_target_vectors(build_dtype, xp=np)
     values = params if isinstance(params, Params) else type(params)(*map(np.asarray, params))
     matrix = _build(
-        t,
-        count,
-        index,
-        values,
-        config,
-        template.pairs,
-        template.has_axial,
-        targets,
-        grid_wi,
-        grid_wv,
-        stage,
-        jnp.dtype(build_dtype),
-        template.centre_azimuths,
-    )
+        t, count, index, values, config, template.pairs, template.has_axial, targets,
+        grid_wi, grid_wv, stage, jnp.dtype(build_dtype), template.centre_azimuths,
+    )  # fmt: skip
     keep = _centre_target_index(template.pairs, template.centre_azimuths)[1]
-    return matrix, index, (keep if targets is None else np.zeros(0, int)), stage
+    keep = keep if targets is None else np.zeros(0, int)
+    return BuiltMatrix(matrix, index, keep, stage, t, count)
 
 
 def compile_operator(
@@ -475,19 +477,18 @@ def compile_operator(
     dtype = jnp.dtype(dtype or template.y.dtype)
     if build_dtype is None:
         build_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
-    matrix, index, keep, stage = operator_matrix(
+    built = operator_matrix(
         config, params, template, build_dtype=build_dtype, targets=targets, nonlinear=nonlinear
     )
-    t, count = _template_layout(template)
     return ReconstructionOperator(
-        matrix.astype(dtype),
-        jnp.asarray(index, jnp.int32),
-        jnp.asarray(keep, jnp.int32),
-        jnp.asarray(t, dtype),
-        jnp.asarray(count, jnp.int32),
+        built.matrix.astype(dtype),
+        jnp.asarray(built.index, jnp.int32),
+        jnp.asarray(built.keep, jnp.int32),
+        jnp.asarray(built.t, dtype),
+        jnp.asarray(built.count, jnp.int32),
         params.astype(dtype),
         config,
-        stage,
+        built.stage,
         template.pairs,
         template.has_axial,
         targets is None,

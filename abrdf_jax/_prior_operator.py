@@ -141,7 +141,9 @@ def _in_memory(prior) -> PriorSource:
     """A prior that has no file (the default prior with the cache off)."""
     from ._operator_entry import digest
 
-    names = ("mean", "components", "reference", "lam", "weights", "ceiling")
+    from .prior._file import ARRAYS, OPTIONAL
+
+    names = (*ARRAYS, *OPTIONAL)
     arrays = {n: np.asarray(getattr(prior, n)) for n in names if getattr(prior, n) is not None}
     meta = {**prior.metadata, "format": None, "channels": prior.channels, "eps": prior.eps}
     sha = hashlib.sha256((digest(arrays) + json.dumps(meta, sort_keys=True)).encode()).hexdigest()
@@ -273,7 +275,7 @@ def build_prior_entry(prior, meas, alpha, lam, counts) -> PriorEntry:
         right=f32(r),
         shift=f32(r @ (np.log(ref_s * cos_s + eps) + mean_s)),
         left=f32(comps),
-        offset=f32(mean + np.log((ref_g * cos_g + eps) / cos_g)),
+        offset=f32(mean + grid_lift(ref_g, cos_g, eps)),
         **entry_layout(prior, index, meas, cos_s, ref_g, cos_g),
     )
 
@@ -298,6 +300,12 @@ def float64_template(meas, counts):
     return index, m
 
 
+def grid_lift(ref_g, cos_g, eps: float) -> np.ndarray:
+    """``ln((x_ref cos θv + ε) / cos θv)`` on the grid: a mapped value plus this is the log the
+    learned entries' product yields, ``ln((x cos θv + ε) / cos θv)``."""
+    return np.log((ref_g * cos_g + eps) / cos_g)
+
+
 def entry_layout(prior, index, meas, cos_s, ref_g, cos_g) -> dict:
     """The fields every learned model's entry shares: the map's ``cos θv`` at the samples,
     floor and clip (``top``) on the grid, the template's layout, ε and the width.
@@ -312,7 +320,7 @@ def entry_layout(prior, index, meas, cos_s, ref_g, cos_g) -> dict:
         top = np.full(np.shape(cos_g), np.finfo(np.float32).max, np.float32)
     else:
         top = np.asarray(prior.ceiling, np.float64) + CEILING_MARGIN
-        top = f32(top + np.log((ref_g * cos_g + eps) / cos_g))
+        top = f32(top + grid_lift(ref_g, cos_g, eps))
     return dict(
         cos_in=f32(cos_s),
         floor=f32(eps / cos_g),

@@ -82,3 +82,25 @@ def write_json(name: str | Path, payload: dict, indent: int = 2) -> Path:
     tmp.write_text(json.dumps(payload, indent=indent, default=float))
     os.replace(tmp, path)
     return path
+
+
+def timed_run(stem: str, run, markdown, key: str = "results", **settings) -> dict:
+    """Run ``run()`` between two readings of the load average and store its results beside the
+    machine's facts: ``results/STEM.json`` (``settings``, the results under ``key``, load,
+    seconds) and ``results/STEM.md`` (``markdown(payload)``, also printed). Returns the payload."""
+    t0 = time.time()
+    load_before = [round(x, 2) for x in os.getloadavg()]
+    results = run()
+    payload = dict(
+        machine=machine(),
+        **settings,
+        load_before=load_before,
+        load_after=[round(x, 2) for x in os.getloadavg()],
+        seconds=time.time() - t0,
+        **{key: results},
+    )
+    write_json(f"{stem}.json", payload)
+    md = markdown(payload)
+    (RESULTS / f"{stem}.md").write_text(md)
+    print(md)
+    return payload

@@ -21,14 +21,13 @@ accuracy column says what a user gets on such a texture, the time column the thr
 from __future__ import annotations
 
 import argparse
-import os
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from ._common import RESULTS, machine, write_json
+from ._common import timed_run
 
 MODELS = ("fixed", "prior", "fused")
 CHUNK = 1024
@@ -153,21 +152,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=128, help="texels per side (default 128)")
     args = ap.parse_args(argv)
-    t0 = time.time()
-    load_before = [round(x, 2) for x in os.getloadavg()]
-    models = run(args.size)
-    payload = dict(
-        machine=machine(),
-        size=args.size,
-        load_before=load_before,
-        load_after=[round(x, 2) for x in os.getloadavg()],
-        seconds=time.time() - t0,
-        models=models,
-    )
-    write_json("btf_learned.json", payload)
-    md = markdown(payload)
-    (RESULTS / "btf_learned.md").write_text(md)
-    print(md)
+    timed_run("btf_learned", lambda: run(args.size), markdown, key="models", size=args.size)
     return 0
 
 

@@ -20,33 +20,35 @@ ceiling being the largest mapped training value of each direction pair
 from __future__ import annotations
 
 import argparse
-import os
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-from ._common import RESULTS, machine, write_json
+from ._common import timed_run
 
 MARGINS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, None)
 OVERSHOOT = 100.0
 
 
-def _mapped(prior, x):
+def _grid(prior):
+    """``(x_ref, cos θv)`` on the grid, columns to broadcast against ``(N, 6561, 3)`` values."""
     from abrdf_jax.prior import grid_cos_view
 
-    ref, cos = np.asarray(prior.reference, np.float64)[:, 0], grid_cos_view()
+    return np.asarray(prior.reference, np.float64)[:, :1], grid_cos_view()[:, None]
+
+
+def _mapped(prior, x):
+    from abrdf_jax.prior import log_relative
+
     x = np.asarray(x, np.float64).reshape(len(x), 6561, 3)
-    return np.log((np.maximum(x, 0) * cos[:, None] + prior.eps) / (ref * cos + prior.eps)[:, None])
+    return log_relative(x, *_grid(prior), prior.eps)
 
 
 def _unmapped(prior, m):
-    from abrdf_jax.prior import grid_cos_view
+    from abrdf_jax.prior import inverse_log_relative
 
-    ref, cos = np.asarray(prior.reference, np.float64)[:, 0], grid_cos_view()
-    scale = (ref * cos + prior.eps)[:, None]
-    return np.maximum((np.exp(m) * scale - prior.eps) / cos[:, None], 0.0)
+    return inverse_log_relative(m, *_grid(prior), prior.eps)
 
 
 def truth_above(prior, tables, names) -> list[dict]:
@@ -72,15 +74,13 @@ def truth_above(prior, tables, names) -> list[dict]:
 
 def btf_rows(prior, size: int) -> list[dict]:
     """The fused model on a procedural BTF, unclipped and clipped at each margin."""
+    import equinox as eqx
     import jax.numpy as jnp
 
     from abrdf_jax import btf
     from abrdf_jax.metrics import evaluate_batch
 
-    free = prior.__class__(
-        prior.mean, prior.components, prior.reference, prior.lam, eps=prior.eps,
-        channels=prior.channels, meta=prior.meta, weights=prior.weights, ceiling=None,
-    )  # fmt: skip
+    free = eqx.tree_at(lambda p: p.ceiling, prior, None, is_leaf=lambda x: x is None)
     with tempfile.TemporaryDirectory(prefix="prior-ceiling-") as tmp:
         paths = btf.generate_btf(Path(tmp) / "gen", size, seed=1, chunk=1024)
         store = btf.reconstruct_btf(
@@ -179,21 +179,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=64, help="BTF texels per side (default 64)")
     args = ap.parse_args(argv)
-    t0 = time.time()
-    load_before = [round(x, 2) for x in os.getloadavg()]
-    results = run(args.size)
-    payload = dict(
-        machine=machine(),
-        size=args.size,
-        load_before=load_before,
-        load_after=[round(x, 2) for x in os.getloadavg()],
-        seconds=time.time() - t0,
-        results=results,
-    )
-    write_json("prior_ceiling.json", payload)
-    md = markdown(payload)
-    (RESULTS / "prior_ceiling.md").write_text(md)
-    print(md)
+    timed_run("prior_ceiling", lambda: run(args.size), markdown, size=args.size)
     return 0
 
 

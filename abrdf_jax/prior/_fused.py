@@ -254,29 +254,29 @@ def rescaled(meas: Measurements, prior: Prior, hyper: FusedHyper, alpha=None, *,
     )
 
 
+def _as_table(prior: Prior, *rows):
+    """Vectors in the layout of a grid row (``(D,)``) as tables ``(81, 81, 3)``: a shared row
+    holds one value per pair, the same for the three channels."""
+    if prior.channels != "joint":
+        rows = tuple(jnp.repeat(r[:, None], 3, 1) for r in rows)
+    return tuple(r.reshape(81, 81, 3) for r in rows)
+
+
 def grid_ceiling(prior: Prior):
     """The prior's ceiling as a table ``(81, 81, 3)`` (``None`` without one)."""
-    if prior.ceiling is None:
-        return None
-    top = prior.ceiling if prior.channels == "joint" else jnp.repeat(prior.ceiling[:, None], 3, 1)
-    return top.reshape(81, 81, 3)
+    return None if prior.ceiling is None else _as_table(prior, prior.ceiling)[0]
 
 
 def to_linear(prior: Prior, m):
     """Mapped values ``(..., 81, 81, 3)`` → ABRDF values (the prior's inverse map)."""
-    ref_g, cos_g = prior.grid_layout()
-    if prior.channels != "joint":  # a shared row's reference is channel 0 of the (equal) three
-        ref_g, cos_g = jnp.repeat(ref_g[:, None], 3, 1), jnp.repeat(cos_g[:, None], 3, 1)
-    ref_g, cos_g = ref_g.reshape(81, 81, 3), cos_g.reshape(81, 81, 3)
+    ref_g, cos_g = _as_table(prior, *prior.grid_layout())
     return inverse_log_relative(m, ref_g, cos_g, prior.eps)
 
 
 def to_mapped(prior: Prior, table):
     """ABRDF tables ``(..., 81, 81, 3)`` → the prior's mapped values (its log-relative map)."""
-    ref_g, cos_g = prior.grid_layout()
-    if prior.channels != "joint":
-        ref_g, cos_g = jnp.repeat(ref_g[:, None], 3, 1), jnp.repeat(cos_g[:, None], 3, 1)
-    return log_relative(table, ref_g.reshape(81, 81, 3), cos_g.reshape(81, 81, 3), prior.eps)
+    ref_g, cos_g = _as_table(prior, *prior.grid_layout())
+    return log_relative(table, ref_g, cos_g, prior.eps)
 
 
 def band(prior: Prior, table, variance, k: float = 1.0):
