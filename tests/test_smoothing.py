@@ -192,3 +192,30 @@ def test_per_layout_scatters_each_group_pass_back_in_order():
     assert per_layout(["a", None, "b", "a", "b"], run) == ["r0", None, "r2", "r3", "r4"]
     assert calls == [[0, 3], [2, 4]]
     assert per_layout([], run) == [] and per_layout([None], run) == [None]
+
+
+@pytest.mark.parametrize("m", [1, 2, 5, 102, 307])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_nonneg_nanmedian_equals_jnp_nanmedian(m, dtype):
+    """The sort-free median of the noise estimate (bisection on the bit patterns) equals
+    ``jnp.nanmedian`` bit for bit, with NaNs, ties and an all-NaN row, and has its gradient
+    (the tests run with float64 on: both dtypes)."""
+    import jax
+    import jax.numpy as jnp
+
+    from abrdf_jax._smoothing import nonneg_nanmedian
+
+    rng = np.random.default_rng(m)
+    a = np.abs(rng.normal(size=(5, m))).astype(dtype)
+    a[1] = np.round(a[1] * 2) / 2  # ties
+    a[2, rng.random(m) < 0.4] = np.nan
+    a[3] = np.nan
+    a[4, 0] = 0.0
+    got = np.asarray(nonneg_nanmedian(jnp.asarray(a)))
+    want = np.asarray(jnp.nanmedian(jnp.asarray(a), axis=-1))
+    assert got.dtype == want.dtype and np.array_equal(got, want, equal_nan=True)
+    b = jnp.asarray(np.abs(rng.normal(size=(3, m))).astype(dtype))  # distinct values
+    np.testing.assert_array_equal(
+        jax.grad(lambda v: nonneg_nanmedian(v).sum())(b),
+        jax.grad(lambda v: jnp.nanmedian(v, axis=-1).sum())(b),
+    )

@@ -87,3 +87,26 @@ def test_spike_cap_survives_a_parameter_file(tmp_path):
         cfg = aj.preset("recommended", "iso102", spike_cap=cap)
         path = tuning.save_params(tmp_path / "p.json", cfg, aj.Params.default(cfg))
         assert tuning.load_params(path)[0].spike_cap == cap
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 26, 102, 204, 400])
+@pytest.mark.parametrize("q", [0.0, 0.5, 0.93, 0.99, 1.0])
+def test_upper_quantile_equals_jnp_quantile(n, q):
+    """The selection quantile of the compiled operator's cap (passes of max-and-remove, ties
+    counted) is ``jnp.quantile``'s linear quantile, also with ties and a NaN; past
+    ``SELECT_PASSES`` it is ``jnp.quantile`` itself."""
+    import jax.numpy as jnp
+
+    from abrdf_jax._spikes import upper_quantile
+
+    rng = np.random.default_rng(n)
+    z = rng.normal(size=(4, n, 3)).astype(np.float32)
+    z[1] = np.round(z[1] * 2) / 2  # ties
+    z[2, :, 0] = 0.25  # all equal
+    z[3, 0, 2] = np.nan
+    got = np.asarray(upper_quantile(jnp.asarray(z), q))
+    want = np.asarray(jnp.quantile(jnp.asarray(z), q, axis=-2, keepdims=True))
+    assert got.shape == want.shape == (4, 1, 3)
+    assert np.isnan(got[3, 0, 2]) and np.array_equal(np.isnan(got), np.isnan(want))
+    ok = ~np.isnan(want)
+    np.testing.assert_allclose(got[ok], want[ok], rtol=0, atol=4 * np.finfo(np.float32).eps * 4)
