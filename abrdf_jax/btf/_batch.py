@@ -51,9 +51,9 @@ def default_config(budget: str = "aniso204") -> Config:
     space, i.e. their geometric mean, for aniso204) makes the whole reconstruction
     ``exp(M · ln(y + ε)) − ε`` with one fixed matrix ``M`` (:mod:`abrdf_jax._operator`): one
     matrix product per chunk. On procedural BTF texels (seed 0, 16 × 16, mean ΔE76) it was also
-    the most accurate choice: 12.85 against 14.65 for ``Config.recommended`` (rule ``filip2012``,
-    log after the rule, pipeline only), 13.40 with rule ``"crossing"``; mean fill 19.87
-    (``python -m benchmarks.btf --quick``, table "configuration").
+    the most accurate choice: 12.84 against 12.96 for ``Config.recommended`` (rule ``filip2012``,
+    log after the rule, pipeline only), 13.31 with rule ``"crossing"``; mean fill 19.87
+    (``python -m benchmarks.btf``, table "configuration", 2026-12-04).
     """
     return preset("operator", budget)
 
