@@ -45,7 +45,7 @@ def _sigmas(store, texels, model: str) -> float | None:
     model's own prior envelope. ``None`` for the RBF model or without overshoot."""
     if model == "fixed" or texels.size == 0:
         return None
-    from abrdf_jax.prior import FUSED_DEFAULTS, default_prior, grid_cos_view
+    from abrdf_jax.prior import FUSED_DEFAULTS, default_prior, grid_cos_view, log_relative
 
     prior = default_prior()
     q, mu = np.asarray(prior.components, np.float64), np.asarray(prior.mean, np.float64)
@@ -54,7 +54,7 @@ def _sigmas(store, texels, model: str) -> float | None:
     sd = np.sqrt(sp**2 * np.sum(q**2, axis=1) + sk**2)  # (6561,) shared channels
     ref, cos, eps = np.asarray(prior.reference, np.float64)[:, 0], grid_cos_view(), prior.eps
     x = store.read().reshape(store.n_texels, -1, 3)[texels].astype(np.float64)
-    m = np.log((x * cos[:, None] + eps) / (ref * cos + eps)[:, None])
+    m = log_relative(x, ref[:, None], cos[:, None], eps)
     return float(np.max((m - mu[:, None]) / sd[:, None]))
 
 
