@@ -60,6 +60,7 @@ def upper_quantile(z, q: float):
     (``python -m benchmarks.throughput``). The weights are computed as ``jnp.quantile``
     computes them, in ``z``'s dtype; above :data:`SELECT_PASSES` passes it sorts.
     """
+    import jax
     import jax.numpy as jnp
 
     n = z.shape[-2]
@@ -74,15 +75,20 @@ def upper_quantile(z, q: float):
     # Pass j takes the largest value left and removes every copy of it (ties counted), so the
     # value at descending rank d is the one whose copies cover d.
     d_lo, d_hi = n - 1 - low, n - 1 - min(low + 1, n - 1)
-    lo = hi = jnp.full(cur.shape[:-1], -jnp.inf, cur.dtype)
-    seen = jnp.zeros(cur.shape[:-1], np.int32)
     nan = jnp.any(jnp.isnan(cur), axis=-1)  # NaN anywhere: NaN, as jnp.quantile
-    for _ in range(passes):
+
+    def take(_, state):
+        cur, lo, hi, seen = state
         m = jnp.max(cur, axis=-1)
         hit = cur == m[..., None]
         after = seen + jnp.sum(hit, axis=-1, dtype=np.int32)
         lo = jnp.where((seen <= d_lo) & (d_lo < after), m, lo)
         hi = jnp.where((seen <= d_hi) & (d_hi < after), m, hi)
-        cur, seen = jnp.where(hit, -jnp.inf, cur), after
+        return jnp.where(hit, -jnp.inf, cur), lo, hi, after
+
+    # a loop, not unrolled passes: XLA would fuse the producers of ``z`` into every pass
+    none = jnp.full(cur.shape[:-1], -jnp.inf, cur.dtype)
+    start = (cur, none, none, jnp.zeros(cur.shape[:-1], np.int32))
+    _, lo, hi, _ = jax.lax.fori_loop(0, passes, take, start)
     level = jnp.where(nan, jnp.nan, lo * (dtype.type(1) - w) + hi * w)
     return level[..., None, :]
