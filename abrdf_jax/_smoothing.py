@@ -135,13 +135,15 @@ def _column(a, z):
     return a.reshape(*(1,) * (z.ndim - 2), a.shape[0], 1)
 
 
-def noise_level(z, nb, xp=None):
+def noise_level(z, nb, xp=None, r=None):
     """``σ̂`` ``(...)``: ``1.4826 · median |r| / sqrt(1 + w_l² + w_r²)`` over the valid slots and
-    every channel of values ``z`` ``(..., n, C)`` (``nan`` when no slice has 3 samples)."""
+    every channel of values ``z`` ``(..., n, C)`` (``nan`` when no slice has 3 samples);
+    ``r``: :func:`residuals` of ``z`` when the caller has them."""
     if xp is None:
         import jax.numpy as xp
     _, _, wl, wr, valid, _ = nb
-    r = residuals(z, nb, xp) / _column(xp.sqrt(1.0 + wl**2 + wr**2), z)
+    r = residuals(z, nb, xp) if r is None else r
+    r = r / _column(xp.sqrt(1.0 + wl**2 + wr**2), z)
     r = xp.where(_column(valid, z), xp.abs(r), np.nan)
     flat = r.reshape(*r.shape[:-2], -1)
     if xp is np:  # numpy's nanmedian goes through masked arrays: ~1 ms a material on the host
@@ -159,8 +161,8 @@ def nonneg_nanmedian(a):
     took a quarter of the smoothed operator's time (``python -m benchmarks.throughput``). For
     non-negative floats the bit pattern read as an integer is monotone in the value, so the
     order statistics are found by bisection on it (one counting pass per bit, 31 for
-    float32, in a loop); the values are then read back with ``max``/``min`` (differentiable in
-    them) and averaged as ``jnp.nanmedian`` does. On the BTF chunk map (1,024 texels, 210
+    float32, in a loop, for both middle ranks); the values are the bit patterns found, averaged
+    as ``jnp.nanmedian`` does, and the gradient goes to the elements they are. On the BTF chunk map (1,024 texels, 210
     samples) the smoothing went from 32 to 8 ms.
     """
     import jax
@@ -170,27 +172,41 @@ def nonneg_nanmedian(a):
     ok = ~jnp.isnan(a)
     bits = jax.lax.bitcast_convert_type(jnp.where(ok, a, 0), ints)
     n = jnp.sum(ok, axis=-1)
-    k = (jnp.maximum(n, 1) - 1) // 2  # the lower middle: rank k counts from 0
+    k_lo = (jnp.maximum(n, 1) - 1) // 2  # the two middle ranks (equal for odd n), from 0
+    k_hi = jnp.maximum(n, 1) // 2
 
-    def halve(_, bounds):  # the smallest b with more than k bits <= b lies in [lo, hi]
-        lo, hi = bounds
-        mid = lo + (hi - lo) // 2
-        more = jnp.sum(ok & (bits <= mid[..., None]), axis=-1) > k
-        return jnp.where(more, lo, mid + 1), jnp.where(more, mid, hi)
+    def halve(_, bounds):  # for each rank k: the smallest b with more than k bits <= b
+        lo1, hi1, lo2, hi2 = bounds
+        mid1, mid2 = lo1 + (hi1 - lo1) // 2, lo2 + (hi2 - lo2) // 2
+        more1 = jnp.sum(ok & (bits <= mid1[..., None]), axis=-1) > k_lo
+        more2 = jnp.sum(ok & (bits <= mid2[..., None]), axis=-1) > k_hi
+        return (
+            jnp.where(more1, lo1, mid1 + 1),
+            jnp.where(more1, mid1, hi1),
+            jnp.where(more2, lo2, mid2 + 1),
+            jnp.where(more2, mid2, hi2),
+        )
 
     # A loop, not unrolled passes: its operands are materialised once, where XLA would fuse
-    # the producers of ``a`` (the residuals' gathers) into every counting pass.
+    # the producers of ``a`` (the residuals' gathers) into every counting pass. Everything
+    # after it is read off the loop's results, not off ``bits`` again: a fusion that
+    # recomputes ``a`` may round it differently (seen at XLA's optimisation level 0).
+    zero = jnp.zeros(n.shape, ints)
     top = jnp.full(n.shape, jnp.iinfo(ints).max, ints)
-    lo, _ = jax.lax.fori_loop(0, 8 * a.dtype.itemsize - 1, halve, (jnp.zeros_like(top), top))
-    below = ok & (bits <= lo[..., None])
-    low = jnp.max(jnp.where(below, a, -jnp.inf), axis=-1)
-    above = jnp.min(jnp.where(ok & ~below, a, jnp.inf), axis=-1)
-    high = jnp.where((jnp.sum(below, axis=-1) > k + 1) | (n % 2 == 1), low, above)
+    lo1, _, lo2, _ = jax.lax.fori_loop(0, 8 * a.dtype.itemsize - 1, halve, (zero, top, zero, top))
+    low, high = (jax.lax.bitcast_convert_type(v, a.dtype) for v in (lo1, lo2))
     med = low * 0.5 + high * 0.5
+    # the gradient of the elements the order statistics are (zero in value)
+    grad = 0.0
+    for v in (lo1, lo2):
+        pick = ok & (bits == v[..., None])
+        moved = jnp.sum(jnp.where(pick, a - jax.lax.stop_gradient(a), 0.0), axis=-1)
+        grad = grad + 0.5 * moved / jnp.maximum(jnp.sum(pick, axis=-1), 1)
+    med = med + grad
     return jnp.where(n > 0, med, jnp.nan).astype(a.dtype)
 
 
-def weights(setting, z, count, nb, xp=None):
+def weights(setting, z, count, nb, xp=None, r=None):
     """``β_s`` per material and slice ``(..., S)`` of a ``Config.slice_smoothing`` setting.
 
     Args:
@@ -198,6 +214,7 @@ def weights(setting, z, count, nb, xp=None):
         z: the values the slices interpolate, ``(..., n, C)`` on the slots of ``nb``.
         count: samples per slice ``(S,)``.
         nb: :func:`neighbours` (or :func:`compact`) of the layout.
+        r: :func:`residuals` of ``z``, when the caller has them.
 
     Returns:
         ``(β, σ̂)``: the weights and the noise level ``(...)`` (``nan`` for a fixed ``β``).
@@ -209,7 +226,7 @@ def weights(setting, z, count, nb, xp=None):
         beta = xp.full((*lead, count.shape[0]), setting, z.dtype)
         return beta, xp.full(lead, np.nan, z.dtype)
     beta_max, floor, scale = setting
-    sigma = noise_level(z, nb, xp)
+    sigma = noise_level(z, nb, xp, r)
     s2 = xp.where(xp.isfinite(sigma), sigma, 0.0)[..., None] ** 2
     spacing = 2.0 * np.pi / xp.maximum(xp.asarray(count), 1).astype(z.dtype)
     q = ((spacing / SPACING_0) ** 2).reshape(*(1,) * len(lead), -1)
@@ -218,12 +235,13 @@ def weights(setting, z, count, nb, xp=None):
     return beta.astype(z.dtype), sigma
 
 
-def smooth(z, beta, nb, xp=None):
-    """One shrink ``z ← z − β_s r`` of ``z`` ``(..., n, C)``, ``β`` per slice ``(..., S)``."""
+def smooth(z, beta, nb, xp=None, r=None):
+    """One shrink ``z ← z − β_s r`` of ``z`` ``(..., n, C)``, ``β`` per slice ``(..., S)``
+    (``r``: :func:`residuals` of ``z``, when the caller has them)."""
     if xp is None:
         import jax.numpy as xp
     b = xp.asarray(beta, z.dtype)[..., nb[5]]  # each slot's slice
-    return z - b[..., None] * residuals(z, nb, xp)
+    return z - b[..., None] * (residuals(z, nb, xp) if r is None else r)
 
 
 def smooth_slices(setting, z, t, count, xp=None):
@@ -234,8 +252,9 @@ def smooth_slices(setting, z, t, count, xp=None):
         return z, None, None
     nb = neighbours(t, count, xp)
     flat = z.reshape(*z.shape[:-3], -1, z.shape[-1])
-    beta, sigma = weights(setting, flat, count, nb, xp)
-    return smooth(flat, beta, nb, xp).reshape(z.shape), beta, sigma
+    r = residuals(flat, nb, xp)  # once, for the noise estimate and the shrink
+    beta, sigma = weights(setting, flat, count, nb, xp, r)
+    return smooth(flat, beta, nb, xp, r).reshape(z.shape), beta, sigma
 
 
 def smooth_compact(setting, z, index, t, count, xp=None):
@@ -245,7 +264,8 @@ def smooth_compact(setting, z, index, t, count, xp=None):
     if setting is None:
         return z
     nb = compact(neighbours(t, count, xp), index, xp)
-    return smooth(z, weights(setting, z, count, nb, xp)[0], nb, xp)
+    r = residuals(z, nb, xp)  # once, for the noise estimate and the shrink
+    return smooth(z, weights(setting, z, count, nb, xp, r)[0], nb, xp, r)
 
 
 def smoothing_to_json(setting):
