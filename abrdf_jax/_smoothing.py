@@ -201,7 +201,7 @@ def nonneg_nanmedian(a):
     for v in (lo1, lo2):
         pick = ok & (bits == v[..., None])
         moved = jnp.sum(jnp.where(pick, a - jax.lax.stop_gradient(a), 0.0), axis=-1)
-        grad = grad + 0.5 * moved / jnp.maximum(jnp.sum(pick, axis=-1), 1)
+        grad = grad + 0.5 * moved / jnp.maximum(jnp.sum(pick, axis=-1), 1).astype(a.dtype)
     med = med + grad
     return jnp.where(n > 0, med, jnp.nan).astype(a.dtype)
 

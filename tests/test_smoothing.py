@@ -75,8 +75,10 @@ def noisy():
 def test_a_noisy_capture_is_smoothed_and_a_clean_one_is_not(noisy):
     cfg, clean, meas = noisy
     off = aj.preset("recommended", "iso102", slice_smoothing=None)
-    np.testing.assert_array_equal(
-        np.asarray(aj.reconstruct(clean, cfg)), np.asarray(aj.reconstruct(clean, off))
+    assert np.all(np.asarray(aj.slice_smoothing(clean, cfg)["beta"]) == 0)
+    # the same samples go in; the two programs may round the rest differently (XLA's fusions)
+    np.testing.assert_allclose(
+        np.asarray(aj.reconstruct(clean, cfg)), np.asarray(aj.reconstruct(clean, off)), rtol=1e-4
     )
     report = aj.slice_smoothing(meas, cfg)
     assert report["noise_log"] == pytest.approx(0.1, rel=0.25)
