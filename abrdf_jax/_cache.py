@@ -371,11 +371,16 @@ def clear_cache(folder: Path) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def build_entry(meas, config, params, *, build_dtype: str = BUILD_DTYPE) -> OperatorEntry:
-    """Build the operator with :func:`abrdf_jax.compile_operator` as a float32 entry.
+def build_entry(
+    meas, config, params, *, build_dtype: str = BUILD_DTYPE, before_jax=None
+) -> OperatorEntry:
+    """Build the operator of :func:`abrdf_jax.compile_operator` as a float32 entry.
 
-    The matrix is computed in ``build_dtype`` (default float64, in a scoped ``jax.enable_x64``
-    whatever the global switch) and rounded to float32 once: applied in float32 it matches the
+    The matrix is computed in ``build_dtype``: float64 (the default) in numpy, without JAX
+    (:mod:`abrdf_jax._host_build`; the JAX build, in a scoped ``jax.enable_x64``, only where
+    the RBF system stays singular after the guard), float32 by the JAX build; it is rounded
+    to float32 once (``before_jax()``, when given, runs before any JAX work: the command
+    line turns on JAX's compilation cache there). Applied in float32 it matches the
     float64 reconstruction to float32 rounding (tests/test_cache.py), which a float32 build
     does not: its RBF solve is off by about 4e-4 of the table's maximum (docs/cache.md).
 
@@ -384,21 +389,33 @@ def build_entry(meas, config, params, *, build_dtype: str = BUILD_DTYPE) -> Oper
             ``compile_operator`` does (the rules ``"filip2012"``/``"log"`` on aniso204, or
             ``value_space="log"``).
     """
-    from ._operator import operator_matrix
-    from ._values import value_space
+    from ._host_build import host_matrix
+    from ._names import LOG_SAMPLES
 
-    # Host inputs straight into the one compiled build: no eager JAX operation (each compiles
-    # a small program on a cold call; _operator.operator_matrix).
-    with x64_scope(build_dtype == "float64"):
-        built = operator_matrix(config, params, meas, build_dtype=build_dtype)
-        matrix = np.asarray(built.matrix)
+    built = None
+    if build_dtype == "float64":  # in numpy: a cold call need not import JAX (_host_build)
+        try:
+            built = host_matrix(config, params, meas)
+        except np.linalg.LinAlgError:  # singular after the guard: the JAX build reports it
+            built = None
+    if built is None:
+        from ._operator import operator_matrix
+
+        if before_jax is not None:
+            before_jax()
+
+        # Host inputs straight into the one compiled build: no eager JAX operation (each
+        # compiles a small program on a cold call; _operator.operator_matrix).
+        with x64_scope(build_dtype == "float64"):
+            built = operator_matrix(config, params, meas, build_dtype=build_dtype)
+    matrix = np.asarray(built.matrix)
     return OperatorEntry(
         matrix=np.ascontiguousarray(matrix.astype(np.float32)),
         index=np.asarray(built.index, np.int64),
         t=np.asarray(built.t, np.float32),
         count=np.asarray(built.count, np.int32),
         keep=np.asarray(built.keep, np.int32),
-        log_samples=value_space(config.value_space).log_samples,
+        log_samples=config.value_space in LOG_SAMPLES,
         log_eps=float(config.log_eps),
         spike_cap=config.spike_cap,
         slice_smoothing=config.slice_smoothing,
@@ -434,22 +451,19 @@ def cached_entry(
 ) -> tuple[OperatorEntry, bool]:
     """The operator entry for ``(config, params, meas's layout)``: ``(entry, hit)``.
 
-    Loaded from ``store`` when it holds a valid entry (``hit=True``); else built (importing
-    JAX; ``before_build()`` first) and saved. ``store=None``: always built. A store that cannot
+    Loaded from ``store`` when it holds a valid entry (``hit=True``); else built (in numpy;
+    ``before_build()`` before any JAX work, :func:`build_entry`) and saved. ``store=None``: always built. A store that cannot
     be read or written gives a warning through ``warn`` and the built entry.
 
     Raises:
         InputError: for nonlinear settings (see :func:`build_entry`).
     """
-    before_build = before_build or (lambda: None)
     if store is None:
-        before_build()
-        return build_entry(meas, config, params), False
+        return build_entry(meas, config, params, before_jax=before_build), False
     key = operator_key(config, params, meas)
     entry = store.load(key, warn)
     if entry is not None and _fits(entry, meas):
         return entry, True
-    before_build()
-    entry = build_entry(meas, config, params)
+    entry = build_entry(meas, config, params, before_jax=before_build)
     store.save(key, entry, warn)
     return entry, False

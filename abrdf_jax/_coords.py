@@ -6,29 +6,33 @@ a parameterization, add one :class:`Parameterization` to :data:`PARAMETERIZATION
 then valid in ``Config(parameterization=...)``, parameter files and the command line.
 """
 
-import dataclasses
-from typing import Callable
+from __future__ import annotations
 
-import jax.numpy as jnp
-from jaxtyping import Array, Float
+import dataclasses
+from typing import TYPE_CHECKING, Callable
+
 
 from ._grid import from_vector, half_diff, onion_from_vector
 from ._names import check_registry, lookup
+from ._xp import namespace
+
+if TYPE_CHECKING:  # annotations only: jaxtyping's Array imports JAX
+    from jaxtyping import Array, Float
 
 
-def _onion(wi, wv):
-    return jnp.concatenate([onion_from_vector(wi), onion_from_vector(wv)], axis=-1)
+def _onion(wi, wv, xp):
+    return xp.concatenate([onion_from_vector(wi, xp), onion_from_vector(wv, xp)], axis=-1)
 
 
-def _spherical(wi, wv):
-    ti, pi_ = from_vector(wi)
-    tv, pv = from_vector(wv)
-    return jnp.stack([ti, pi_, tv, pv], axis=-1)
+def _spherical(wi, wv, xp):
+    ti, pi_ = from_vector(wi, xp)
+    tv, pv = from_vector(wv, xp)
+    return xp.stack([ti, pi_, tv, pv], axis=-1)
 
 
 @dataclasses.dataclass(frozen=True)
 class Parameterization:
-    """One parameterization: ``fn(wi, wv) -> (..., 4)`` and its fallback kernel width (radians)."""
+    """One parameterization: ``fn(wi, wv, xp) -> (..., 4)`` and its fallback kernel width (radians)."""
 
     name: str
     fn: Callable[[Array, Array], Array]
@@ -55,7 +59,8 @@ def parameterization(name: str) -> Parameterization:
 
 
 def pair_coordinates(
-    wi: Float[Array, "q 3"], wv: Float[Array, "q 3"], name: str
+    wi: Float[Array, "q 3"], wv: Float[Array, "q 3"], name: str, xp=None
 ) -> Float[Array, "q 4"]:
-    """Coordinates of direction pairs for the RBF in parameterization ``name``."""
-    return parameterization(name).fn(wi, wv)
+    """Coordinates of direction pairs for the RBF in parameterization ``name`` (``xp``:
+    ``jax.numpy`` by default, or ``numpy``)."""
+    return parameterization(name).fn(wi, wv, namespace(xp))

@@ -18,11 +18,17 @@ elevation pair (:func:`centre_layout`); its targets are the 6561 UBO pairs
 (:func:`ubo_target_vectors`), where the reconstructed subspaces are put back (:func:`keep_centres`).
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import numpy as np
-import jax.numpy as jnp
-from jaxtyping import Array, Float
 
 from ._protocol import UBO_COUNTS as UBO_COUNTS, UBO_THETAS_DEG as UBO_THETAS_DEG
+from ._xp import namespace
+
+if TYPE_CHECKING:  # annotations only: jaxtyping's Array imports JAX
+    from jaxtyping import Array, Float
 
 
 def ubo_grid() -> tuple[np.ndarray, np.ndarray]:
@@ -69,32 +75,39 @@ def pair_grid(theta_deg: np.ndarray | None = None, phi_deg: np.ndarray | None = 
 
 
 def to_vector(
-    theta: Float[Array, "..."], phi: Float[Array, "..."], xp=jnp
+    theta: Float[Array, "..."], phi: Float[Array, "..."], xp=None
 ) -> Float[Array, "... 3"]:
     """Spherical angles (radians) to unit vectors (``xp=numpy``: on the host, no JAX dispatch)."""
+    xp = namespace(xp)
     st = xp.sin(theta)
     return xp.stack([st * xp.cos(phi), st * xp.sin(phi), xp.cos(theta)], axis=-1)
 
 
-def from_vector(w: Float[Array, "... 3"]) -> tuple[Float[Array, "..."], Float[Array, "..."]]:
+def from_vector(
+    w: Float[Array, "... 3"], xp=None
+) -> tuple[Float[Array, "..."], Float[Array, "..."]]:
     """Unit vectors to spherical angles ``(θ, φ)`` in radians, ``φ`` in ``[0, 2π)``.
 
     The argument of ``arccos`` is clamped to ``[-1, 1]`` so that rounding never gives NaN.
     """
-    theta = jnp.arccos(jnp.clip(w[..., 2], -1.0, 1.0))
-    phi = jnp.mod(jnp.arctan2(w[..., 1], w[..., 0]), 2 * jnp.pi)
+    xp = namespace(xp)
+    theta = xp.arccos(xp.clip(w[..., 2], -1.0, 1.0))
+    phi = xp.mod(xp.arctan2(w[..., 1], w[..., 0]), 2 * np.pi)
     return theta, phi
 
 
-def onion_from_vector(w: Float[Array, "... 3"]) -> Float[Array, "... 2"]:
+def onion_from_vector(w: Float[Array, "... 3"], xp=None) -> Float[Array, "... 2"]:
     """Unit vectors to onion coordinates ``(α, β)`` in radians (Havran et al. 2010)."""
-    beta = jnp.arcsin(jnp.clip(w[..., 0], -1.0, 1.0))
-    alpha = jnp.arctan2(w[..., 1], w[..., 2])
-    return jnp.stack([alpha, beta], axis=-1)
+    xp = namespace(xp)
+    beta = xp.arcsin(xp.clip(w[..., 0], -1.0, 1.0))
+    alpha = xp.arctan2(w[..., 1], w[..., 2])
+    return xp.stack([alpha, beta], axis=-1)
 
 
 def vector_from_onion(ab: Float[Array, "... 2"]) -> Float[Array, "... 3"]:
     """Onion coordinates ``(α, β)`` (radians) to unit vectors."""
+    import jax.numpy as jnp
+
     a, b = ab[..., 0], ab[..., 1]
     cb = jnp.cos(b)
     return jnp.stack([jnp.sin(b), jnp.sin(a) * cb, jnp.cos(a) * cb], axis=-1)
@@ -105,40 +118,45 @@ def onion(theta: Float[Array, "..."], phi: Float[Array, "..."]) -> Float[Array, 
     return onion_from_vector(to_vector(theta, phi))
 
 
-def _rot_z(w, a):
-    c, s = jnp.cos(a), jnp.sin(a)
-    return jnp.stack([c * w[..., 0] - s * w[..., 1], s * w[..., 0] + c * w[..., 1], w[..., 2]], -1)
+def _rot_z(w, a, xp):
+    c, s = xp.cos(a), xp.sin(a)
+    return xp.stack([c * w[..., 0] - s * w[..., 1], s * w[..., 0] + c * w[..., 1], w[..., 2]], -1)
 
 
-def _rot_y(w, a):
-    c, s = jnp.cos(a), jnp.sin(a)
-    return jnp.stack([c * w[..., 0] + s * w[..., 2], w[..., 1], -s * w[..., 0] + c * w[..., 2]], -1)
+def _rot_y(w, a, xp):
+    c, s = xp.cos(a), xp.sin(a)
+    return xp.stack([c * w[..., 0] + s * w[..., 2], w[..., 1], -s * w[..., 0] + c * w[..., 2]], -1)
 
 
-def half_diff(wi: Float[Array, "... 3"], wv: Float[Array, "... 3"]) -> Float[Array, "... 4"]:
+def half_diff(
+    wi: Float[Array, "... 3"], wv: Float[Array, "... 3"], xp=None
+) -> Float[Array, "... 4"]:
     """Rusinkiewicz (1998) half/difference angles ``(θh, φh, θd, φd)`` in radians.
 
     ``h = normalize(wi + wv)``; ``d`` is ``wi`` rotated by ``-φh`` about z, then by ``-θh`` about y.
     ``φh, φd`` are in ``[0, 2π)``. Where ``wi = -wv`` the half vector is undefined; the sum's
     norm is floored so that the result stays finite.
     """
+    xp = namespace(xp)
     hs = wi + wv
-    n2 = jnp.sum(hs * hs, axis=-1, keepdims=True)
-    safe = jnp.where(n2 > 1e-30, n2, 1.0)
-    h = jnp.where(n2 > 1e-30, hs / jnp.sqrt(safe), jnp.array([0.0, 0.0, 1.0], dtype=wi.dtype))
-    th, ph = from_vector(h)
-    d = _rot_y(_rot_z(wi, -ph), -th)
-    td, pd = from_vector(d)
-    return jnp.stack([th, ph, td, pd], axis=-1)
+    n2 = xp.sum(hs * hs, axis=-1, keepdims=True)
+    safe = xp.where(n2 > 1e-30, n2, 1.0)
+    h = xp.where(n2 > 1e-30, hs / xp.sqrt(safe), xp.asarray([0.0, 0.0, 1.0], dtype=wi.dtype))
+    th, ph = from_vector(h, xp)
+    d = _rot_y(_rot_z(wi, -ph, xp), -th, xp)
+    td, pd = from_vector(d, xp)
+    return xp.stack([th, ph, td, pd], axis=-1)
 
 
 def vectors_from_half_diff(
     hd: Float[Array, "... 4"],
 ) -> tuple[Float[Array, "... 3"], Float[Array, "... 3"]]:
     """Inverse of :func:`half_diff`: ``(θh, φh, θd, φd)`` to ``(wi, wv)`` unit vectors."""
+    import jax.numpy as jnp
+
     th, ph, td, pd = hd[..., 0], hd[..., 1], hd[..., 2], hd[..., 3]
     d = to_vector(td, pd)
-    wi = _rot_z(_rot_y(d, th), ph)
+    wi = _rot_z(_rot_y(d, th, jnp), ph, jnp)
     h = to_vector(th, ph)
     wv = 2.0 * jnp.sum(wi * h, axis=-1, keepdims=True) * h - wi
     return wi, wv
@@ -169,20 +187,22 @@ def centre_layout(pairs, azimuths: int | None = None) -> list[tuple[np.ndarray, 
     return out
 
 
-def centre_vectors(pairs, dtype, azimuths: int | None = None):
+def centre_vectors(pairs, dtype, azimuths: int | None = None, xp=None):
     """Unit vectors ``(wi, wv)``, each ``(n, 3)``, of the RBF centres of ``pairs`` (:func:`centre_layout` order)."""
+    xp = namespace(xp)
     wi, wv = [], []
     for (ti, tv), (pi_, pv) in zip(pairs, centre_layout(pairs, azimuths)):
-        wi.append(to_vector(np.full(len(pi_), np.deg2rad(ti)), np.deg2rad(pi_)))
-        wv.append(to_vector(np.full(len(pv), np.deg2rad(tv)), np.deg2rad(pv)))
-    return jnp.concatenate(wi).astype(dtype), jnp.concatenate(wv).astype(dtype)
+        wi.append(to_vector(np.full(len(pi_), np.deg2rad(ti)), np.deg2rad(pi_), xp))
+        wv.append(to_vector(np.full(len(pv), np.deg2rad(tv)), np.deg2rad(pv), xp))
+    return xp.concatenate(wi).astype(dtype), xp.concatenate(wv).astype(dtype)
 
 
-def ubo_target_vectors(dtype, xp=jnp):
+def ubo_target_vectors(dtype, xp=None):
     """The 6561 UBO pairs' unit vectors ``(wi, wv)``, ``(6561, 3)`` each, as ``xp`` arrays."""
     ti, pi_, tv, pv = pair_grid()
     wi = to_vector(np.deg2rad(ti), np.deg2rad(pi_), np)  # once a build: on the host
     wv = to_vector(np.deg2rad(tv), np.deg2rad(pv), np)
+    xp = namespace(xp)
     return xp.asarray(wi, dtype), xp.asarray(wv, dtype)
 
 
@@ -207,4 +227,10 @@ def keep_centres(
     """Put the reconstructed subspaces back at the centres that are UBO grid pairs (the paper's
     step 3 fills only the missing values); centres off the grid are left to the RBF."""
     src, dst = _centre_target_index(pairs, azimuths)
-    return out if len(src) == 0 else out.at[dst].set(vals[src])
+    if len(src) == 0:
+        return out
+    if isinstance(out, np.ndarray):  # the host build
+        out = out.copy()
+        out[dst] = vals[src]
+        return out
+    return out.at[dst].set(vals[src])

@@ -10,9 +10,10 @@ diagonal): a kernel in ``r`` (not ``r²``) uses the double-``where`` trick of op
 
 from __future__ import annotations
 
-import jax.numpy as jnp
+import numpy as np
 
 from ._names import check_registry, check_trait
+from ._xp import namespace
 
 # kernel -> (function of r², minimum polynomial degree, positive definite)
 _KERNELS = {}
@@ -26,48 +27,51 @@ def _register(name, min_degree, pd):
     return deco
 
 
-def _safe(r2):
+def _safe(r2, xp):
     pos = r2 > 0
-    return pos, jnp.where(pos, r2, 1.0)
+    return pos, xp.where(pos, r2, 1.0)
 
 
 @_register("gaussian", -1, True)
-def gaussian(r2):
-    return jnp.exp(-r2)
+def gaussian(r2, xp=None):
+    return namespace(xp).exp(-r2)
 
 
 @_register("inverse_multiquadric", -1, True)
-def inverse_multiquadric(r2):
-    return 1.0 / jnp.sqrt(1.0 + r2)
+def inverse_multiquadric(r2, xp=None):
+    return 1.0 / namespace(xp).sqrt(1.0 + r2)
 
 
 @_register("inverse_quadratic", -1, True)
-def inverse_quadratic(r2):
+def inverse_quadratic(r2, xp=None):
     return 1.0 / (1.0 + r2)
 
 
 @_register("multiquadric", 0, False)
-def multiquadric(r2):
-    return -jnp.sqrt(1.0 + r2)
+def multiquadric(r2, xp=None):
+    return -namespace(xp).sqrt(1.0 + r2)
 
 
 @_register("thin_plate_spline", 1, False)
-def thin_plate_spline(r2):
+def thin_plate_spline(r2, xp=None):
     # r² log r = ½ r² log r²; 0 at r = 0 with a finite (zero) gradient.
-    pos, s = _safe(r2)
-    return jnp.where(pos, 0.5 * s * jnp.log(s), 0.0)
+    xp = namespace(xp)
+    pos, s = _safe(r2, xp)
+    return xp.where(pos, 0.5 * s * xp.log(s), 0.0)
 
 
 @_register("cubic", 1, False)
-def cubic(r2):
-    pos, s = _safe(r2)
-    return jnp.where(pos, s * jnp.sqrt(s), 0.0)
+def cubic(r2, xp=None):
+    xp = namespace(xp)
+    pos, s = _safe(r2, xp)
+    return xp.where(pos, s * xp.sqrt(s), 0.0)
 
 
 @_register("linear", 0, False)
-def linear(r2):
-    pos, s = _safe(r2)
-    return jnp.where(pos, -jnp.sqrt(s), 0.0)
+def linear(r2, xp=None):
+    xp = namespace(xp)
+    pos, s = _safe(r2, xp)
+    return xp.where(pos, -xp.sqrt(s), 0.0)
 
 
 KERNELS = tuple(_KERNELS)
@@ -76,7 +80,8 @@ check_trait("KERNEL_MIN_DEGREE", {n: v[1] for n, v in _KERNELS.items()})
 
 
 def kernel_fn(name: str):
-    """The kernel function of ``r²`` for ``name`` (one of :data:`KERNELS`)."""
+    """The kernel function ``fn(r², xp=None)`` for ``name`` (one of :data:`KERNELS`; ``xp``:
+    ``jax.numpy`` by default, or ``numpy``)."""
     try:
         return _KERNELS[name][0]
     except KeyError:
@@ -95,15 +100,24 @@ def is_positive_definite(name: str) -> bool:
     return _KERNELS[name][2]
 
 
-def scaled_sqdist(x, y, widths):
+def scaled_sqdist(x, y, widths, xp=None):
     """``r²[a, b] = Σ_k ((x[a,k] − y[b,k]) / widths[k])²`` by direct differences.
 
     Direct differences (not ``|x|² + |y|² − 2x·y``) keep ``r² ≥ 0`` exactly and zero on the
     diagonal, which the kernels' safe branches rely on.
     """
     # A sum of 2D terms (d is small) fuses into one pass: no (n, m, d) temporary in memory.
-    widths = jnp.broadcast_to(widths, (x.shape[-1],))
-    r2 = jnp.zeros((x.shape[0], y.shape[0]), jnp.result_type(x, y, widths))
+    xp = namespace(xp)
+    widths = xp.broadcast_to(widths, (x.shape[-1],))
+    r2 = xp.zeros((x.shape[0], y.shape[0]), xp.result_type(x, y, widths))
+    if xp.__name__ == "numpy":  # the same operations in place: no temporaries on the host
+        diff = np.empty_like(r2)
+        for k in range(x.shape[-1]):
+            np.subtract(x[:, k, None], y[None, :, k], out=diff)
+            diff /= widths[k]
+            diff *= diff
+            r2 += diff
+        return r2
     for k in range(x.shape[-1]):
         diff = (x[:, k, None] - y[None, :, k]) / widths[k]
         r2 = r2 + diff * diff

@@ -32,7 +32,6 @@ slice parameters and counts (checked on the host when the input is a concrete
 """
 
 from functools import partial
-from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -44,15 +43,15 @@ from ._build_jit import build_jit
 from ._errors import InputError
 from ._finite import check_concrete
 from ._grid import _centre_target_index, centre_layout, keep_centres, ubo_target_vectors
+from ._host_build import NONLINEAR_MODES as NONLINEAR_MODES, BuiltMatrix as BuiltMatrix
+from ._host_build import build_stage, sample_index, template_layout
 from ._measurements import Measurements
 from ._params import Config, Params
 from ._pipeline import fit_inputs, rbf_map, subspace_values
 from ._smoothing import smooth_compact
 from ._spikes import cap_samples
-from ._subspace import get_rule
 from ._values import log_values, value_eps, value_space
 
-NONLINEAR_MODES = ("raise", "two_stage")
 
 #: How many times the operator's apply function and its builder were traced (tests use this to
 #: prove that new data and new parameters do not recompile).
@@ -361,33 +360,6 @@ def _build(
     return keep_centres(out, vals, pairs, azimuths)
 
 
-def _template_layout(template) -> tuple[np.ndarray, np.ndarray]:
-    """The template's slice positions ``(S, nmax)`` and counts ``(S,)`` as numpy arrays."""
-    t, count = np.asarray(template.t), np.asarray(template.count)
-    if t.ndim == 3:  # a stacked template: every member must share the layout
-        if not (np.all(count == count[:1]) and np.all(t == t[:1])):
-            raise InputError(
-                "the stacked template's members have different slice layouts; pass one measurement"
-            )
-        t, count = t[0], count[0]
-    if t.ndim != 2 or count.shape != (t.shape[0],):
-        raise InputError(f"template.t must have shape (S, nmax), got {template.t.shape}")
-    return t, count
-
-
-class BuiltMatrix(NamedTuple):
-    """What :func:`operator_matrix` builds: the matrix (a JAX array of the build dtype), the
-    flat index of the valid samples, the grid rows kept from the centres (empty for other
-    targets), the stage, and the template's slice positions and counts (numpy)."""
-
-    matrix: jax.Array
-    index: np.ndarray
-    keep: np.ndarray
-    stage: str
-    t: np.ndarray
-    count: np.ndarray
-
-
 def operator_matrix(
     config: Config, params, template, *, build_dtype, targets=None, nonlinear="raise"
 ) -> BuiltMatrix:
@@ -399,27 +371,9 @@ def operator_matrix(
     so a build from numpy inputs (the operator store's, ``abrdf_jax._cache.build_entry``)
     dispatches no eager JAX operation (each of which compiles a small program on a cold call).
     """
-    if nonlinear not in NONLINEAR_MODES:
-        raise InputError(f"nonlinear must be one of {NONLINEAR_MODES}, got {nonlinear!r}")
-    if config.budget == "aniso204" and not template.has_axial:
-        raise InputError(
-            "Config(budget='aniso204') needs axial slices, but the template has none; use budget='iso102'"
-        )
-    t, count = _template_layout(template)
-    rule_linear = get_rule(config.subspace_rule).linear
-    linear = rule_linear and not value_space(config.value_space).log_subspace
-    if not linear and nonlinear == "raise":
-        why = (
-            f"rule={config.subspace_rule!r} is not linear in the samples"
-            if not rule_linear
-            else f"value_space={config.value_space!r} takes the log after the subspace rule"
-        )
-        raise InputError(
-            f"compile_operator: {why}; use Config(rule='crossing' or 'average' or budget='iso102') with "
-            f"value_space='linear' or 'logsamples', or pass nonlinear='two_stage' (slower: per-material subspace step)"
-        )
-    nmax = t.shape[1]
-    index = np.nonzero((np.arange(nmax)[None, :] < count[:, None]).reshape(-1))[0]
+    stage = build_stage(config, template, nonlinear)
+    t, count = template_layout(template)
+    index = sample_index(t, count)
     if targets is not None:
         targets = tuple(jnp.asarray(v, build_dtype) for v in targets)
         if (
@@ -428,7 +382,6 @@ def operator_matrix(
             or targets[0].shape[-1:] != (3,)
         ):
             raise InputError("targets must be (wi, wv) unit vectors of equal shape (q, 3)")
-    stage = "single" if linear else "two_stage"
     grid_wi, grid_wv = ubo_target_vectors(build_dtype, xp=np)
     values = params if isinstance(params, Params) else type(params)(*map(np.asarray, params))
     matrix = _build(

@@ -10,7 +10,6 @@ factorisation is shared because it depends on the parameters only.
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float
 
 from ._coords import pair_coordinates
@@ -24,7 +23,7 @@ from ._rbf import SolveInfo, fit_rbf_info
 from ._slices import PROTOCOL_PAIRS
 from ._smoothing import smooth_slices
 from ._spikes import cap_samples
-from ._subspace import subspace, subspace_terms
+from ._subspace import centre_subspaces
 from ._values import value_space
 
 
@@ -41,26 +40,11 @@ def subspace_values(
     interpolations (default: ``config``'s rule alone, ``(n, 3)``). ``terms``: instead, the
     slice terms ``(a, b, c)`` that the rules combine, ``(3, n, 3)``
     (:func:`abrdf_jax._subspace.subspace_terms`)."""
-    vals = []
-    alpha = params.alpha.astype(meas.y.dtype)
-    for p, (pi_, pv) in enumerate(centre_layout(meas.pairs, meas.centre_azimuths)):
-        pair = (
-            meas.t[2 * p],
-            meas.y[2 * p],
-            meas.count[2 * p],
-            meas.t[2 * p + 1],
-            meas.y[2 * p + 1],
-            meas.count[2 * p + 1],
-            jnp.asarray(np.deg2rad(pi_), meas.y.dtype),
-            jnp.asarray(np.deg2rad(pv), meas.y.dtype),
-            alpha,
-        )
-        if terms:
-            vals.append(subspace_terms(*pair, config.interp))
-            continue
-        rule = config.subspace_rule if rules is None else tuple(rules)
-        vals.append(subspace(*pair, rule=rule, interp=config.interp))
-    return jnp.concatenate(vals, axis=-2)
+    rule = config.subspace_rule if rules is None else tuple(rules)
+    return centre_subspaces(
+        meas.t, meas.y, meas.count, meas.pairs, meas.centre_azimuths,
+        params.alpha.astype(meas.y.dtype), rule, config.interp, terms,
+    )  # fmt: skip
 
 
 def _fit_centres(vals, pairs, config: Config, params: Params, guard: bool = True, azimuths=None):

@@ -38,41 +38,18 @@ differentiates implicitly (``dc = -A⁻¹ dA c``), so a failed attempt never lea
 """
 
 import functools
-import itertools
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
-import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._config import resolve_degree as resolve_degree
-from ._kernels import is_positive_definite, kernel_fn, scaled_sqdist
-
-_HI = jax.lax.Precision.HIGHEST
-
-
-def _exponents(dim: int, degree: int) -> list[tuple[int, ...]]:
-    out = []
-    for total in range(degree + 1):
-        for combo in itertools.combinations_with_replacement(range(dim), total):
-            e = [0] * dim
-            for k in combo:
-                e[k] += 1
-            out.append(tuple(e))
-    return out
-
-
-def _poly(x, shift, scale, degree):
-    if degree < 0:
-        return jnp.zeros((x.shape[0], 0), x.dtype)
-    z = (x - shift[None]) / scale[None]
-    cols = [
-        jnp.prod(z ** jnp.asarray(e, x.dtype)[None], axis=-1)
-        for e in _exponents(x.shape[1], degree)
-    ]
-    return jnp.stack(cols, axis=-1)
+from ._kernels import is_positive_definite
+from ._rbf_system import GUARD_FACTOR as GUARD_FACTOR, evaluate, gram as gram, prepared
+from ._rbf_system import hager_start, norm1 as _norm1, raised_reg
+from ._rbf_system import system as _system
 
 
 class RBFInterpolant(eqx.Module):
@@ -88,29 +65,10 @@ class RBFInterpolant(eqx.Module):
     degree: int = eqx.field(static=True)
 
     def __call__(self, x: Float[Array, "q d"]) -> Float[Array, "q C"]:
-        k = kernel_fn(self.kernel)(scaled_sqdist(x, self.centres, self.widths))
-        out = jnp.matmul(k, self.coeffs, precision=_HI)
-        if self.degree >= 0:
-            out = out + jnp.matmul(
-                _poly(x, self.shift, self.scale, self.degree), self.poly_coeffs, precision=_HI
-            )
-        return out
-
-
-def _centre_stats(x):
-    lo, hi = jnp.min(x, axis=0), jnp.max(x, axis=0)
-    shift = (lo + hi) / 2
-    scale = jnp.where(hi > lo, (hi - lo) / 2, 1.0)
-    return jax.lax.stop_gradient(shift), jax.lax.stop_gradient(scale)
-
-
-def gram(x, widths, kernel):
-    """The kernel (Gram) matrix of the centres, shape ``(n, n)``."""
-    return kernel_fn(kernel)(scaled_sqdist(x, x, widths))
-
-
-#: The guard's fallback regularisation is ``max(10 λ, GUARD_FACTOR · ε · ‖K‖₁)``.
-GUARD_FACTOR = 100.0
+        return evaluate(
+            x, self.centres, self.widths, self.coeffs, self.poly_coeffs, self.shift, self.scale,
+            self.kernel, self.degree, jnp,
+        )  # fmt: skip
 
 
 class SolveInfo(eqx.Module):
@@ -130,10 +88,6 @@ class SolveInfo(eqx.Module):
     retries: Int[Array, ""]
 
 
-def _norm1(a):
-    return jnp.max(jnp.sum(jnp.abs(a), axis=0))
-
-
 def inverse_norm1_estimate(solve, n: int, dtype, steps: int = 3):
     """Lower estimate of ``‖A⁻¹‖₁`` for a symmetric ``A`` from a solver ``b ↦ A⁻¹ b``.
 
@@ -147,10 +101,7 @@ def inverse_norm1_estimate(solve, n: int, dtype, steps: int = 3):
     what compile time is spent on). ``benchmarks/stability.py`` compares it with the exact
     condition number in float64.
     """
-    i = np.arange(n)
-    alt = np.where(i % 2 == 0, 1.0, -1.0) * (1 + i / max(n - 1, 1))
-    signs = np.random.default_rng(0).choice([-1.0, 1.0], size=(n, 2))
-    x0 = jnp.asarray(np.column_stack([np.ones(n), alt, signs]), dtype)
+    x0 = jnp.asarray(hager_start(n), dtype)
 
     def step(k, carry):
         x, est = carry
@@ -165,27 +116,6 @@ def inverse_norm1_estimate(solve, n: int, dtype, steps: int = 3):
         return jnp.where(k % 2 == 0, sign, unit), est
 
     return jax.lax.fori_loop(0, steps, step, (x0, jnp.zeros((), dtype)))[1]
-
-
-def _blocks(x, widths, kernel, degree, shift, scale):
-    """Kernel block ``K`` and the polynomial block scaled to ``K``'s magnitude."""
-    k = gram(x, widths, kernel)
-    p = _poly(x, shift, scale, degree)
-    if p.shape[1]:
-        kmax = jax.lax.stop_gradient(jnp.max(jnp.abs(k)))
-        pmax = jax.lax.stop_gradient(jnp.max(jnp.abs(p)))
-        s = jnp.where((kmax > 0) & (pmax > 0), kmax / jnp.where(pmax > 0, pmax, 1.0), 1.0)
-    else:
-        s = jnp.ones((), x.dtype)
-    return k, p * s, s
-
-
-def _system(k, p, lam):
-    n, m = k.shape[0], p.shape[1]
-    a = k + lam * jnp.eye(n, dtype=k.dtype)
-    if m == 0:
-        return a
-    return jnp.block([[a, p], [p.T, jnp.zeros((m, m), k.dtype)]])
 
 
 def _factorize(a, chol: bool):
@@ -227,7 +157,7 @@ def _guarded_factor(k, p, lam, chol: bool, guard: bool):
     # For a positive-definite K, κ₂(K + λ₁I) ≤ 1 + ‖K‖₂/λ₁ ≤ 1 + ‖K‖₁/λ₁ ≤ 1 + 1/(GUARD_FACTOR ε):
     # well inside the test above. (With a polynomial tail the saddle-point system has no such
     # bound; benchmarks/stability.py measures it.)
-    lam1 = jnp.maximum(10.0 * lam, GUARD_FACTOR * eps * _norm1(k))
+    lam1 = raised_reg(lam, k, jnp)
 
     # One loop body (factorise + estimate) run once, or twice when the first attempt fails: a
     # while_loop compiles the factorisation once, where lax.cond would compile it twice.
@@ -261,20 +191,12 @@ def _solve(k, p, s, reg, y, chol: bool, guard: bool):
     rhs = jnp.concatenate([y, jnp.zeros((m, y.shape[1]), y.dtype)]) if m else y
     fac = jax.lax.stop_gradient(fac)
     sol = jax.lax.custom_linear_solve(
-        lambda v: jnp.matmul(a, v, precision=_HI),
+        lambda v: jnp.matmul(a, v, precision=jax.lax.Precision.HIGHEST),
         rhs,
         lambda _, b: _factor_solve(fac, b, chol),
         symmetric=True,
     )
     return sol[:n], sol[n:] * s, info
-
-
-def _prepared(x, widths, kernel, degree):
-    """Degree, widths ``(d,)``, centring and the scaled blocks ``(K, P, s)`` of a system."""
-    degree = resolve_degree(kernel, degree)
-    widths = jnp.broadcast_to(jnp.asarray(widths, x.dtype), (x.shape[1],))
-    shift, scale = _centre_stats(x)
-    return degree, widths, shift, scale, _blocks(x, widths, kernel, max(degree, -1), shift, scale)
 
 
 def fit_rbf_info(
@@ -302,7 +224,7 @@ def fit_rbf_info(
     Returns:
         ``(interpolant, info)``: the fitted :class:`RBFInterpolant` and a :class:`SolveInfo`.
     """
-    degree, widths, shift, scale, (k, p, s) = _prepared(x, widths, kernel, degree)
+    degree, widths, shift, scale, (k, p, s) = prepared(x, widths, kernel, degree, jnp)
     reg = jnp.asarray(reg, x.dtype)
     chol = degree < 0 and is_positive_definite(kernel)
     coeffs, poly, info = _solve(k, p, s, reg, y, chol=chol, guard=guard)
@@ -336,7 +258,7 @@ def rbf_system(
     ``[[K + λI, P s], [(P s)ᵀ, 0]]`` with the polynomial block scaled to the kernel block's
     magnitude (module docstring); ``N = n + m``, ``m`` the number of tail monomials.
     """
-    k, p, _ = _prepared(x, widths, kernel, degree)[-1]
+    k, p, _ = prepared(x, widths, kernel, degree, jnp)[-1]
     return _system(k, p, jnp.asarray(reg, x.dtype))
 
 

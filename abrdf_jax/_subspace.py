@@ -34,31 +34,37 @@ the sample values, so the compiled operator can absorb it). To add a rule, regis
 with :func:`_rule` and list its name in ``abrdf_jax._names.RULES``; an unknown name raises.
 """
 
+from __future__ import annotations
+
 import dataclasses
 import functools
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
-import jax.numpy as jnp
-from jaxtyping import Array, Float
+import numpy as np
 
+from ._grid import centre_layout
 from ._interp1d import periodic_interp
 from ._names import check_registry, check_trait, lookup
 from ._rules import AFFINE, combine
+from ._xp import namespace
 
-TWO_PI = 2.0 * jnp.pi
+if TYPE_CHECKING:  # annotations only: jaxtyping's Array imports JAX
+    from jaxtyping import Array, Float
+
+TWO_PI = 2.0 * np.pi
 
 
-def _slice_at(t, y, n, tq, interp):
+def _slice_at(t, y, n, tq, interp, xp):
     """Slice value averaged over the two torus preimages ``tq`` and ``tq + π``."""
     return 0.5 * (
-        periodic_interp(t, y, n, tq, interp) + periodic_interp(t, y, n, tq + jnp.pi, interp)
+        periodic_interp(t, y, n, tq, interp, xp) + periodic_interp(t, y, n, tq + np.pi, interp, xp)
     )
 
 
-def _masked_extreme(y, n, fn):
-    valid = (jnp.arange(y.shape[0], dtype=jnp.asarray(n).dtype) < n)[:, None]
-    fill = jnp.inf if fn is jnp.min else -jnp.inf
-    return fn(jnp.where(valid, y, fill), axis=0, keepdims=True)
+def _masked_extreme(y, n, lowest: bool, xp):
+    valid = (xp.arange(y.shape[0], dtype=xp.asarray(n).dtype) < n)[:, None]
+    fn, fill = (xp.min, np.inf) if lowest else (xp.max, -np.inf)
+    return fn(xp.where(valid, y, fill), axis=0, keepdims=True)
 
 
 class _Slices:
@@ -77,57 +83,52 @@ class _Slices:
         alpha,
         interp,
         log_eps,
+        xp,
     ):
         self.ta, self.ya, self.na = t_axial, y_axial, n_axial
         self.td, self.yd, self.nd = t_diag, y_diag, n_diag
         self.s, self.d = phi_i + phi_v, phi_i - phi_v
-        self.alpha, self.interp, self.log_eps = alpha, interp, log_eps
-
-    xp = jnp
+        self.alpha, self.interp, self.log_eps, self.xp = alpha, interp, log_eps, xp
 
     @functools.cached_property
     def amin(self):
-        return _masked_extreme(self.ya, self.na, jnp.min)
+        return _masked_extreme(self.ya, self.na, True, self.xp)
 
     @functools.cached_property
     def amax(self):
-        return _masked_extreme(self.ya, self.na, jnp.max)
+        return _masked_extreme(self.ya, self.na, False, self.xp)
 
     @functools.cached_property
     def dmin(self):
-        return _masked_extreme(self.yd, self.nd, jnp.min)
+        return _masked_extreme(self.yd, self.nd, True, self.xp)
 
     @functools.cached_property
     def dmax(self):
-        return _masked_extreme(self.yd, self.nd, jnp.max)
+        return _masked_extreme(self.yd, self.nd, False, self.xp)
 
     @functools.cached_property
     def a(self):
         """The axial slice at the point with the same ``s``: ``φi' = (s + α) / 2``."""
-        return _slice_at(self.ta, self.ya, self.na, (self.s + self.alpha) / 2, self.interp)
+        tq = (self.s + self.alpha) / 2
+        return _slice_at(self.ta, self.ya, self.na, tq, self.interp, self.xp)
 
     @functools.cached_property
     def b(self):
         """The diagonal slice at the point with the same ``d``: ``φv' = (2π + α − d) / 2``."""
-        return _slice_at(self.td, self.yd, self.nd, (TWO_PI + self.alpha - self.d) / 2, self.interp)
+        tq = (TWO_PI + self.alpha - self.d) / 2
+        return _slice_at(self.td, self.yd, self.nd, tq, self.interp, self.xp)
 
     @functools.cached_property
     def c(self):
         """The value where the slices cross, (α, 0) and (α + π, π), read from both slices."""
-        tc = jnp.stack([self.alpha, self.alpha + jnp.pi])
+        xp = self.xp
+        tc = xp.stack([self.alpha, self.alpha + np.pi])
         zero = 0.0 * self.alpha
-        return 0.25 * (
-            jnp.sum(
-                periodic_interp(self.ta, self.ya, self.na, tc, self.interp), axis=0, keepdims=True
-            )
-            + jnp.sum(
-                periodic_interp(
-                    self.td, self.yd, self.nd, jnp.stack([zero, zero + jnp.pi]), self.interp
-                ),
-                axis=0,
-                keepdims=True,
-            )
+        axial = periodic_interp(self.ta, self.ya, self.na, tc, self.interp, xp)
+        diag = periodic_interp(
+            self.td, self.yd, self.nd, xp.stack([zero, zero + np.pi]), self.interp, xp
         )
+        return 0.25 * (xp.sum(axial, axis=0, keepdims=True) + xp.sum(diag, axis=0, keepdims=True))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -177,20 +178,21 @@ _affine_rule("crossing", linear=True, description="a + b - c: reproduces both sl
 
 @_rule("log", linear=False, description="a * b / c: multiplicative")
 def _log(sl: _Slices):
-    valid_a = (jnp.arange(sl.ya.shape[0], dtype=jnp.asarray(sl.na).dtype) < sl.na)[:, None]
-    valid_d = (jnp.arange(sl.yd.shape[0], dtype=jnp.asarray(sl.nd).dtype) < sl.nd)[:, None]
-    total = jnp.sum(jnp.abs(jnp.where(valid_a, sl.ya, 0.0)), 0, keepdims=True) + jnp.sum(
-        jnp.abs(jnp.where(valid_d, sl.yd, 0.0)), 0, keepdims=True
+    xp = sl.xp
+    valid_a = (xp.arange(sl.ya.shape[0], dtype=xp.asarray(sl.na).dtype) < sl.na)[:, None]
+    valid_d = (xp.arange(sl.yd.shape[0], dtype=xp.asarray(sl.nd).dtype) < sl.nd)[:, None]
+    total = xp.sum(xp.abs(xp.where(valid_a, sl.ya, 0.0)), 0, keepdims=True) + xp.sum(
+        xp.abs(xp.where(valid_d, sl.yd, 0.0)), 0, keepdims=True
     )
     eps = (
-        sl.log_eps * total / jnp.maximum(sl.na + sl.nd, 1).astype(total.dtype)
-        + jnp.finfo(sl.yd.dtype).tiny ** 0.5
+        sl.log_eps * total / xp.maximum(sl.na + sl.nd, 1).astype(total.dtype)
+        + xp.finfo(sl.yd.dtype).tiny ** 0.5
     )
 
     def lg(x):
-        return jnp.log(jnp.maximum(x, 0.0) + eps)
+        return xp.log(xp.maximum(x, 0.0) + eps)
 
-    return jnp.exp(lg(sl.a) + lg(sl.b) - lg(sl.c)) - eps
+    return xp.exp(lg(sl.a) + lg(sl.b) - lg(sl.c)) - eps
 
 
 _affine_rule("diagonal", linear=True, needs_axial=False, description="eq. (5), isotropic: b")
@@ -205,19 +207,24 @@ def get_rule(name: str) -> Rule:
     return lookup(RULES, name, "subspace rule")
 
 
-def _slices(t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, *rest) -> _Slices:
+def _slices(t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, *rest, xp) -> _Slices:
     """The :class:`_Slices` of one pair, counts of at least 1 (see :func:`subspace`)."""
-    na, nd = jnp.maximum(n_axial, 1), jnp.maximum(n_diag, 1)
-    return _Slices(t_axial, y_axial, na, t_diag, y_diag, nd, *rest)
+    na, nd = xp.maximum(n_axial, 1), xp.maximum(n_diag, 1)
+    return _Slices(t_axial, y_axial, na, t_diag, y_diag, nd, *rest, xp)
 
 
-def subspace_terms(t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, interp):
+def subspace_terms(
+    t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, interp, xp=None
+):
     """The slice terms ``(a, b, c)`` of :class:`_Slices` at the queries, ``(3, Q, C)``: linear in
     the slice values (the held-out errors of model selection build matrices from them,
     :mod:`abrdf_jax.select._held_out_entry`; the rules of :mod:`abrdf_jax._rules` combine them).
     A missing slice (count 0) is the caller's to handle, as :func:`subspace` does."""
-    sl = _slices(t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, interp, 0)
-    return jnp.stack([sl.a, sl.b, jnp.broadcast_to(sl.c, sl.a.shape)])
+    xp = namespace(xp)
+    sl = _slices(
+        t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, interp, 0, xp=xp
+    )
+    return xp.stack([sl.a, sl.b, xp.broadcast_to(sl.c, sl.a.shape)])
 
 
 def subspace(
@@ -233,6 +240,7 @@ def subspace(
     rule: str | tuple[str, ...] = "filip2012",
     interp: str = "linear",
     log_eps: float = 1e-3,
+    xp=None,
 ) -> Float[Array, "Q C"]:
     """Reconstruct one toroidal subspace at query azimuths from its two slices.
 
@@ -245,6 +253,7 @@ def subspace(
             rule reads the same slice interpolations and the result is ``(R, Q, C)``.
         interp: 1D slice interpolation, ``"linear"`` or ``"cubic"``.
         log_eps: ε of the ``"log"`` rule, relative to the mean absolute sample value.
+        xp: ``jax.numpy`` (default) or ``numpy`` (the JAX-free operator build).
 
     Returns:
         Reconstructed values, shape ``(Q, C)``.
@@ -255,14 +264,36 @@ def subspace(
     # own): the rules would read padding. The pair then falls back to the slice it has, eq. (5)
     # when only the diagonal one is there (docs/stability.md). Counts of at least 1 keep every
     # branch finite, so the unused one cannot put NaN into gradients.
-    has_axial, has_diag = jnp.asarray(n_axial) > 0, jnp.asarray(n_diag) > 0
-    sl = _slices(
-        t_axial, y_axial, n_axial, t_diag, y_diag, n_diag, phi_i, phi_v, alpha, interp, log_eps
-    )
+    xp = namespace(xp)
+    has_axial, has_diag = xp.asarray(n_axial) > 0, xp.asarray(n_diag) > 0
+    slices = (t_axial, y_axial, n_axial, t_diag, y_diag, n_diag)
+    sl = _slices(*slices, phi_i, phi_v, alpha, interp, log_eps, xp=xp)
     outs = []
     for r in rs:
         out = r.fn(sl)
         if r.needs_axial:
-            out = jnp.where(has_axial, jnp.where(has_diag, out, sl.a), sl.b)
+            out = xp.where(has_axial, xp.where(has_diag, out, sl.a), sl.b)
         outs.append(out)
-    return outs[0] if isinstance(rule, str) else jnp.stack(outs)
+    return outs[0] if isinstance(rule, str) else xp.stack(outs)
+
+
+def centre_subspaces(
+    t, y, count, pairs, azimuths, alpha, rule, interp: str, terms: bool = False, xp=None
+):
+    """The restored subspaces of every pair at its RBF centres (``centre_layout`` order),
+    ``(n, C)``, from padded slices ``t`` ``(S, nmax)``, ``y`` ``(S, nmax, C)`` and ``count``
+    ``(S,)`` (axial and diagonal slice of pair ``p`` at rows ``2p``, ``2p + 1``). ``rule``: a
+    name, or a tuple (then ``(R, n, C)``); ``terms``: the slice terms instead, ``(3, n, C)``
+    (:func:`subspace_terms`). ``xp``: ``jax.numpy`` (default) or ``numpy``."""
+    xp = namespace(xp)
+    vals = []
+    for p, (pi_, pv) in enumerate(centre_layout(pairs, azimuths)):
+        pair = (
+            t[2 * p], y[2 * p], count[2 * p], t[2 * p + 1], y[2 * p + 1], count[2 * p + 1],
+            xp.asarray(np.deg2rad(pi_), y.dtype), xp.asarray(np.deg2rad(pv), y.dtype), alpha,
+        )  # fmt: skip
+        if terms:
+            vals.append(subspace_terms(*pair, interp, xp=xp))
+        else:
+            vals.append(subspace(*pair, rule=rule, interp=interp, xp=xp))
+    return xp.concatenate(vals, axis=-2)

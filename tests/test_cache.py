@@ -388,7 +388,7 @@ def test_cached_entry_hit_miss_corrupt_version(built, tmp_path, monkeypatch):
     config, params, meas, entry = built["iso-operator"]
     builds = []
 
-    def build(m, c, p):
+    def build(m, c, p, before_jax=None):
         builds.append(1)
         return entry
 

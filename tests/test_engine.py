@@ -205,7 +205,9 @@ def test_cache_off_or_unusable_still_reconstructs(tmp_path, capsys, where):
     out = tmp_path / "r.npz"
     assert main(["reconstruct", str(src / "m0.csv"), "-o", str(out), "--cache-dir", cache]) == 0
     err = capsys.readouterr().err
-    assert ("without the compilation cache" in err) == (where == "file")
+    # the operator store's warning (a cold iso102 file builds in numpy: JAX's compilation
+    # cache is not touched)
+    assert ("running without it" in err and str(tmp_path / "c") in err) == (where == "file")
     assert io.read_table(out).shape == (81, 81, 3)
 
 

@@ -72,10 +72,10 @@ def test_guard_leaves_well_conditioned_systems_alone(kernel, rng):
     # The Hager estimate is a lower bound of the exact 1-norm condition number, and close to it.
     k = np.asarray(aj._rbf.gram(x, jnp.full(4, 0.7), kernel)) + 1e-6 * np.eye(N + DUP)
     if kernel == "thin_plate_spline":
-        from abrdf_jax._rbf import _blocks, _centre_stats, _system
+        from abrdf_jax._rbf_system import blocks, centre_stats, system
 
-        kk, p, _ = _blocks(x, jnp.full(4, 0.7), kernel, 1, *_centre_stats(x))
-        k = np.asarray(_system(kk, p, jnp.asarray(1e-6)))
+        kk, p, _ = blocks(x, jnp.full(4, 0.7), kernel, 1, *centre_stats(x))
+        k = np.asarray(system(kk, p, jnp.asarray(1e-6)))
     exact = np.linalg.cond(k, 1)
     assert exact / 3 <= float(bare.cond) <= exact * (1 + 1e-8)
 

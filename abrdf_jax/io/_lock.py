@@ -31,6 +31,8 @@ except ImportError:  # Windows
     fcntl = None
 
 LOCK_SUFFIX = ".lock"
+#: Reads of a locked but still empty lock file (10 ms apart) before the refusal names no holder.
+HOLDER_READS = 20
 
 
 def lock_path(output: str | os.PathLike) -> Path:
@@ -138,6 +140,13 @@ def _acquire_flock(lock: Path, output) -> tuple[int, dict]:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             holder = _holder(_read(fd))
+            # The holder writes its pid just after taking the lock: read again for a moment so
+            # the refusal can name it (a run started alongside it may see the file still empty)
+            for _ in range(HOLDER_READS):
+                if holder:
+                    break
+                time.sleep(0.01)
+                holder = _holder(_read(fd))
             os.close(fd)
             raise _refuse(output, lock, holder) from None
         # The holder before us may have removed the file after we opened it: then this lock

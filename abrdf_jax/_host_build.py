@@ -1,0 +1,124 @@
+"""The reconstruction operator's matrix built in numpy, without importing JAX.
+
+The command line stores one operator per sample layout (:mod:`abrdf_jax._cache`); a cold call
+used to import JAX and trace, lower and compile the build (``_operator._build``) to run it once:
+about 2 s of a 2.8 s one-file call (docs/notes.md, twelfth session). The build is the linear
+part of the pipeline applied to unit sample vectors: the slice interpolation and the subspace
+rule at the RBF centres (:func:`abrdf_jax._subspace.centre_subspaces`), the RBF system of the
+centres (:mod:`abrdf_jax._rbf_system`) and its evaluation at the 6561 UBO pairs, with the
+restored subspaces put back at the centres that are grid pairs. The same functions run in JAX
+for :func:`abrdf_jax.compile_operator`; here they run with ``xp = numpy`` in float64. The one
+difference is the guard's condition number: exact here (from the inverse), estimated in JAX
+(a lower bound), so the host build raises ``λ`` on at least the systems the JAX build does
+(:func:`abrdf_jax._rbf_system.host_solve`). Tests: tests/test_host_build.py (against the JAX
+build, every linear setting and layout kind).
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ._coords import pair_coordinates
+from ._errors import InputError
+from ._grid import _centre_target_index, centre_vectors, keep_centres, ubo_target_vectors
+from ._names import LOG_SUBSPACE
+from ._rbf_system import evaluate, host_solve, prepared
+from ._subspace import centre_subspaces, get_rule
+
+NONLINEAR_MODES = ("raise", "two_stage")
+
+
+class BuiltMatrix(NamedTuple):
+    """An operator's build: the matrix (numpy, or a JAX array of the build dtype), the flat
+    index of the valid samples, the grid rows kept from the centres (empty for other targets),
+    the stage, and the template's slice positions and counts (numpy)."""
+
+    matrix: Any
+    index: np.ndarray
+    keep: np.ndarray
+    stage: str
+    t: np.ndarray
+    count: np.ndarray
+
+
+def template_layout(template) -> tuple[np.ndarray, np.ndarray]:
+    """The template's slice positions ``(S, nmax)`` and counts ``(S,)`` as numpy arrays."""
+    t, count = np.asarray(template.t), np.asarray(template.count)
+    if t.ndim == 3:  # a stacked template: every member must share the layout
+        if not (np.all(count == count[:1]) and np.all(t == t[:1])):
+            raise InputError(
+                "the stacked template's members have different slice layouts; pass one measurement"
+            )
+        t, count = t[0], count[0]
+    if t.ndim != 2 or count.shape != (t.shape[0],):
+        raise InputError(f"template.t must have shape (S, nmax), got {template.t.shape}")
+    return t, count
+
+
+def build_stage(config, template, nonlinear: str = "raise") -> str:
+    """``"single"`` (one matrix from the samples) or ``"two_stage"`` (per-material subspace
+    step, then the RBF matrix); :class:`InputError` for a setting the operator cannot take."""
+    if nonlinear not in NONLINEAR_MODES:
+        raise InputError(f"nonlinear must be one of {NONLINEAR_MODES}, got {nonlinear!r}")
+    if config.budget == "aniso204" and not template.has_axial:
+        raise InputError(
+            "Config(budget='aniso204') needs axial slices, but the template has none; use budget='iso102'"
+        )
+    rule_linear = get_rule(config.subspace_rule).linear
+    log_subspace = config.value_space in LOG_SUBSPACE
+    if rule_linear and not log_subspace:
+        return "single"
+    if nonlinear == "raise":
+        why = (
+            f"rule={config.subspace_rule!r} is not linear in the samples"
+            if not rule_linear
+            else f"value_space={config.value_space!r} takes the log after the subspace rule"
+        )
+        raise InputError(
+            f"compile_operator: {why}; use Config(rule='crossing' or 'average' or budget='iso102') with "
+            f"value_space='linear' or 'logsamples', or pass nonlinear='two_stage' (slower: per-material subspace step)"
+        )
+    return "two_stage"
+
+
+def sample_index(t: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """The flat indices ``s · nmax + k`` of the valid samples of a padded layout."""
+    return np.nonzero((np.arange(t.shape[1])[None, :] < count[:, None]).reshape(-1))[0]
+
+
+def host_matrix(config, values, template) -> BuiltMatrix:
+    """The operator of ``config`` with parameter values ``values`` (``ParamValues`` or
+    ``Params``) on ``template``'s layout, on the UBO grid, built in float64 numpy.
+
+    Raises:
+        InputError: as :func:`abrdf_jax.compile_operator` for a setting that is not linear.
+        numpy.linalg.LinAlgError: the RBF system stays singular to working precision after
+            the guard's raised ``λ`` (the caller may build in JAX instead).
+    """
+    t, count = template_layout(template)
+    build_stage(config, template)  # the one-matrix stage only
+    pairs, azimuths = template.pairs, template.centre_azimuths
+    index = sample_index(t, count)
+    s, nmax = t.shape
+    unit = np.zeros((s * nmax, index.size))
+    unit[index, np.arange(index.size)] = 1.0
+    alpha = np.asarray(values.alpha, np.float64)
+    vals = centre_subspaces(
+        t.astype(np.float64), unit.reshape(s, nmax, -1), count, pairs, azimuths, alpha,
+        config.subspace_rule, config.interp, xp=np,
+    )  # fmt: skip
+    name = config.parameterization
+    xc = pair_coordinates(*centre_vectors(pairs, np.float64, azimuths, np), name, np)
+    widths = np.asarray(values.widths, np.float64)
+    degree, widths, shift, scale, (k, p, sc) = prepared(
+        xc, widths, config.kernel, config.degree, np
+    )
+    coeffs, tail, _ = host_solve(k, p, sc, np.float64(np.asarray(values.reg)), vals)
+    keep = _centre_target_index(pairs, azimuths)[1]
+    rest = np.setdiff1d(np.arange(81 * 81), keep)  # the rows the kept centres do not overwrite
+    xq = pair_coordinates(*(w[rest] for w in ubo_target_vectors(np.float64, np)), name, np)
+    out = np.zeros((81 * 81, index.size))
+    out[rest] = evaluate(xq, xc, widths, coeffs, tail, shift, scale, config.kernel, degree, np)
+    return BuiltMatrix(keep_centres(out, vals, pairs, azimuths), index, keep, "single", t, count)
