@@ -54,6 +54,13 @@ def fold_slots(count, nmax: int, k: int) -> tuple[np.ndarray, np.ndarray]:
     return train, test
 
 
+def gather(a, slots):
+    """``a`` ``(S, nmax, ...)`` at flat slots ``slots`` (:func:`fold_slots`); zero where a
+    fold's slice ends (slot ``-1``)."""
+    flat = a.reshape(a.shape[0] * a.shape[1], *a.shape[2:])[np.maximum(slots, 0)]
+    return np.where((slots >= 0).reshape(*slots.shape, *([1] * (a.ndim - 2))), flat, 0)
+
+
 def sample_folds(meas, k: int):
     """``k`` folds: fold ``j`` holds out samples ``j, j+k, ...`` of every slice (numpy, concrete).
 
@@ -68,13 +75,7 @@ def sample_folds(meas, k: int):
     """
     jnp = _jnp()
     t, y, cnt = np.asarray(meas.t), np.asarray(meas.y), np.asarray(meas.count)
-    S, nmax = t.shape
-    train, test = fold_slots(cnt, nmax, k)
-
-    def gather(a, slots):  # a: (S, nmax, ...) by flat slot; zero where the fold's slice ends
-        flat = a.reshape(S * nmax, *a.shape[2:])[np.maximum(slots, 0)]
-        return np.where((slots >= 0).reshape(*slots.shape, *([1] * (a.ndim - 2))), flat, 0)
-
+    train, test = fold_slots(cnt, t.shape[1], k)
     train_meas = meas.replace(
         t=jnp.asarray(gather(t, train).astype(t.dtype)),
         y=jnp.asarray(gather(y, train).astype(y.dtype)),
@@ -88,19 +89,19 @@ def sample_folds(meas, k: int):
     )
 
 
-def held_out_directions(test_t, pairs, alpha):
+def held_out_directions(test_t, pairs, alpha, xp=None):
     """Unit vectors ``(wi, wv)``, each ``(S · n, 3)``, of slice positions ``test_t`` ``(S, n)``.
 
     Slice ``s`` is the axial (even) or diagonal (odd) slice of ``pairs[s // 2]``; ``alpha`` in
-    radians (traced: differentiable).
+    radians (traced: differentiable). ``xp``: ``jax.numpy`` (default) or ``numpy``.
     """
     from ._slices import slice_vectors
 
+    xp = xp or _jnp()
     wi, wv = zip(
-        *(slice_vectors(test_t[s], s % 2, pairs[s // 2], alpha) for s in range(test_t.shape[0]))
+        *(slice_vectors(test_t[s], s % 2, pairs[s // 2], alpha, xp) for s in range(test_t.shape[0]))
     )
-    jnp = _jnp()
-    return jnp.concatenate(wi), jnp.concatenate(wv)
+    return xp.concatenate(wi), xp.concatenate(wv)
 
 
 def log_residual(pred, y, eps, mask, xp=None):

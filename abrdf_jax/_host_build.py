@@ -1,4 +1,5 @@
-"""The reconstruction operator's matrix built in numpy, without importing JAX.
+"""The operator store's builds in numpy, without importing JAX: the reconstruction operator's
+matrix (:func:`host_matrix`) and the held-out fits of model selection (:func:`host_held_out_terms`).
 
 The command line stores one operator per sample layout (:mod:`abrdf_jax._cache`); a cold call
 used to import JAX and trace, lower and compile the build (``_operator._build``) to run it once:
@@ -8,10 +9,10 @@ rule at the RBF centres (:func:`abrdf_jax._subspace.centre_subspaces`), the RBF 
 centres (:mod:`abrdf_jax._rbf_system`) and its evaluation at the 6561 UBO pairs, with the
 restored subspaces put back at the centres that are grid pairs. The same functions run in JAX
 for :func:`abrdf_jax.compile_operator`; here they run with ``xp = numpy`` in float64. The one
-difference is the guard's condition number: exact here (from the inverse), estimated in JAX
-(a lower bound), so the host build raises ``λ`` on at least the systems the JAX build does
-(:func:`abrdf_jax._rbf_system.host_solve`). Tests: tests/test_host_build.py (against the JAX
-build, every linear setting and layout kind).
+difference is the guard's condition estimate: the first step of the JAX guard's Hager ascent
+(one ``numpy.linalg.solve`` carries its starting vectors; numpy keeps no factor to iterate
+with), where JAX runs three (:func:`abrdf_jax._rbf_system.host_guarded_solve`). Tests:
+tests/test_host_build.py (against the JAX build, every linear setting and layout kind).
 """
 
 from __future__ import annotations
@@ -22,9 +23,12 @@ import numpy as np
 
 from ._coords import pair_coordinates
 from ._errors import InputError
-from ._grid import _centre_target_index, centre_vectors, keep_centres, ubo_target_vectors
+from ._folds import fold_slots, gather, held_out_directions
+from ._grid import _centre_target_index, centre_layout, centre_vectors, keep_centres
+from ._grid import ubo_target_vectors
+from ._kernels import kernel_fn, scaled_sqdist
 from ._names import LOG_SUBSPACE
-from ._rbf_system import evaluate, host_solve, prepared
+from ._rbf_system import evaluate, host_guarded_solve, host_solve, poly, prepared
 from ._subspace import centre_subspaces, get_rule
 
 NONLINEAR_MODES = ("raise", "two_stage")
@@ -122,3 +126,54 @@ def host_matrix(config, values, template) -> BuiltMatrix:
     out = np.zeros((81 * 81, index.size))
     out[rest] = evaluate(xq, xc, widths, coeffs, tail, shift, scale, config.kernel, degree, np)
     return BuiltMatrix(keep_centres(out, vals, pairs, azimuths), index, keep, "single", t, count)
+
+
+def host_held_out_terms(meas, config, values, k: int):
+    """The held-out fits of model selection as matrices, in float64 numpy:
+    :func:`abrdf_jax.select._select.held_out_terms` (same shapes and meaning) without JAX.
+
+    Per fold ``j`` (:func:`abrdf_jax._folds.fold_slots`): the slice terms at the centres from
+    unit vectors on the fold's training slots, and the RBF fitted at the centres read at the
+    fold's held-out directions. The latter is ``[K_q, P_q s] A⁻¹ [I; 0]``, got as the
+    transpose of one solve ``A⁻¹ [K_q, P_q s]ᵀ`` (``A`` symmetric) with the guard's rule.
+
+    Returns:
+        ``(terms, ones)``: ``(k, P, 3, q, S·nmax)`` and ``(k, P, q)``.
+
+    Raises:
+        numpy.linalg.LinAlgError: as :func:`host_matrix`.
+    """
+    t, count = template_layout(meas)
+    t = t.astype(np.float64)
+    pairs, azimuths = meas.pairs, meas.centre_azimuths
+    s, nmax = t.shape
+    alpha = np.asarray(values.alpha, np.float64)
+    train, test = fold_slots(count, nmax, k)
+    unit = np.eye(s * nmax).reshape(s, nmax, s * nmax)
+    terms = np.stack([
+        centre_subspaces(
+            gather(t, train[j]), unit, (train[j] >= 0).sum(-1), pairs, azimuths, alpha, None,
+            config.interp, terms=True, xp=np,
+        )
+        for j in range(k)
+    ])  # (k, 3, n, slots)  # fmt: skip
+    held = gather(t, test)  # (k, S, ntest)
+    wi, wv = (np.stack(w) for w in zip(*(held_out_directions(h, pairs, alpha, np) for h in held)))
+    name, kernel = config.parameterization, config.kernel
+    xc = pair_coordinates(*centre_vectors(pairs, np.float64, azimuths, np), name, np)
+    widths = np.asarray(values.widths, np.float64)
+    degree, widths, shift, scale, (kk, p, sc) = prepared(xc, widths, kernel, config.degree, np)
+    xq = pair_coordinates(wi.reshape(-1, 3), wv.reshape(-1, 3), name, np)
+    rows = np.concatenate(
+        [kernel_fn(kernel)(scaled_sqdist(xq, xc, widths, np), np), poly(xq, shift, scale, degree, np) * sc],
+        axis=1,
+    )  # fmt: skip
+    sol, _ = host_guarded_solve(kk, p, np.float64(np.asarray(values.reg)), rows.T)
+    n = xc.shape[0]
+    rbf = sol[:n].T.reshape(k, -1, n)  # (k, q, n)
+    bounds = np.cumsum([0] + [len(pi_) for pi_, _ in centre_layout(pairs, azimuths)])
+    maps, ones = [], []
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        maps.append(np.einsum("kqn,ktns->ktqs", rbf[..., lo:hi], terms[:, :, lo:hi], optimize=True))
+        ones.append(np.sum(rbf[..., lo:hi], axis=-1))
+    return np.stack(maps, 1), np.stack(ones, 1)

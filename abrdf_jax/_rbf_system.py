@@ -135,24 +135,21 @@ def hager_start(n: int) -> np.ndarray:
     return np.column_stack([np.ones(n), alt, signs])
 
 
-def host_solve(k, p, s, reg, y, guard: bool = True):
-    """The coefficients ``(c, p_coeffs, λ)`` of values ``y`` ``(n, C)`` in numpy (``λ`` the one
-    used), with the guard's
-    rule: the system at ``reg``, or at :func:`raised_reg` when it is singular to working
-    precision (``κ₁ ε ≥ 1``, or a solution that is not finite).
+def host_guarded_solve(k, p, reg, rhs, guard: bool = True):
+    """``(A⁻¹ rhs, λ)`` in numpy for the system :func:`system` of ``(K, P)`` at ``reg``, or at
+    :func:`raised_reg` when it is singular to working precision (``κ₁ ε ≥ 1``, or a solution
+    that is not finite): the guard's rule (``λ`` the one used).
 
     numpy gives no access to its LU factor, so the condition estimate is the first step of
     the JAX guard's (Hager's ascent from :func:`hager_start`): its four starting vectors are
-    solved for in the same call as the values (one factorisation), ``‖A⁻¹‖₁ ≥ max ‖A⁻¹x‖₁ /
+    solved for in the same call as ``rhs`` (one factorisation), ``‖A⁻¹‖₁ ≥ max ‖A⁻¹x‖₁ /
     ‖x‖₁``. A lower bound, as JAX's three steps are, and at most as large as theirs.
 
     Raises:
         numpy.linalg.LinAlgError: still singular at the raised ``λ`` (or with ``guard=False``).
     """
-    n, m = k.shape[0], p.shape[1]
     eps = np.finfo(k.dtype).eps
-    rhs = np.concatenate([y, np.zeros((m, y.shape[1]), y.dtype)]) if m else y
-    x0 = hager_start(n + m)
+    x0 = hager_start(rhs.shape[0])
     for lam in (reg, raised_reg(reg, k, np)) if guard else (reg,):
         a = system(k, p, lam, np)
         try:
@@ -162,8 +159,15 @@ def host_solve(k, p, s, reg, y, guard: bool = True):
         est = np.max(np.sum(np.abs(sol[:, -4:]), 0) / np.sum(np.abs(x0), 0))
         cond = norm1(a, np) * est
         if np.isfinite(cond) and cond * eps < 1.0 and np.all(np.isfinite(sol)):
-            break
-    else:
-        raise np.linalg.LinAlgError("the RBF system is singular to working precision")
-    sol = sol[:, : rhs.shape[1]]
+            return sol[:, :-4], lam
+    raise np.linalg.LinAlgError("the RBF system is singular to working precision")
+
+
+def host_solve(k, p, s, reg, y, guard: bool = True):
+    """The coefficients ``(c, p_coeffs, λ)`` of values ``y`` ``(n, C)`` in numpy
+    (:func:`host_guarded_solve`; the tail's coefficients unscaled, as :func:`evaluate` reads
+    them)."""
+    n, m = k.shape[0], p.shape[1]
+    rhs = np.concatenate([y, np.zeros((m, y.shape[1]), y.dtype)]) if m else y
+    sol, lam = host_guarded_solve(k, p, reg, rhs, guard)
     return sol[:n], sol[n:] * s, lam

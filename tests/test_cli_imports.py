@@ -201,7 +201,7 @@ def test_help_defaults_match_the_package():
 
 def test_warm_reconstruct_imports_no_jax(tmp_path):
     """A repeat call whose operators are in the operator store runs in numpy (issue 13), and so
-    does the cold call of an iso102 file (its operator built in numpy): one
+    do the cold calls of one file (operators and held-out entries built in numpy): one
     file (``--model auto`` left with one candidate; ``--model auto`` on an aniso204 file, whose
     held-out errors are matrices in the store, ``abrdf_jax.select._held_out_entry``) and a
     folder of one layout; the tables are bit-identical to the cold call's."""
@@ -226,8 +226,9 @@ def test_warm_reconstruct_imports_no_jax(tmp_path):
 
     cold, err = _run(cases("cold"), tmp_path)
     assert [c[1] for c in cold] == [0, 0, 0], err
-    # the cold call built its operator too, in numpy (abrdf_jax._host_build): no JAX either
-    assert not cold[0][2], "the cold one-file call imported jax"
+    # the cold calls built their operators and held-out entries too, in numpy
+    # (abrdf_jax._host_build): no JAX either
+    assert not cold[0][2] and not cold[1][2], "a cold one-file call imported jax"
     for case in cases("warm"):  # each in a fresh interpreter
         ((argv, code, jax_loaded),), err = _run([case], tmp_path)
         assert code == 0, (argv, err)

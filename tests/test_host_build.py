@@ -122,3 +122,31 @@ def test_build_entry_is_the_host_build_rounded_once():
     entry = build_entry(meas, config, values)
     want = host_matrix(config, values, meas).matrix.astype(np.float32)
     np.testing.assert_array_equal(entry.matrix, want)
+
+
+@pytest.mark.parametrize(
+    "rule, capture",
+    [("crossing", dict(seed=2)), ("filip2012", dict(jitter_deg=0.5, seed=4))],
+)
+def test_host_held_out_terms_equal_the_jax_build(rule, capture):
+    """The held-out fits of ``--model auto`` (``select._held_out_entry``) built in numpy equal
+    ``select._select.held_out_terms`` in float64 JAX, on a protocol and a jittered layout."""
+    import jax.numpy as jnp
+
+    from abrdf_jax._grid import centre_layout
+    from abrdf_jax._host_build import host_held_out_terms
+    from abrdf_jax._params import Params
+    from abrdf_jax.select._select import fold_data, held_out_terms
+
+    config = aj.preset("recommended", "aniso204", rule=rule)
+    meas = _capture(ANISO, **capture)
+    terms, ones = host_held_out_terms(meas, config, default_values(config, 15.0, "float64"), 4)
+    centres = tuple(len(a) for a, _ in centre_layout(meas.pairs, meas.centre_azimuths))
+    with x64_scope(True):
+        m64 = meas.replace(t=jnp.asarray(meas.t, jnp.float64), y=jnp.asarray(meas.y, jnp.float64))
+        data = fold_data(m64, np.deg2rad(15.0), 4)
+        params = Params.default(config, alpha_deg=15.0, dtype=jnp.float64)
+        want = [np.asarray(a) for a in held_out_terms(data, config, params, centres)]
+    for got, w in zip((terms, ones), want):
+        assert got.shape == w.shape
+        np.testing.assert_allclose(got, w, rtol=0, atol=1e-9 * np.abs(w).max())

@@ -24,7 +24,7 @@ import numpy as np
 
 from .._config import Config, default_values
 from .._errors import InputError
-from .._names import LOG_SUBSPACE
+from .._names import LOG_SAMPLES, LOG_SUBSPACE
 from .._folds import fold_slots, log_residual
 from .._host_eps import sample_eps
 from .._operator_entry import check_layout
@@ -226,27 +226,21 @@ def _key(cfgs, names, params, meas, k: int) -> str:
     return _cache.operator_key(cfgs[0], params, meas, extra=extra)
 
 
-def build_entry(meas, alpha_deg: float, names, cfgs, k: int) -> HeldOutEntry:
-    """Build the entry of one kernel group and slice interpolation (imports JAX; the matrices
-    in float64)."""
-    import jax.numpy as jnp
+def build_entry(meas, alpha_deg: float, names, cfgs, k: int, before_jax=None) -> HeldOutEntry:
+    """Build the entry of one kernel group and slice interpolation (the matrices in float64
+    numpy, :func:`abrdf_jax._host_build.host_held_out_terms`; in JAX only where the RBF system
+    stays singular after the guard, ``before_jax()`` first)."""
+    from .._host_build import host_held_out_terms
 
-    from .. import _cache
-    from .._engine import as_jax
-    from .._grid import centre_layout
-    from .._params import Params
-    from .._values import value_space
-    from ._select import fold_data, held_out_terms
-
-    meas, _ = as_jax(meas, None)
-    centres = tuple(len(pi_) for pi_, _ in centre_layout(meas.pairs, meas.centre_azimuths))
-    with _cache.x64_scope(True):
-        m64 = meas.replace(t=jnp.asarray(meas.t, jnp.float64), y=jnp.asarray(meas.y, jnp.float64))
-        data = fold_data(m64, np.deg2rad(alpha_deg), k)
-        params = Params.default(cfgs[0], alpha_deg=alpha_deg, dtype=jnp.float64)
-        terms, ones = (np.asarray(a) for a in held_out_terms(data, cfgs[0], params, centres))
+    try:
+        values = default_values(cfgs[0], alpha_deg, dtype="float64")
+        terms, ones = host_held_out_terms(meas, cfgs[0], values, k)
+    except np.linalg.LinAlgError:  # the JAX build's guard reports it
+        if before_jax is not None:
+            before_jax()
+        terms, ones = _jax_terms(meas, alpha_deg, cfgs, k)
     train, test = fold_slots(np.asarray(meas.count), meas.t.shape[-1], k)
-    log_samples = value_space(cfgs[0].value_space).log_samples
+    log_samples = cfgs[0].value_space in LOG_SAMPLES
     return HeldOutEntry(
         terms=np.ascontiguousarray(terms.astype(np.float32)),
         ones=np.ascontiguousarray(ones.astype(np.float32)),
@@ -264,6 +258,25 @@ def build_entry(meas, alpha_deg: float, names, cfgs, k: int) -> HeldOutEntry:
     )
 
 
+def _jax_terms(meas, alpha_deg: float, cfgs, k: int):
+    """:func:`abrdf_jax.select._select.held_out_terms` in float64 JAX."""
+    import jax.numpy as jnp
+
+    from .. import _cache
+    from .._engine import as_jax
+    from .._grid import centre_layout
+    from .._params import Params
+    from ._select import fold_data, held_out_terms
+
+    meas, _ = as_jax(meas, None)
+    centres = tuple(len(pi_) for pi_, _ in centre_layout(meas.pairs, meas.centre_azimuths))
+    with _cache.x64_scope(True):
+        m64 = meas.replace(t=jnp.asarray(meas.t, jnp.float64), y=jnp.asarray(meas.y, jnp.float64))
+        data = fold_data(m64, np.deg2rad(alpha_deg), k)
+        params = Params.default(cfgs[0], alpha_deg=alpha_deg, dtype=jnp.float64)
+        return tuple(np.asarray(a) for a in held_out_terms(data, cfgs[0], params, centres))
+
+
 def cached_entry(store, meas, alpha_deg, names, cfgs, k, warn, before_build=None):
     """The entry of one kernel group from ``store`` (no JAX), else built and stored."""
     params = default_values(cfgs[0], alpha_deg)
@@ -271,9 +284,7 @@ def cached_entry(store, meas, alpha_deg, names, cfgs, k, warn, before_build=None
     entry = None if store is None else store.load(key, warn, kind=HeldOutEntry)
     if entry is not None and entry.t.shape == tuple(np.shape(meas.t)):
         return entry
-    if before_build is not None:
-        before_build()
-    entry = build_entry(meas, alpha_deg, names, cfgs, k)
+    entry = build_entry(meas, alpha_deg, names, cfgs, k, before_jax=before_build)
     if store is not None:
         store.save(key, entry, warn)
     return entry
