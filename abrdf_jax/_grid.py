@@ -92,8 +92,16 @@ def from_vector(
     """
     xp = namespace(xp)
     theta = xp.arccos(xp.clip(w[..., 2], -1.0, 1.0))
-    phi = xp.mod(xp.arctan2(w[..., 1], w[..., 0]), 2 * np.pi)
-    return theta, phi
+    return theta, _azimuth(w[..., 0], w[..., 1], xp)
+
+
+def _azimuth(x, y, xp):
+    """``atan2(y, x)`` in ``[0, 2π)``: rounding noise just below 0 (``y = -1e-17``) is 0, not
+    ``2π − 1e-17`` (which rounds to ``2π``): without it a direction on the seam ``φ = 0`` would
+    land on either side of it by chance, and the RBF's coordinates put the sides 2π apart."""
+    phi = xp.mod(xp.arctan2(y, x), 2 * np.pi)
+    seam = 2 * np.pi * (1 - 100 * xp.finfo(phi.dtype).eps)
+    return xp.where(phi >= seam, 0.0, phi)
 
 
 def onion_from_vector(w: Float[Array, "... 3"], xp=None) -> Float[Array, "... 2"]:
@@ -135,17 +143,31 @@ def half_diff(
 
     ``h = normalize(wi + wv)``; ``d`` is ``wi`` rotated by ``-φh`` about z, then by ``-θh`` about y.
     ``φh, φd`` are in ``[0, 2π)``. Where ``wi = -wv`` the half vector is undefined; the sum's
-    norm is floored so that the result stays finite.
+    norm is floored so that the result stays finite. Where ``h`` (or ``d``) is the pole
+    (``θh = 0``: mirror pairs about the normal; ``θd = 0``: ``wi = wv``) its azimuth is
+    undefined and would be ``atan2`` of rounding noise, different in every implementation and
+    dtype: it is 0 there (within ``1000 ε`` of the pole; ``atan2(0, 1)``, not ``atan2(0, 0)``).
     """
     xp = namespace(xp)
     hs = wi + wv
     n2 = xp.sum(hs * hs, axis=-1, keepdims=True)
     safe = xp.where(n2 > 1e-30, n2, 1.0)
     h = xp.where(n2 > 1e-30, hs / xp.sqrt(safe), xp.asarray([0.0, 0.0, 1.0], dtype=wi.dtype))
-    th, ph = from_vector(h, xp)
+    pole = (1000 * xp.finfo(wi.dtype).eps) ** 2
+    th, ph = _polar_angles(h, pole, xp)
     d = _rot_y(_rot_z(wi, -ph, xp), -th, xp)
-    td, pd = from_vector(d, xp)
+    td, pd = _polar_angles(d, pole, xp)
     return xp.stack([th, ph, td, pd], axis=-1)
+
+
+def _polar_angles(w, pole, xp):
+    """:func:`from_vector` with the azimuth 0 within ``sqrt(pole)`` of the pole (double where:
+    ``atan2(0, 1)``, so the azimuth adds no NaN gradient there)."""
+    at_pole = w[..., 0] ** 2 + w[..., 1] ** 2 <= pole
+    x = xp.where(at_pole, 1.0, w[..., 0])
+    y = xp.where(at_pole, 0.0, w[..., 1])
+    theta = xp.arccos(xp.clip(w[..., 2], -1.0, 1.0))
+    return theta, _azimuth(x, y, xp)
 
 
 def vectors_from_half_diff(

@@ -1,5 +1,6 @@
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import abrdf_jax as aj
 from abrdf_jax._grid import from_vector, ring_indices, vectors_from_half_diff
@@ -65,3 +66,26 @@ def test_half_diff_round_trip(rng):
     a, b = vectors_from_half_diff(aj.half_diff(wi, wv))
     np.testing.assert_allclose(a, wi, atol=1e-10)
     np.testing.assert_allclose(b, wv, atol=1e-10)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_azimuths_on_the_seam_and_at_the_poles_are_zero_in_numpy_and_jax(dtype):
+    """Directions whose azimuth is 0 up to rounding (a y component of ±1e-17), and the half
+    and difference vectors at their poles (mirror pairs, ``wi = wv``), get the azimuth 0 in
+    numpy and in JAX, never 2π or ``atan2`` of rounding noise."""
+    import jax.numpy as jnp
+
+    from abrdf_jax._grid import from_vector, half_diff, to_vector
+
+    w = np.array([[0.5, -1e-17, 0.866], [0.5, 1e-17, 0.866], [0.5, -1e-9, 0.866]], dtype)
+    for xp in (np, jnp):
+        phi = np.asarray(from_vector(xp.asarray(w), xp)[1])
+        assert phi[0] == 0 and phi[1] == pytest.approx(0, abs=1e-16)
+        assert 0 <= phi[2] < 2 * np.pi
+    ti = np.deg2rad(30.0)
+    wi = to_vector(np.array([ti, ti]), np.array([0.7, 0.7]), np).astype(dtype)
+    wv = np.stack([wi[0], to_vector(np.array(ti), np.array(0.7 + np.pi), np)]).astype(dtype)
+    for xp in (np, jnp):
+        hd = np.asarray(half_diff(xp.asarray(wi), xp.asarray(wv), xp))
+        assert hd[0, 3] == 0  # wi = wv: d at its pole, φd = 0
+        assert hd[1, 1] == 0  # mirror pair about the normal: h at its pole, φh = 0
