@@ -17,6 +17,7 @@ tests/test_host_build.py (against the JAX build, every linear setting and layout
 
 from __future__ import annotations
 
+import functools
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -26,9 +27,9 @@ from ._errors import InputError
 from ._folds import fold_slots, gather, held_out_directions
 from ._grid import _centre_target_index, centre_layout, centre_vectors, keep_centres
 from ._grid import ubo_target_vectors
-from ._kernels import kernel_fn, scaled_sqdist
+from ._kernels import kernel_block
 from ._names import LOG_SUBSPACE
-from ._rbf_system import evaluate, host_guarded_solve, host_solve, poly, prepared
+from ._rbf_system import host_guarded_solve, host_solve, matmul, poly, prepared
 from ._subspace import centre_subspaces, get_rule
 
 NONLINEAR_MODES = ("raise", "two_stage")
@@ -113,19 +114,48 @@ def host_matrix(config, values, template) -> BuiltMatrix:
         t.astype(np.float64), unit.reshape(s, nmax, -1), count, pairs, azimuths, alpha,
         config.subspace_rule, config.interp, xp=np,
     )  # fmt: skip
-    name = config.parameterization
-    xc = pair_coordinates(*centre_vectors(pairs, np.float64, azimuths, np), name, np)
-    widths = np.asarray(values.widths, np.float64)
-    degree, widths, shift, scale, (k, p, sc) = prepared(
-        xc, widths, config.kernel, config.degree, np
+    widths = tuple(float(w) for w in np.ravel(np.asarray(values.widths, np.float64)))
+    key = tuple(tuple(float(x) for x in pair) for pair in pairs)
+    rbf = _rbf_at_targets(
+        config.parameterization, config.kernel, config.degree, widths, key, azimuths
     )
-    coeffs, tail, _ = host_solve(k, p, sc, np.float64(np.asarray(values.reg)), vals)
+    coeffs, tail, _ = host_solve(rbf.k, rbf.p, rbf.sc, np.float64(np.asarray(values.reg)), vals)
+    out = np.zeros((81 * 81, index.size))
+    out[rbf.rest] = matmul(rbf.kq, coeffs, np)  # evaluate() with the kernel block made once
+    if rbf.degree >= 0:
+        out[rbf.rest] += matmul(rbf.pq, tail, np)
+    keep = rbf.keep
+    return BuiltMatrix(keep_centres(out, vals, pairs, azimuths), index, keep, "single", t, count)
+
+
+class _TargetRbf(NamedTuple):
+    """What an operator's RBF part needs besides the values: the centres' system blocks and
+    the kernel and tail at the UBO targets that no kept centre overwrites."""
+
+    degree: int
+    k: np.ndarray
+    p: np.ndarray
+    sc: Any
+    keep: np.ndarray
+    rest: np.ndarray
+    kq: np.ndarray
+    pq: np.ndarray
+
+
+@functools.lru_cache(maxsize=1)
+def _rbf_at_targets(name, kernel, degree, widths, pairs, azimuths) -> _TargetRbf:
+    """The RBF's blocks for :func:`host_matrix`, made once per process for one setting
+    (hashable arguments): the operators of one layout's candidates (``--model auto`` builds
+    the iso and crossing operators of an aniso204 folder) share them. 55 MB for the protocol's
+    1,296 centres: the last setting only is kept."""
+    xc = pair_coordinates(*centre_vectors(pairs, np.float64, azimuths, np), name, np)
+    degree, w, shift, scale, (k, p, sc) = prepared(xc, np.asarray(widths), kernel, degree, np)
     keep = _centre_target_index(pairs, azimuths)[1]
     rest = np.setdiff1d(np.arange(81 * 81), keep)  # the rows the kept centres do not overwrite
-    xq = pair_coordinates(*(w[rest] for w in ubo_target_vectors(np.float64, np)), name, np)
-    out = np.zeros((81 * 81, index.size))
-    out[rest] = evaluate(xq, xc, widths, coeffs, tail, shift, scale, config.kernel, degree, np)
-    return BuiltMatrix(keep_centres(out, vals, pairs, azimuths), index, keep, "single", t, count)
+    xq = pair_coordinates(*(w_[rest] for w_ in ubo_target_vectors(np.float64, np)), name, np)
+    kq = kernel_block(xq, xc, w, kernel, np)
+    pq = poly(xq, shift, scale, degree, np) if degree >= 0 else np.zeros((rest.size, 0))
+    return _TargetRbf(degree, k, p, sc, keep, rest, kq, pq)
 
 
 def host_held_out_terms(meas, config, values, k: int):
@@ -165,7 +195,7 @@ def host_held_out_terms(meas, config, values, k: int):
     degree, widths, shift, scale, (kk, p, sc) = prepared(xc, widths, kernel, config.degree, np)
     xq = pair_coordinates(wi.reshape(-1, 3), wv.reshape(-1, 3), name, np)
     rows = np.concatenate(
-        [kernel_fn(kernel)(scaled_sqdist(xq, xc, widths, np), np), poly(xq, shift, scale, degree, np) * sc],
+        [kernel_block(xq, xc, widths, kernel, np), poly(xq, shift, scale, degree, np) * sc],
         axis=1,
     )  # fmt: skip
     sol, _ = host_guarded_solve(kk, p, np.float64(np.asarray(values.reg)), rows.T)

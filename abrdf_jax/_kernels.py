@@ -127,3 +127,22 @@ def scaled_sqdist(x, y, widths, xp=None):
         diff = (x[:, k, None] - y[None, :, k]) / widths[k]
         r2 = r2 + diff * diff
     return r2
+
+
+#: Rows of a kernel block made at a time in numpy: the temporaries (``rows × m`` float64) stay
+#: in cache instead of streaming a 55 MB array through memory a dozen times.
+HOST_ROWS = 256
+
+
+def kernel_block(x, y, widths, kernel: str, xp=None):
+    """``kernel(scaled_sqdist(x, y, widths))``, ``(n, m)``. In numpy made ``HOST_ROWS`` rows
+    at a time into one array: the same operations per element, so the same bits, about three
+    times faster for the 6,561 × 1,296 block of an operator's build."""
+    xp = namespace(xp)
+    fn = kernel_fn(kernel)
+    if xp.__name__ != "numpy" or x.shape[0] <= HOST_ROWS:
+        return fn(scaled_sqdist(x, y, widths, xp), xp)
+    out = np.empty((x.shape[0], y.shape[0]), np.result_type(x, y, widths))
+    for a in range(0, x.shape[0], HOST_ROWS):
+        out[a : a + HOST_ROWS] = fn(scaled_sqdist(x[a : a + HOST_ROWS], y, widths, np), np)
+    return out

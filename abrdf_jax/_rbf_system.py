@@ -10,7 +10,7 @@ import itertools
 import numpy as np
 
 from ._config import resolve_degree
-from ._kernels import kernel_fn, scaled_sqdist
+from ._kernels import kernel_block
 from ._xp import namespace, stop_gradient
 
 #: The guard's fallback regularisation is ``max(10 λ, GUARD_FACTOR · ε · ‖K‖₁)``.
@@ -53,7 +53,7 @@ def matmul(a, b, xp):
 def evaluate(x, centres, widths, coeffs, poly_coeffs, shift, scale, kernel, degree, xp=None):
     """A fitted interpolant at ``x`` ``(q, d)``: ``(q, C)``."""
     xp = namespace(xp)
-    k = kernel_fn(kernel)(scaled_sqdist(x, centres, widths, xp), xp)
+    k = kernel_block(x, centres, widths, kernel, xp)
     out = matmul(k, coeffs, xp)
     if degree >= 0:
         out = out + matmul(poly(x, shift, scale, degree, xp), poly_coeffs, xp)
@@ -72,7 +72,7 @@ def centre_stats(x, xp=None):
 def gram(x, widths, kernel, xp=None):
     """The kernel (Gram) matrix of the centres, shape ``(n, n)``."""
     xp = namespace(xp)
-    return kernel_fn(kernel)(scaled_sqdist(x, x, widths, xp), xp)
+    return kernel_block(x, x, widths, kernel, xp)
 
 
 def norm1(a, xp=None):

@@ -118,7 +118,7 @@ def test_subcommands_import_only_the_shared_module():
     """Arrows point into cli/_common only (which holds cli/_record, the model record,
     cli/_outputs, the output checks and overwrite policy, cli/_caches, --cache-dir,
     cli/_learned, the prior-only model, cli/_progress, the progress bars and lines, and
-    cli/_resume, what --resume keeps): no
+    cli/_resume, what --resume keeps, and cli/_readers, the reader processes): no
     subcommand imports another, nor the package's __init__ (checked on the source: relative
     imports inside abrdf_jax/cli)."""
     import ast
@@ -142,6 +142,7 @@ def test_subcommands_import_only_the_shared_module():
                         "_progress",
                         "_resume",
                         "_uncertainty",
+                        "_readers",
                     },
                     "_args.py": set(),
                     "_outputs.py": set(),
@@ -151,6 +152,7 @@ def test_subcommands_import_only_the_shared_module():
                     "_record.py": set(),
                     "_learned.py": set(),
                     "_uncertainty.py": {"_outputs"},
+                    "_readers.py": {"_progress"},
                 }.get(path.name, {"_common"})
                 assert set(targets) <= allowed, (path.name, targets)
 
