@@ -474,6 +474,72 @@ def test_table_write_failure_keeps_old(tmp_path, table):
     assert _no_temp_files(tmp_path)
 
 
+def test_write_tables_equals_write_table(tmp_path, table):
+    """The folder runs' batch writer: the same bytes and permissions as ``write_table``, the
+    temporary names of ``atomic_write`` (writer pid), no temporary file left."""
+    from abrdf_jax.io import write_tables
+    from abrdf_jax.io._atomic import temp_owner
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    tables = [table, table[::-1].copy(), table.astype(np.float64)]
+    names = ["x.npz", "y.npz", "z.exr"]
+    write_tables([tmp_path / "a" / n for n in names], tables)
+    for n, t in zip(names, tables):
+        write_table(tmp_path / "b" / n, t, durable=False)
+        a, b = tmp_path / "a" / n, tmp_path / "b" / n
+        assert read_table(a).tobytes() == np.asarray(t, np.float32).tobytes()
+        if n.endswith(".npz"):
+            assert a.read_bytes() == b.read_bytes()
+        assert a.stat().st_mode == b.stat().st_mode
+    assert _no_temp_files(tmp_path / "a")
+    seen = []
+    real = os.open
+
+    def spy(path, *args, **kw):
+        seen.append(os.path.basename(path))
+        return real(path, *args, **kw)
+
+    import abrdf_jax.io._atomic as atomic
+
+    atomic.os.open = spy
+    try:
+        write_tables([tmp_path / "a" / "w.npz"], [table])
+    finally:
+        atomic.os.open = real
+    assert temp_owner(seen[0]) == os.getpid() and seen[0].startswith(".w.npz.")
+
+
+def test_write_tables_failure_keeps_old_and_leaves_no_temp(tmp_path, table, monkeypatch):
+    """A disk that fills up half-way through a table: that file keeps its old content, the
+    tables before it are complete, the error names the file, no temporary file remains."""
+    import errno
+
+    import abrdf_jax.io._atomic as atomic
+    from abrdf_jax.io import write_tables
+
+    paths = [tmp_path / f"t{k}.npz" for k in range(3)]
+    paths[1].write_bytes(b"old")
+    real, calls = atomic.os.write, []
+
+    def full(fd, data):
+        calls.append(fd)
+        if len(calls) == 2:  # the second table: half, then the disk is full
+            real(fd, bytes(data[: len(data) // 2]))
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(fd, data)
+
+    monkeypatch.setattr(atomic.os, "write", full)
+    with _raises(paths[1], match="No space left on device .disk full."):
+        write_tables(paths, [table] * 3)
+    monkeypatch.undo()
+    assert read_table(paths[0]).tobytes() == table.tobytes()
+    assert paths[1].read_bytes() == b"old" and not paths[2].exists()
+    assert _no_temp_files(tmp_path)
+    with _raises(tmp_path / "nope" / "t.npz", match="No such file or directory"):
+        write_tables([tmp_path / "nope" / "t.npz"], [table])
+
+
 # ----------------------------------------------------------------------------- MERL
 
 

@@ -23,6 +23,8 @@ from . import _common as common
 
 #: Threads writing the finished tables while the next batch computes.
 WRITERS = 2
+#: Tables a writer task writes (:func:`abrdf_jax.io.write_tables`).
+WRITE_CHUNK = 32
 #: A folder run rewrites its model record after a batch when this many seconds have passed
 #: since the last rewrite (and at the end): an interrupted run loses at most this much of the
 #: record, whose tables --resume then redoes.
@@ -440,7 +442,7 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, p
                     **job,
                 ):
                     paths[path] += len(idx)
-                    futures, records = [], []
+                    records, paths_, tables_ = [], [], []
                     finite = np.isfinite(tables).reshape(len(idx), -1).all(axis=1)  # one pass
                     for j, table, ok in zip(idx, tables, finite):
                         k = members[j]
@@ -450,11 +452,20 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, p
                         except InputError as e:  # never written; the other materials still are
                             failed.append(str(e))
                             continue
-                        # atomic, not fsync-ed: --resume reads every table it keeps (docs/cache.md)
-                        write = pool.submit(io.write_table, targets[k], table, durable=False)
-                        futures.append(write)
+                        paths_.append(targets[k])
+                        tables_.append(table)
                         choices[k]["record"]["engine"] = path
                         records.append(choices[k])
+                    # atomic, not fsync-ed: --resume reads every table it keeps (docs/cache.md);
+                    # a task per WRITE_CHUNK tables (a future per table cost more than its write)
+                    futures = [
+                        pool.submit(
+                            io.write_tables,
+                            paths_[a : a + WRITE_CHUNK],
+                            tables_[a : a + WRITE_CHUNK],
+                        )
+                        for a in range(0, len(paths_), WRITE_CHUNK)
+                    ]
                     settle()  # the previous batch's files are complete before the record names them
                     pending.append((futures, records))
                     bar.update(len(idx))

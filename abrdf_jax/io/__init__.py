@@ -14,7 +14,7 @@ from .._lazy import lazy_exports
 _EXPORTS = {
     "_atomic": ("atomic_write", "is_temp"),
     "_csv": ("CSV_COLUMNS", "read_sample_columns", "read_samples_csv", "write_samples_csv"),
-    "_tables": ("NPZ_KEY", "TABLE_SHAPE", "read_table", "write_table"),
+    "_tables": ("NPZ_KEY", "TABLE_SHAPE", "read_table", "write_table", "write_tables"),
     "_merl": (
         "MERL_SCALE",
         "MERL_SHAPE",

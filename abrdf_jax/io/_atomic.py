@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import hashlib
+import itertools
 import os
 import tempfile
 from collections.abc import Iterator
@@ -100,6 +101,48 @@ def atomic_write(
         raise
     if durable:
         _fsync_folder(folder)
+
+
+#: The counter of :func:`write_bytes_atomically`'s temporary names (``next`` is atomic in CPython).
+_NAMES = itertools.count()
+
+
+def write_bytes_atomically(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` as :func:`atomic_write` with ``durable=False`` does (a
+    temporary file beside it, then a rename), with a few system calls and no Python file
+    object: for the thousands of tables of a folder run, where ``atomic_write``'s random
+    temporary name, ``fchmod`` and file object cost more than the write (0.3 against 0.1 ms a
+    table on ext4). The temporary file is ``.NAME.PID.XXXXXXXX.tmp`` (a counter, ``O_EXCL``)
+    created with mode ``0o666`` less the umask, as ``atomic_write`` leaves its files. The caller
+    checks the folder; a failed write removes the temporary file and leaves ``path`` as it was.
+
+    Raises:
+        InputError: the file cannot be created, written or renamed (naming ``path`` and why).
+    """
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
+    flags |= getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_BINARY", 0)
+    prefix = str(path.parent / temp_prefix(path))
+    while True:
+        tmp = f"{prefix}{next(_NAMES):08x}{TEMP_SUFFIX}"
+        try:
+            fd = os.open(tmp, flags, 0o666)
+            break
+        except FileExistsError:  # a killed writer's file with a reused pid: take the next name
+            continue
+        except OSError as e:
+            raise write_error(path, e) from e
+    try:
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view) :]
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise write_error(path, e) from e
 
 
 #: What a failed write means, beside the system's message, by ``errno``.
