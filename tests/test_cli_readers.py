@@ -125,3 +125,86 @@ def test_bad_readers_variable_is_a_clean_error(tmp_path, monkeypatch):
     p = _run(tmp_path, monkeypatch, "many", inputs, tmp_path / "out")
     assert p.returncode == 2 and "ABRDF_JAX_READERS" in p.stderr and "Traceback" not in p.stderr
     assert not (tmp_path / "out").exists()
+
+
+GUARD_SCRIPT = r"""
+import fcntl, os, sys, time
+from pathlib import Path
+from abrdf_jax.io._lock import lock_path, output_lock
+from abrdf_jax.cli._readers import _orphan_guard
+
+out = Path(sys.argv[1])
+guard = sys.argv[2] == "guard"
+writer = os.fork()
+if writer == 0:  # the command: takes the lock, forks a reader, is killed (no release)
+    with output_lock(out):
+        if os.fork() == 0:  # the reader
+            if guard:
+                _orphan_guard(os.getppid())
+            time.sleep(3)
+            os._exit(0)
+        time.sleep(0.3)
+        os._exit(0)
+os.waitpid(writer, 0)
+time.sleep(0.2)
+# the writer is gone without releasing: is its lock free for the next writer?
+fd = os.open(lock_path(out), os.O_RDWR)
+try:
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    print("free")
+except OSError:
+    print("held")
+"""
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs fork")
+def test_a_reader_does_not_keep_the_output_locked(tmp_path):
+    """A forked reader closes the output locks it inherits (``_orphan_guard``): a reader that
+    outlives its parent (killed mid-read) must not keep the output locked. The same child
+    without the guard keeps it (the check can fail)."""
+    import subprocess
+    import sys
+
+    (tmp_path / "o").mkdir()
+    said = {
+        mode: subprocess.run(
+            [sys.executable, "-c", GUARD_SCRIPT, str(tmp_path / "o" / "t.npz"), mode],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        for mode in ("guard", "none")
+    }
+    assert said["guard"].stdout.strip() == "free", said["guard"].stderr
+    assert said["none"].stdout.strip() == "held", said["none"].stderr
+
+
+def test_readers_die_with_a_killed_parent(tmp_path):
+    """The readers do not wait forever on the pool's queue once their parent is gone."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    script = (
+        "import os, time\n"
+        "from abrdf_jax.cli._readers import _orphan_guard\n"
+        "pid = os.fork()\n"
+        "if pid == 0:\n"
+        "    child = os.fork()\n"
+        "    if child == 0:\n"
+        "        _orphan_guard(os.getppid()); time.sleep(30); os._exit(0)\n"
+        "    print(child, flush=True); time.sleep(0.5); os._exit(0)\n"  # the parent dies
+        "os.waitpid(pid, 0)\n"
+    )
+    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    child = int(p.stdout.split()[0])
+    for _ in range(100):  # gone within a few tenths of a second of its parent
+        try:
+            os.kill(child, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(child, 9)
+        raise AssertionError(f"reader {child} outlived its parent")

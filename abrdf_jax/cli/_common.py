@@ -322,42 +322,19 @@ BLOCK = 1024
 def read_inputs(files, forced, alpha, before=None, quiet=True, keep=True, warn=True):
     """Read, then plan every input (numpy: no JAX; ``before()`` runs in between); one bad file
     fails the run before any work, naming them all. ``keep=False``: check, keep nothing;
-    ``warn=False``: no warning (:func:`input_blocks`'s passes)."""
-    from .. import io
-    from ._readers import reader_count
+    ``warn=False``: no warning (:func:`input_blocks`'s passes). A large folder is read by
+    forked reader processes, with the same outcome in file order (:mod:`._readers`)."""
+    from . import _readers
 
     def make_bar():
         return progress(len(files), "read", quiet or len(files) < 2, _progress.READ_BAR_DELAY)
 
-    n = reader_count(files)
+    job, n = (plan, warn_negative, forced, alpha, keep, warn), _readers.reader_count(files)
     if n > 1:
-        return _read_inputs_parallel(files, forced, alpha, before, keep, warn, n, make_bar)
-    read, bad, items = [], [], []
-    with make_bar() as bar:
-        for f in files:
-            try:
-                with BigFile(f, quiet):
-                    samples = io.read_sample_columns(f)
-                if keep:
-                    read.append((f, samples))
-                elif plan(samples, forced, alpha, f, warn, noise=False) and warn:  # checked
-                    warn_negative(f, samples)
-            except InputError as e:
-                bad.append((f, str(e)))
-            bar.update(1)
-    if before is not None and not bad:
-        before()
-    for f, samples in read if not bad else ():
-        try:
-            items.append(plan(samples, forced, alpha, f, warn, noise=False))
-        except InputError as e:
-            bad.append((f, str(e)))
-    return _checked(bad, items, warn)
-
-
-def _checked(bad: list, items: list, warn: bool) -> list:
-    """The end of :func:`read_inputs`: refuse the run if a file is bad (naming up to four),
-    else fill the items' noise estimates and warn about negative values."""
+        done = _readers.read_parallel([(*job[:2], f, *job[2:]) for f in files], n, make_bar)
+        bad, items = _readers.merged(files, done, keep, before)
+    else:
+        bad, items = _readers.read_serial(job, files, before, quiet, make_bar)
     if bad:
         others = ", ".join(str(f) for f, _ in bad[1:4]) + (", ..." if len(bad) > 4 else "")
         more = f" (also bad: {others}; nothing was written)" if len(bad) > 1 else ""
@@ -366,56 +343,6 @@ def _checked(bad: list, items: list, warn: bool) -> list:
     for item in items if warn else ():
         warn_negative(item.path, item.samples)
     return items
-
-
-def _read_one(job) -> tuple[str, object, str]:
-    """One input in a reader process (:func:`_read_inputs_parallel`): ``(what, result, console
-    text)``; ``what`` is ``"ok"`` (result: the planned item, or ``None`` when not kept),
-    ``"read"`` or ``"plan"`` (result: the error's message). What the planning says on the
-    console is returned, for the parent to print in file order."""
-    import contextlib
-    import io as _io
-
-    from .. import io
-
-    path, forced, alpha, keep, warn_ = job
-    out = _io.StringIO()
-    with contextlib.redirect_stderr(out):
-        try:
-            samples = io.read_sample_columns(path)
-        except InputError as e:
-            return "read", str(e), ""
-        try:
-            item = plan(samples, forced, alpha, path, warn_, noise=False)
-        except InputError as e:
-            return "plan", str(e), out.getvalue()
-        if not keep and warn_:
-            warn_negative(path, samples)
-    return "ok", item if keep else None, out.getvalue()
-
-
-def _read_inputs_parallel(files, forced, alpha, before, keep, warn, n, make_bar) -> list:
-    """:func:`read_inputs` by ``n`` worker processes (:mod:`abrdf_jax.cli._readers`) with the
-    serial reader's outcome and console lines: when kept, a read error anywhere refuses the run
-    with the read errors only (nothing planned is said), else the planning's warnings in file
-    order, then its errors; when only checked, each file's warnings and error in file order."""
-    from ._readers import read_parallel
-
-    done = read_parallel(_read_one, [(f, forced, alpha, keep, warn) for f in files], n, make_bar)
-    unread = [(f, r) for f, (what, r, _) in zip(files, done) if what == "read"]
-    if keep:
-        if before is not None and not unread:
-            before()  # as the serial reader: after reading, before planning
-        if not unread:
-            sys.stderr.write("".join(text for _, _, text in done))
-        bad = unread or [(f, r) for f, (what, r, _) in zip(files, done) if what == "plan"]
-    else:
-        sys.stderr.write("".join(text for _, _, text in done))
-        bad = [(f, r) for f, (what, r, _) in zip(files, done) if what != "ok"]
-        if before is not None and not bad:
-            before()
-    items = [r for what, r, _ in done if what == "ok" and r is not None]
-    return _checked(bad, items, warn)
 
 
 def input_blocks(files, targets, forced, alpha, before, quiet, places=None):

@@ -1,4 +1,5 @@
-"""A folder's inputs read and planned by worker processes (issue 13, the 1000-file folder).
+"""A folder's inputs read and planned: in this process (:func:`read_serial`) or, for a large
+folder, by forked reader processes (:func:`read_parallel`; issue 13, the 1000-file folder).
 
 Reading a measurement CSV file is numpy's C parser on some hundred rows (~0.2 ms for an iso102
 file, ~0.4 ms for aniso204), then grouping it into slices (~0.1 ms): Python holding the GIL, so
@@ -19,12 +20,15 @@ read in the calling process).
 
 from __future__ import annotations
 
+import contextlib
+import io as _io
 import os
 import sys
 import threading
+import time
 
 from .._errors import InputError
-from ._progress import BIG_FILE_BYTES
+from ._progress import BIG_FILE_BYTES, BigFile
 
 #: Folders of fewer files are read in the calling process (a worker's start costs ~10 ms).
 PARALLEL_MIN = 64
@@ -81,18 +85,122 @@ def reader_count(files) -> int:
     return min(n, len(files))
 
 
-def read_parallel(work, jobs: list, n: int, make_bar) -> list:
-    """``[work(job) for job in jobs]`` by ``n`` forked processes, in order (``work``: a
-    module-level function, as pickle names it; its results are pickled back). ``make_bar()``
-    makes the progress bar, after the workers are forked (a bar may start a thread)."""
+def _orphan_guard(parent: int) -> None:
+    """A reader's first act (the pool's initializer): close the output locks inherited from
+    the parent (a ``flock`` held by a descriptor of a reader that outlives a killed parent
+    would keep the output locked: ``abrdf_jax.io._lock.held_lock_fds``), and die with the
+    parent (Linux: ``PR_SET_PDEATHSIG``; elsewhere a thread that watches the parent's pid)
+    instead of waiting forever on the pool's queue."""
+    from ..io._lock import held_lock_fds
+
+    for fd in held_lock_fds():
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(0.05)
+        os._exit(1)
+
+    if os.getppid() != parent:  # the parent died before the signal was armed
+        os._exit(1)
+    threading.Thread(target=watch, daemon=True).start()
+
+
+def read_one(job) -> tuple[str, object, str]:
+    """One input in a reader: ``(what, result, console text)``; ``what`` is ``"ok"`` (result:
+    the planned item, or ``None`` when not kept), ``"read"`` or ``"plan"`` (result: the error's
+    message). What the planning says on stderr is returned, for the parent to print in order.
+    ``job``: ``(plan, negative, path, forced, alpha, keep, warn)`` with ``plan`` and
+    ``negative`` the command line's ``_common.plan`` and ``_common.warn_negative``."""
+    from .. import io
+
+    plan, negative, path, forced, alpha, keep, warn = job
+    out = _io.StringIO()
+    with contextlib.redirect_stderr(out):
+        try:
+            samples = io.read_sample_columns(path)
+        except InputError as e:
+            return "read", str(e), ""
+        try:
+            item = plan(samples, forced, alpha, path, warn, noise=False)
+        except InputError as e:
+            return "plan", str(e), out.getvalue()
+        if not keep and warn:
+            negative(path, samples)
+    return "ok", item if keep else None, out.getvalue()
+
+
+def read_serial(job, files, before, quiet: bool, make_bar) -> tuple[list, list]:
+    """``(bad, items)``: every file read in this process, then (if none failed to read)
+    ``before()`` and every file planned; ``job``: ``(plan, negative, forced, alpha, keep,
+    warn)`` as :func:`read_one`'s. A large file is announced before it is read."""
+    from .. import io
+
+    plan, negative, forced, alpha, keep, warn = job
+    read, bad, items = [], [], []
+    with make_bar() as bar:
+        for f in files:
+            try:
+                with BigFile(f, quiet):
+                    samples = io.read_sample_columns(f)
+                if keep:
+                    read.append((f, samples))
+                elif plan(samples, forced, alpha, f, warn, noise=False) and warn:  # checked
+                    negative(f, samples)
+            except InputError as e:
+                bad.append((f, str(e)))
+            bar.update(1)
+    if before is not None and not bad:
+        before()
+    for f, samples in read if not bad else ():
+        try:
+            items.append(plan(samples, forced, alpha, f, warn, noise=False))
+        except InputError as e:
+            bad.append((f, str(e)))
+    return bad, items
+
+
+def read_parallel(jobs: list, n: int, make_bar) -> list:
+    """:func:`read_one` of every job by ``n`` forked readers, in order. ``make_bar()`` makes
+    the progress bar, after the readers are forked (a bar may start a thread)."""
     import multiprocessing
 
     chunk = max(1, min(64, len(jobs) // (4 * n)))
-    with multiprocessing.get_context("fork").Pool(n) as pool:
-        results = pool.imap(work, jobs, chunksize=chunk)
+    pool = multiprocessing.get_context("fork").Pool(n, _orphan_guard, (os.getpid(),))
+    with pool:
+        results = pool.imap(read_one, jobs, chunksize=chunk)
         with make_bar() as bar:
             out = []
             for r in results:
                 out.append(r)
                 bar.update(1)
     return out
+
+
+def merged(files, done: list, keep: bool, before) -> tuple[list, list]:
+    """``(bad, items)`` of :func:`read_parallel`'s results with the serial reader's outcome and
+    console lines (:func:`read_serial`): when kept, a read error anywhere
+    refuses the run with the read errors only (nothing planned is said), else ``before()``, the
+    planning's lines in file order, then its errors; when only checked, each file's lines and
+    error in file order, then ``before()`` if none failed."""
+    unread = [(f, r) for f, (what, r, _) in zip(files, done) if what == "read"]
+    if keep:
+        if before is not None and not unread:
+            before()  # as the serial reader: after reading, before planning
+        if not unread:
+            sys.stderr.write("".join(text for _, _, text in done))
+        bad = unread or [(f, r) for f, (what, r, _) in zip(files, done) if what == "plan"]
+    else:
+        sys.stderr.write("".join(text for _, _, text in done))
+        bad = [(f, r) for f, (what, r, _) in zip(files, done) if what != "ok"]
+        if before is not None and not bad:
+            before()
+    return bad, [r for what, r, _ in done if what == "ok" and r is not None]

@@ -31,6 +31,8 @@ except ImportError:  # Windows
     fcntl = None
 
 LOCK_SUFFIX = ".lock"
+#: The file descriptors of the locks this process holds (:func:`held_lock_fds`).
+_HELD: set[int] = set()
 #: Reads of a locked but still empty lock file (10 ms apart) before the refusal names no holder.
 HOLDER_READS = 20
 
@@ -87,6 +89,7 @@ def output_lock(
         fd, old = _acquire_exclusive(lock, output)
     else:
         fd, old = _acquire_flock(lock, output)
+    _HELD.add(fd)
     try:
         if old and old.get("pid") != os.getpid():
             message = (
@@ -112,7 +115,16 @@ def output_lock(
     finally:
         with contextlib.suppress(OSError):
             lock.unlink()  # while still locked: a waiting process then finds a new file
+        _HELD.discard(fd)
         os.close(fd)
+
+
+def held_lock_fds() -> frozenset[int]:
+    """The file descriptors of the output locks this process holds. A forked child inherits
+    them, and a ``flock`` is released only when every descriptor of it is closed: a child
+    that outlives its parent would keep the output locked. A forked worker closes them first
+    (:mod:`abrdf_jax.cli._readers`)."""
+    return frozenset(_HELD)
 
 
 def _refuse(output, lock: Path, holder: dict) -> InputError:
