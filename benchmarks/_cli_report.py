@@ -190,6 +190,17 @@ def _row(entry: dict, who: str) -> str:
     )
 
 
+def _floors(f: dict | None) -> list[str]:
+    """The machine's floors of a folder run (``benchmarks.cli.floors``), as a paragraph."""
+    if not f:
+        return []
+    return [
+        f"This machine's floors: writing {f['files']} tables took {f['write_tables_s']:.2f} s "
+        f"and parsing {f['files']} iso102 CSV files {f['parse_csv_s']:.2f} s ({f['what']}).",
+        "",
+    ]
+
+
 def markdown(payload: dict) -> str:
     runs = payload["runs"]
     m = payload["machine"]
@@ -204,6 +215,7 @@ def markdown(payload: dict) -> str:
         f"{payload['inputs']['what']} {payload['caches']} {payload.get('bytecode', '')} "
         f"{payload['peer_note']}",
         "",
+        *_floors(payload.get("floors")),
         "| run | who | command | files | s | files/s | s per file | ratio | peak RSS MiB | exit |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]

@@ -44,6 +44,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 import abrdf_jax as aj
 from abrdf_jax import io, materials
 
@@ -390,6 +392,40 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
+def floors(work: Path, n: int, log) -> dict:
+    """What this machine's disk and one core cost a folder run, measured in this process after
+    the runs (the folder ``iso_large`` exists): ``n`` tables written by
+    ``abrdf_jax.io.write_tables`` (one thread, fresh folder, after a ``sync``), and the ``n``
+    iso102 CSV files parsed by ``abrdf_jax.io.read_sample_columns`` (one core, warm page cache).
+    A folder run cannot be faster than the larger of the two by more than its parallelism."""
+    rng = np.random.default_rng(0)
+    tables = rng.random((n, 81, 81, 3), dtype=np.float32)
+    out = work / "floor-writes"
+    out.mkdir()
+    if hasattr(os, "sync"):
+        os.sync()
+    t0 = time.perf_counter()
+    io.write_tables([out / f"{k:04d}.npz" for k in range(n)], tables)
+    write_s = time.perf_counter() - t0
+    shutil.rmtree(out)
+    files = sorted((work / "iso_large").glob("*.csv"))[:n]
+    t0 = time.perf_counter()
+    for f in files:
+        io.read_sample_columns(f)
+    parse_s = time.perf_counter() - t0
+    log(
+        f"floors: {n} tables written in {write_s:.2f} s, {len(files)} CSV files parsed in {parse_s:.2f} s"
+    )
+    return {
+        "what": f"{n} tables (79 kB .npz each) written by abrdf_jax.io.write_tables in one thread "
+        f"(fresh folder, after sync), and {len(files)} iso102 CSV files parsed by "
+        "abrdf_jax.io.read_sample_columns on one core, in the benchmark's process after the runs",
+        "write_tables_s": write_s,
+        "parse_csv_s": parse_s,
+        "files": len(files),
+    }
+
+
 def main(argv=None, log=None) -> dict:
     args = parse_args(argv)
     log = log or (lambda s: print(s, flush=True))
@@ -432,6 +468,7 @@ def main(argv=None, log=None) -> dict:
         r = Runner(Path(tmp), log)
         payload["entry_point"] = r.entry_point
         payload["runs"] = run_all(r, args.sizes, args.peer_limit, args.repeats)
+        payload["floors"] = floors(Path(tmp), args.sizes["iso_large"], log)
     payload["seconds"] = time.perf_counter() - t0
     payload["load_average_after"] = _load()
     payload["targets"] = check_targets(payload["runs"])

@@ -215,3 +215,21 @@ def test_timed_child_reports_the_command(tmp_path):
     got = json.loads(result.read_text())
     assert got["exit_code"] == 3 and got["seconds"] > 0
     assert 0 < got["peak_rss_mib"] < 200  # a bare interpreter, not this process's RSS
+
+
+def test_floors_are_measured_and_shown(tmp_path):
+    """The machine's floors of a folder run: tables written (and removed again), CSV files
+    parsed, both shown in the report's header."""
+    from benchmarks.cli import floors, write_inputs
+    from abrdf_jax import materials
+
+    models = {n: materials.get_material(n) for n in materials.material_names()[:2]}
+    write_inputs(tmp_path / "iso_large", "iso102", 3, models)
+    f = floors(tmp_path, 3, lambda s: None)
+    assert f["files"] == 3 and f["write_tables_s"] > 0 and f["parse_csv_s"] > 0
+    assert not (tmp_path / "floor-writes").exists()
+    from benchmarks._cli_report import _floors
+
+    text = "\n".join(_floors(f))
+    assert "writing 3 tables took" in text and "parsing 3 iso102 CSV files" in text
+    assert _floors(None) == []
