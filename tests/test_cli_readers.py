@@ -208,3 +208,49 @@ def test_readers_die_with_a_killed_parent(tmp_path):
     else:
         os.kill(child, 9)
         raise AssertionError(f"reader {child} outlived its parent")
+
+
+DYING_SCRIPT = r"""
+import os, sys
+from pathlib import Path
+from abrdf_jax.cli import _readers
+
+def dying_plan(samples, forced, alpha, path, warn, noise=False):
+    os._exit(3)  # a reader killed by the system (out of memory, say)
+
+files = sorted(Path(sys.argv[1]).glob("*.csv"))
+jobs = [(dying_plan, None, f, None, None, True, False) for f in files]
+import contextlib
+done = _readers.read_parallel(jobs, 2, lambda: contextlib.nullcontext(type("B", (), {"update": lambda self, n: None})()))
+print("none" if done is None else "results")
+"""
+
+
+def test_a_dead_reader_falls_back_to_reading_in_this_process(tmp_path, monkeypatch, capsys):
+    """A reader that dies (the system killed it) does not hang the run: the pool reports it,
+    and the command line reads the files itself, with a warning, and gives the same tables."""
+    import subprocess
+    import sys
+
+    inputs = _folder(tmp_path / "in", n=4)
+    p = subprocess.run(
+        [sys.executable, "-c", DYING_SCRIPT, str(inputs)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert p.stdout.strip() == "none", p.stderr
+    # the command line's reader then reads in its own process, and says so
+    from abrdf_jax.cli import _common
+
+    files = sorted(inputs.glob("*.csv"))
+    monkeypatch.setattr(_readers, "reader_count", lambda files: 2)
+    monkeypatch.setattr(_readers, "read_parallel", lambda *a: None)
+    items = _common.read_inputs(files, None, None)
+    err = capsys.readouterr().err
+    assert "a reader process ended unexpectedly; reading in this process" in err
+    monkeypatch.setattr(_readers, "reader_count", lambda files: 1)
+    again = _common.read_inputs(files, None, None)
+    assert [i.path for i in items] == files == [i.path for i in again]
+    for a, b in zip(items, again):
+        np.testing.assert_array_equal(np.asarray(a.meas.y), np.asarray(b.meas.y))

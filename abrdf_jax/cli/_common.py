@@ -330,8 +330,12 @@ def read_inputs(files, forced, alpha, before=None, quiet=True, keep=True, warn=T
         return progress(len(files), "read", quiet or len(files) < 2, _progress.READ_BAR_DELAY)
 
     job, n = (plan, warn_negative, forced, alpha, keep, warn), _readers.reader_count(files)
+    done = None
     if n > 1:
         done = _readers.read_parallel([(*job[:2], f, *job[2:]) for f in files], n, make_bar)
+        if done is None:
+            say("warning: a reader process ended unexpectedly; reading in this process")
+    if done is not None:
         bad, items = _readers.merged(files, done, keep, before)
     else:
         bad, items = _readers.read_serial(job, files, before, quiet, make_bar)

@@ -168,20 +168,27 @@ def read_serial(job, files, before, quiet: bool, make_bar) -> tuple[list, list]:
     return bad, items
 
 
-def read_parallel(jobs: list, n: int, make_bar) -> list:
-    """:func:`read_one` of every job by ``n`` forked readers, in order. ``make_bar()`` makes
-    the progress bar, after the readers are forked (a bar may start a thread)."""
+def read_parallel(jobs: list, n: int, make_bar) -> list | None:
+    """:func:`read_one` of every job by ``n`` forked readers, in order; ``None`` when a reader
+    died (killed by the system, say: the caller reads in its own process instead).
+    ``make_bar()`` makes the progress bar, after the readers are forked (a bar may start a
+    thread)."""
     import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
 
     chunk = max(1, min(64, len(jobs) // (4 * n)))
-    pool = multiprocessing.get_context("fork").Pool(n, _orphan_guard, (os.getpid(),))
-    with pool:
-        results = pool.imap(read_one, jobs, chunksize=chunk)
-        with make_bar() as bar:
-            out = []
-            for r in results:
-                out.append(r)
-                bar.update(1)
+    ctx = multiprocessing.get_context("fork")
+    with ProcessPoolExecutor(n, ctx, initializer=_orphan_guard, initargs=(os.getpid(),)) as pool:
+        try:
+            results = pool.map(read_one, jobs, chunksize=chunk)  # forks the readers
+            with make_bar() as bar:
+                out = []
+                for r in results:
+                    out.append(r)
+                    bar.update(1)
+        except BrokenProcessPool:
+            return None
     return out
 
 
