@@ -126,6 +126,10 @@ class Runner:
         ):
             result = Path(tmp) / "result.json"
             launch = [sys.executable, *LAUNCHER, str(result), *cmd]
+            if hasattr(
+                os, "sync"
+            ):  # the earlier runs' writeback lands before, not inside, the call
+                os.sync()
             t0 = time.perf_counter()
             proc = subprocess.run(launch, env=self.env | env, cwd=cwd, stdout=out, stderr=err)
             outer = time.perf_counter() - t0
@@ -454,7 +458,8 @@ def main(argv=None, log=None) -> dict:
         f"median of {args.repeats} call(s); every folder runs cold (compile included), then once "
         "more warm (the cache the cold run filled).",
         "bytecode": "Both commands' Python sources compiled to bytecode once before the runs "
-        "(python -m compileall), as an installed package has them.",
+        "(python -m compileall), as an installed package has them; a sync before every call "
+        "(the earlier calls' outputs written back before it starts, not during it).",
         "peer_note": f"Peer: python -m benchmarks.scipy_cli (numpy/scipy, paper setting); on a "
         f"folder of more than {args.peer_limit} files it runs the first {args.peer_limit} and is "
         "scaled as start-up + (T_N - start-up) * files / N, start-up = its --help.",
