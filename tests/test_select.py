@@ -86,6 +86,36 @@ def test_isotropy_decision_on_clear_cases(plastic, steel, sigma, rng):
         assert 0.4 * sigma < iso.noise < 2.5 * sigma, iso.noise
 
 
+def test_batched_isotropy_tests_are_the_single_tests():
+    """``isotropy_tests`` (a folder's files, one pass per layout) gives every measurement the
+    report it gets alone, with the noise estimated or given, with and without the estimates at
+    hand, for layouts with and without axial slices mixed in one call."""
+    from abrdf_jax._grouping import group_arrays
+    from abrdf_jax.select._isotropy import estimate_noise_many, isotropy_tests
+
+    names = materials.material_names()
+    meas = []
+    for k, name in enumerate(names * 2):
+        budget = "aniso204" if k % 3 else "iso102"
+        s = aj.simulate_capture(materials.get_material(name), budget=budget, noise=0.02, seed=k)
+        meas.append(group_arrays(s.to_numpy(), None)[0])
+    estimates = estimate_noise_many(meas, slices="axial")
+    for noise, est in ((None, None), (None, estimates), (0.03, None)):
+        got = isotropy_tests(meas, noise=noise, estimates=est)
+        for k, (m, rep) in enumerate(zip(meas, got)):
+            one = select.isotropy_test(m, noise=noise, estimate=None if est is None else est[k])
+            assert rep.to_dict() == one.to_dict(), (k, noise)
+    assert {r.measured for r in got} == {True, False}
+    assert {r.isotropic for r in got if r.measured} == {True, False}
+    # a plan given the report lists the candidates of a plan that tests itself
+    from abrdf_jax.select._choice import plan
+
+    for m, rep in zip(meas, got):
+        args = (m, 15.0, "auto", None, 0.03, select.LEVEL, select.MIN_EFFECT)
+        assert list(plan(*args, report=rep).configs) == list(plan(*args).configs)
+        assert plan(*args, report=rep).report.to_dict() == plan(*args).report.to_dict()
+
+
 def test_isotropy_statistic_by_hand(rng):
     """Constant diagonal slices; axial slices with known log deviations and a given noise σ."""
     S, n, sigma = 8, 20, 0.05

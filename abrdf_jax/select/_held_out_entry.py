@@ -335,6 +335,7 @@ def entry_selections(
     where=None,
     estimates=None,
     learned=None,
+    reports=None,
 ):
     """:func:`abrdf_jax.select.select_model` (``candidates="auto"``) of grouped measurements
     ``items`` (``(meas, alpha_deg)`` pairs) wherever it needs no JAX: one candidate left (as
@@ -343,7 +344,9 @@ def entry_selections(
     ``store``). ``None`` where the caller must run the JAX path
     (:func:`~abrdf_jax.select.select_models`). ``where``: each input's name, put before the
     message of an :class:`~abrdf_jax.InputError` of its plan; ``estimates``: each input's
-    noise estimate (:func:`~abrdf_jax.select.estimate_noise_many`), if at hand; ``learned``: a
+    noise estimate (:func:`~abrdf_jax.select.estimate_noise_many`), if at hand, and ``reports``
+    its isotropy test with ``noise``, ``level`` and ``min_effect``
+    (:func:`~abrdf_jax.select._isotropy.isotropy_tests`); ``learned``: a
     prior (:class:`abrdf_jax._prior_operator.PriorSource`) whose prior-only and fused models join
     the candidates (as :func:`~abrdf_jax.select.select_model`'s ``prior``), scored by their own
     held-out entries (:mod:`abrdf_jax.select._learned_entry`). Parameters are numpy values
@@ -353,9 +356,10 @@ def entry_selections(
     t0 = time.perf_counter()
     plans = []
     estimates = [None] * len(items) if estimates is None else estimates
-    for i, ((m, a), est) in enumerate(zip(items, estimates)):
+    reports = [None] * len(items) if reports is None else reports
+    for i, ((m, a), est, rep) in enumerate(zip(items, estimates, reports)):
         try:
-            p = plan(m, a, "auto", budget, noise, level, min_effect, est)
+            p = plan(m, a, "auto", budget, noise, level, min_effect, est, rep)
             plans.append(p if learned is None else with_prior(p, fused=True))
         except InputError as e:
             raise InputError(f"{where[i]}: {e}" if where is not None else str(e)) from e

@@ -235,35 +235,77 @@ def isotropy_test(
     Raises:
         InputError: on a negative ``noise``, a ``level`` outside (0, 1) or a negative ``min_effect``.
     """
-    if noise is not None and not (math.isfinite(noise) and noise >= 0):
-        raise InputError(f"noise must be a finite relative level >= 0, got {noise!r}")
-    if not 0 < level < 1:
-        raise InputError(f"level must lie in (0, 1), got {level!r}")
-    if not min_effect >= 0:
-        raise InputError(f"min_effect must be >= 0, got {min_effect!r}")
+    _check_test(noise, level, min_effect)
     if all(hasattr(samples, f) for f in ("t", "y", "count", "pairs")):
         pass  # grouped: Measurements (or the numpy slices of the command line)
     elif all(hasattr(samples, f) for f in ("theta_i", "phi_i", "theta_v", "phi_v", "rgb")):
         samples, _ = group_arrays(samples, alpha_deg, dtype=np.float64)
     else:
         raise InputError(f"samples must be Samples or Measurements, got {type(samples).__name__}")
-    meas = samples
-    cnt = np.asarray(meas.count)
-    measured = bool(np.any(cnt[0::2] >= 3))  # an axial slice to test
-    # one material: on the host (numpy); the batched test below runs the same helpers in JAX
-    logl = None
-    if measured or (noise is None and estimate is None):
-        logl = _log_luminance(np.asarray(meas.y)[None], np.asarray(meas.mask)[None], log_eps, np)
+    return isotropy_tests(
+        [samples], noise=noise, level=level, min_effect=min_effect, log_eps=log_eps,
+        estimates=None if estimate is None else [estimate],
+    )[0]  # fmt: skip
+
+
+def _check_test(noise, level, min_effect) -> None:
+    if noise is not None and not (math.isfinite(noise) and noise >= 0):
+        raise InputError(f"noise must be a finite relative level >= 0, got {noise!r}")
+    if not 0 < level < 1:
+        raise InputError(f"level must lie in (0, 1), got {level!r}")
+    if not min_effect >= 0:
+        raise InputError(f"min_effect must be >= 0, got {min_effect!r}")
+
+
+def isotropy_tests(
+    measurements,
+    *,
+    noise: float | None = None,
+    level: float = LEVEL,
+    min_effect: float = MIN_EFFECT,
+    log_eps: float = LOG_EPS,
+    estimates=None,
+) -> list[IsotropyReport]:
+    """:func:`isotropy_test` of every grouped measurement (a list of reports): those that share
+    a layout in one vectorised pass on the host (:func:`abrdf_jax._per_layout.per_layout`, as
+    :func:`estimate_noise_many`; the same reports as one by one, ``tests/test_select.py``).
+    ``estimates``: each measurement's noise estimate, if at hand (else estimated here)."""
+    _check_test(noise, level, min_effect)
+    estimates = [None] * len(measurements) if estimates is None else list(estimates)
+
+    def run(ks):
+        meas = measurements[ks[0]]
+        cnt = np.asarray(meas.count)
+        measured = bool(np.any(cnt[0::2] >= 3))  # an axial slice to test
+        logl = sums = used = None
+        if measured or (noise is None and any(estimates[k] is None for k in ks)):
+            y = stacked_values(measurements, ks)
+            logl = _log_luminance(y, np.asarray(meas.mask)[None], log_eps, np)
+        if measured:
+            sums, used = _axial_sums(logl, cnt, np)
+        out = []
+        for j, k in enumerate(ks):
+            if noise is None:
+                est = estimates[k]
+                if est is None:
+                    est = _estimate(meas, logl[j : j + 1], "axial")[0]
+                sigma, source = float(est), "estimated"
+            else:
+                sigma, source = float(noise), "given"
+            row = None if sums is None else np.asarray(sums[j], np.float64)
+            out.append(_report(measurements[k], cnt, row, used, sigma, source, level, min_effect))
+        return out
+
+    return per_layout([layout_of(m) for m in measurements], run)
+
+
+def _report(meas, cnt, sums, used, sigma, source, level, min_effect) -> IsotropyReport:
+    """The report of one material from its axial slices' sums of squared deviations ``sums``
+    ``(S,)`` (``None``: no axial slice with 3 samples) and its noise ``sigma``."""
     floor = 1e-6  # log units: float32 rounding of constant slices stays below it
-    if noise is None:
-        if estimate is None:
-            estimate = _estimate(meas, logl, "axial")[0]
-        sigma, source = float(estimate), "estimated"
-    else:
-        sigma, source = float(noise), "given"
     sigma = max(sigma, floor) if math.isfinite(sigma) else floor
     common = dict(noise=sigma, noise_source=source, level=level, min_effect=min_effect)
-    if not measured:
+    if sums is None:
         return IsotropyReport(
             isotropic=True,
             measured=False,
@@ -275,8 +317,6 @@ def isotropy_test(
             **common,
             reason="no axial slice was measured: only the diagonal-only model (eq. 5) is possible",
         )
-    sums, used = _axial_sums(logl, cnt, np)
-    sums = np.asarray(sums[0], np.float64)
     per_pair = [
         dict(
             pair=tuple(pair),
