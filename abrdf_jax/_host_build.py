@@ -29,7 +29,7 @@ from ._grid import _centre_target_index, centre_layout, centre_vectors, keep_cen
 from ._grid import ubo_target_vectors
 from ._kernels import kernel_block
 from ._names import LOG_SUBSPACE
-from ._rbf_system import host_guarded_solve, host_solve, matmul, poly, prepared
+from ._rbf_system import combine, host_guarded_solve, host_solve, poly, prepared
 from ._subspace import centre_subspaces, get_rule
 
 NONLINEAR_MODES = ("raise", "two_stage")
@@ -121,25 +121,23 @@ def host_matrix(config, values, template) -> BuiltMatrix:
     )
     coeffs, tail, _ = host_solve(rbf.k, rbf.p, rbf.sc, np.float64(np.asarray(values.reg)), vals)
     out = np.zeros((81 * 81, index.size))
-    out[rbf.rest] = matmul(rbf.kq, coeffs, np)  # evaluate() with the kernel block made once
-    if rbf.degree >= 0:
-        out[rbf.rest] += matmul(rbf.pq, tail, np)
-    keep = rbf.keep
-    return BuiltMatrix(keep_centres(out, vals, pairs, azimuths), index, keep, "single", t, count)
+    out[rbf.rest] = combine(rbf.kq, rbf.pq, coeffs, tail, np)  # evaluate(), blocks made once
+    return BuiltMatrix(
+        keep_centres(out, vals, pairs, azimuths), index, rbf.keep, "single", t, count
+    )
 
 
 class _TargetRbf(NamedTuple):
     """What an operator's RBF part needs besides the values: the centres' system blocks and
     the kernel and tail at the UBO targets that no kept centre overwrites."""
 
-    degree: int
     k: np.ndarray
     p: np.ndarray
     sc: Any
     keep: np.ndarray
     rest: np.ndarray
     kq: np.ndarray
-    pq: np.ndarray
+    pq: np.ndarray | None
 
 
 @functools.lru_cache(maxsize=1)
@@ -154,8 +152,8 @@ def _rbf_at_targets(name, kernel, degree, widths, pairs, azimuths) -> _TargetRbf
     rest = np.setdiff1d(np.arange(81 * 81), keep)  # the rows the kept centres do not overwrite
     xq = pair_coordinates(*(w_[rest] for w_ in ubo_target_vectors(np.float64, np)), name, np)
     kq = kernel_block(xq, xc, w, kernel, np)
-    pq = poly(xq, shift, scale, degree, np) if degree >= 0 else np.zeros((rest.size, 0))
-    return _TargetRbf(degree, k, p, sc, keep, rest, kq, pq)
+    pq = poly(xq, shift, scale, degree, np) if degree >= 0 else None
+    return _TargetRbf(k, p, sc, keep, rest, kq, pq)
 
 
 def host_held_out_terms(meas, config, values, k: int):

@@ -54,10 +54,16 @@ def evaluate(x, centres, widths, coeffs, poly_coeffs, shift, scale, kernel, degr
     """A fitted interpolant at ``x`` ``(q, d)``: ``(q, C)``."""
     xp = namespace(xp)
     k = kernel_block(x, centres, widths, kernel, xp)
+    p = poly(x, shift, scale, degree, xp) if degree >= 0 else None
+    return combine(k, p, coeffs, poly_coeffs, xp)
+
+
+def combine(k, p, coeffs, poly_coeffs, xp=None):
+    """``K c + P d``: a fitted interpolant from its kernel block ``k`` and tail block ``p``
+    (``None``: no tail) at the points (:func:`evaluate`; the host build keeps the blocks)."""
+    xp = namespace(xp)
     out = matmul(k, coeffs, xp)
-    if degree >= 0:
-        out = out + matmul(poly(x, shift, scale, degree, xp), poly_coeffs, xp)
-    return out
+    return out if p is None else out + matmul(p, poly_coeffs, xp)
 
 
 def centre_stats(x, xp=None):

@@ -219,9 +219,9 @@ def dying_plan(samples, forced, alpha, path, warn, noise=False):
     os._exit(3)  # a reader killed by the system (out of memory, say)
 
 files = sorted(Path(sys.argv[1]).glob("*.csv"))
-jobs = [(dying_plan, None, f, None, None, True, False) for f in files]
-import contextlib
-done = _readers.read_parallel(jobs, 2, lambda: contextlib.nullcontext(type("B", (), {"update": lambda self, n: None})()))
+import contextlib, functools
+work = functools.partial(_readers.read_one, dying_plan, None, None, None, True, False)
+done = _readers.read_parallel(work, files, 2, lambda: contextlib.nullcontext(type("B", (), {"update": lambda self, n: None})()))
 print("none" if done is None else "results")
 """
 

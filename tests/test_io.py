@@ -125,12 +125,12 @@ def test_atomic_write_unwritable_folder(tmp_path):
 
 def test_atomic_write_unwritable_folder_simulated(tmp_path, monkeypatch):
     """Same as above where the tests run as root: the temp file cannot be created."""
-    import tempfile
+    import abrdf_jax.io._atomic as atomic
 
     def deny(*args, **kwargs):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(tempfile, "mkstemp", deny)
+    monkeypatch.setattr(atomic, "_create_temp", deny)
     with pytest.raises(InputError, match=r"cannot write .*x\.bin: folder .* is not writable"):
         with atomic_write(tmp_path / "x.bin") as f:
             f.write(b"x")
@@ -515,28 +515,36 @@ def test_write_tables_failure_keeps_old_and_leaves_no_temp(tmp_path, table, monk
     tables before it are complete, the error names the file, no temporary file remains."""
     import errno
 
-    import abrdf_jax.io._atomic as atomic
-    from abrdf_jax.io import write_tables
+    import contextlib
+
+    from abrdf_jax.io import _tables, write_tables
 
     paths = [tmp_path / f"t{k}.npz" for k in range(3)]
     paths[1].write_bytes(b"old")
-    real, calls = atomic.os.write, []
+    real, calls = _tables.atomic_write, []
 
-    def full(fd, data):
-        calls.append(fd)
-        if len(calls) == 2:  # the second table: half, then the disk is full
-            real(fd, bytes(data[: len(data) // 2]))
+    class HalfThenFull:
+        def __init__(self, f):
+            self.f = f
+
+        def write(self, data):
+            self.f.write(data[: len(data) // 2])
             raise OSError(errno.ENOSPC, "No space left on device")
-        return real(fd, data)
 
-    monkeypatch.setattr(atomic.os, "write", full)
+    @contextlib.contextmanager
+    def full(path, *args, **kw):  # the second table: half, then the disk is full
+        calls.append(path)
+        with real(path, *args, **kw) as f:
+            yield HalfThenFull(f) if len(calls) == 2 else f
+
+    monkeypatch.setattr(_tables, "atomic_write", full)
     with _raises(paths[1], match="No space left on device .disk full."):
         write_tables(paths, [table] * 3)
     monkeypatch.undo()
     assert read_table(paths[0]).tobytes() == table.tobytes()
     assert paths[1].read_bytes() == b"old" and not paths[2].exists()
     assert _no_temp_files(tmp_path)
-    with _raises(tmp_path / "nope" / "t.npz", match="No such file or directory"):
+    with _raises(tmp_path / "nope" / "t.npz", match="does not exist"):
         write_tables([tmp_path / "nope" / "t.npz"], [table])
 
 

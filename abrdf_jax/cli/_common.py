@@ -9,6 +9,7 @@ every check of an argument or a file that needs no numerics stay free of JAX.
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import sys
 from pathlib import Path
@@ -329,16 +330,15 @@ def read_inputs(files, forced, alpha, before=None, quiet=True, keep=True, warn=T
     def make_bar():
         return progress(len(files), "read", quiet or len(files) < 2, _progress.READ_BAR_DELAY)
 
-    job, n = (plan, warn_negative, forced, alpha, keep, warn), _readers.reader_count(files)
-    done = None
+    work = functools.partial(_readers.read_one, plan, warn_negative, forced, alpha, keep, warn)
+    n, done = _readers.reader_count(files), None
     if n > 1:
-        done = _readers.read_parallel([(*job[:2], f, *job[2:]) for f in files], n, make_bar)
+        done = _readers.read_parallel(work, files, n, make_bar)
         if done is None:
             say("warning: a reader process ended unexpectedly; reading in this process")
-    if done is not None:
-        bad, items = _readers.merged(files, done, keep, before)
-    else:
-        bad, items = _readers.read_serial(job, files, before, quiet, make_bar)
+    if done is None:
+        done = _readers.read_serial(work, files, quiet, make_bar)
+    bad, items = _readers.merged(files, done, keep, before)
     if bad:
         others = ", ".join(str(f) for f, _ in bad[1:4]) + (", ..." if len(bad) > 4 else "")
         more = f" (also bad: {others}; nothing was written)" if len(bad) > 1 else ""

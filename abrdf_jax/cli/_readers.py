@@ -1,11 +1,12 @@
 """A folder's inputs read and planned: in this process (:func:`read_serial`) or, for a large
 folder, by forked reader processes (:func:`read_parallel`; issue 13, the 1000-file folder).
+Both run :func:`read_one` per file and :func:`merged` on the results.
 
-Reading a measurement CSV file is numpy's C parser on some hundred rows (~0.2 ms for an iso102
-file, ~0.4 ms for aniso204), then grouping it into slices (~0.1 ms): Python holding the GIL, so
-threads cannot share it out, and before any table is written every input must be read and
-checked (a bad file fails the run before work). On a folder of a thousand files that is half
-of a warm call, on one core of several. Forked worker processes (one per core, at most
+Reading a measurement CSV file is numpy's C parser on some hundred rows, then grouping it into
+slices: Python holding the GIL, so threads cannot share it out, and before any table is
+written every input must be read and checked (a bad file fails the run before work). On a
+folder of a thousand files that is a large part of a warm call (`python -m benchmarks.cli`
+reports the parse alone on one core as a floor), on one core of several. Forked worker processes (one per core, at most
 :data:`MAX_READERS`) read and plan the files in chunks; the parent takes the results in file
 order, so the items, the errors and the console lines are those of a serial read: each file's
 warnings are captured in its worker and printed by the parent in file order.
@@ -30,7 +31,8 @@ import time
 from .._errors import InputError
 from ._progress import BIG_FILE_BYTES, BigFile
 
-#: Folders of fewer files are read in the calling process (a worker's start costs ~10 ms).
+#: Folders of fewer files are read in the calling process (forking a worker costs more than
+#: reading a few files).
 PARALLEL_MIN = 64
 #: At most this many reader processes.
 MAX_READERS = 8
@@ -100,29 +102,31 @@ def _orphan_guard(parent: int) -> None:
         import ctypes
         import signal
 
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+        armed = ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL) == 0  # PDEATHSIG
     except (OSError, AttributeError):
-        pass
-
-    def watch():
-        while os.getppid() == parent:
-            time.sleep(0.05)
-        os._exit(1)
-
+        armed = False
     if os.getppid() != parent:  # the parent died before the signal was armed
         os._exit(1)
-    threading.Thread(target=watch, daemon=True).start()
+    if not armed:
+
+        def watch():
+            while os.getppid() == parent:
+                time.sleep(0.05)
+            os._exit(1)
+
+        threading.Thread(target=watch, daemon=True).start()
 
 
-def read_one(job) -> tuple[str, object, str]:
-    """One input in a reader: ``(what, result, console text)``; ``what`` is ``"ok"`` (result:
-    the planned item, or ``None`` when not kept), ``"read"`` or ``"plan"`` (result: the error's
-    message). What the planning says on stderr is returned, for the parent to print in order.
-    ``job``: ``(plan, negative, path, forced, alpha, keep, warn)`` with ``plan`` and
-    ``negative`` the command line's ``_common.plan`` and ``_common.warn_negative``."""
+def read_one(
+    plan, negative, forced, alpha, keep: bool, warn: bool, path
+) -> tuple[str, object, str]:
+    """One input: ``(what, result, console text)``; ``what`` is ``"ok"`` (result: the planned
+    item, or ``None`` when not kept), ``"read"`` or ``"plan"`` (result: the error's message).
+    What the planning says on stderr is returned, for :func:`merged` to print in file order.
+    ``plan`` and ``negative``: the command line's ``_common.plan`` and ``_common.warn_negative``
+    (bound with :func:`functools.partial`, the one function both readers call)."""
     from .. import io
 
-    plan, negative, path, forced, alpha, keep, warn = job
     out = _io.StringIO()
     with contextlib.redirect_stderr(out):
         try:
@@ -138,50 +142,32 @@ def read_one(job) -> tuple[str, object, str]:
     return "ok", item if keep else None, out.getvalue()
 
 
-def read_serial(job, files, before, quiet: bool, make_bar) -> tuple[list, list]:
-    """``(bad, items)``: every file read in this process, then (if none failed to read)
-    ``before()`` and every file planned; ``job``: ``(plan, negative, forced, alpha, keep,
-    warn)`` as :func:`read_one`'s. A large file is announced before it is read."""
-    from .. import io
-
-    plan, negative, forced, alpha, keep, warn = job
-    read, bad, items = [], [], []
+def read_serial(work, files, quiet: bool, make_bar) -> list:
+    """``work(path)`` (a bound :func:`read_one`) of every file in this process, in order; a
+    large file is announced before it is read."""
+    out = []
     with make_bar() as bar:
         for f in files:
-            try:
-                with BigFile(f, quiet):
-                    samples = io.read_sample_columns(f)
-                if keep:
-                    read.append((f, samples))
-                elif plan(samples, forced, alpha, f, warn, noise=False) and warn:  # checked
-                    negative(f, samples)
-            except InputError as e:
-                bad.append((f, str(e)))
+            with BigFile(f, quiet):
+                out.append(work(f))
             bar.update(1)
-    if before is not None and not bad:
-        before()
-    for f, samples in read if not bad else ():
-        try:
-            items.append(plan(samples, forced, alpha, f, warn, noise=False))
-        except InputError as e:
-            bad.append((f, str(e)))
-    return bad, items
+    return out
 
 
-def read_parallel(jobs: list, n: int, make_bar) -> list | None:
-    """:func:`read_one` of every job by ``n`` forked readers, in order; ``None`` when a reader
-    died (killed by the system, say: the caller reads in its own process instead).
-    ``make_bar()`` makes the progress bar, after the readers are forked (a bar may start a
-    thread)."""
+def read_parallel(work, files, n: int, make_bar) -> list | None:
+    """``work(path)`` (a bound :func:`read_one`) of every file by ``n`` forked readers, in
+    order; ``None`` when a reader died (killed by the system, say: the caller reads in its own
+    process instead). ``make_bar()`` makes the progress bar, after the readers are forked (a
+    bar may start a thread)."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
 
-    chunk = max(1, min(64, len(jobs) // (4 * n)))
+    chunk = max(1, min(64, len(files) // (4 * n)))
     ctx = multiprocessing.get_context("fork")
     with ProcessPoolExecutor(n, ctx, initializer=_orphan_guard, initargs=(os.getpid(),)) as pool:
         try:
-            results = pool.map(read_one, jobs, chunksize=chunk)  # forks the readers
+            results = pool.map(work, files, chunksize=chunk)  # forks the readers
             with make_bar() as bar:
                 out = []
                 for r in results:
@@ -193,15 +179,15 @@ def read_parallel(jobs: list, n: int, make_bar) -> list | None:
 
 
 def merged(files, done: list, keep: bool, before) -> tuple[list, list]:
-    """``(bad, items)`` of :func:`read_parallel`'s results with the serial reader's outcome and
-    console lines (:func:`read_serial`): when kept, a read error anywhere
-    refuses the run with the read errors only (nothing planned is said), else ``before()``, the
-    planning's lines in file order, then its errors; when only checked, each file's lines and
-    error in file order, then ``before()`` if none failed."""
+    """``(bad, items)`` of the readers' results ``done``, with the outcome and console lines of
+    reading every file before planning any: when kept, a read error anywhere refuses the run
+    with the read errors only (nothing planned is said), else ``before()``, the planning's
+    lines in file order, then its errors; when only checked, each file's lines and error in
+    file order, then ``before()`` if none failed."""
     unread = [(f, r) for f, (what, r, _) in zip(files, done) if what == "read"]
     if keep:
         if before is not None and not unread:
-            before()  # as the serial reader: after reading, before planning
+            before()  # after reading, before what planning says
         if not unread:
             sys.stderr.write("".join(text for _, _, text in done))
         bad = unread or [(f, r) for f, (what, r, _) in zip(files, done) if what == "plan"]

@@ -165,16 +165,13 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
     choices either way (errors within float32 rounding)."""
     from ..select import LEVEL, MIN_EFFECT, TOL
     from ..select._held_out_entry import MIN_GROUP, entry_selections
-    from ..select._isotropy import estimate_noise_many, isotropy_tests
+    from ..select._isotropy import isotropy_tests
 
-    estimates = reports = None  # the isotropy tests and their noise, a layout's files at once
-    if args.noise is None and forced is None:
-        estimates = estimate_noise_many([it.meas for it in items], slices="axial")
+    reports = None  # the isotropy tests (and their noise estimates), a layout's files at once
     if forced is None:
         reports = isotropy_tests(
-            [it.meas for it in items], noise=args.noise, level=LEVEL, min_effect=MIN_EFFECT,
-            estimates=estimates,
-        )  # fmt: skip
+            [it.meas for it in items], noise=args.noise, level=LEVEL, min_effect=MIN_EFFECT
+        )
     tol = {} if args.tol is None else {"tol": args.tol}
     sels = entry_selections(
         [(it.meas, it.alpha) for it in items],
@@ -188,7 +185,6 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
         min_group=1 if len(items) == 1 else MIN_GROUP,
         before_build=caches.numerics,
         where=[it.path for it in items],
-        estimates=estimates,
         learned=caches.prior,
         reports=reports,
     )

@@ -18,7 +18,6 @@ import errno
 import hashlib
 import itertools
 import os
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
@@ -27,13 +26,6 @@ from .._errors import InputError, located
 
 #: The suffix of every temporary file of :func:`atomic_write` (its prefix: ``.NAME.PID.``).
 TEMP_SUFFIX = ".tmp"
-
-
-def _current_umask() -> int:
-    # os.umask can only be read by setting it; restore it at once.
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
 
 
 @contextlib.contextmanager
@@ -72,15 +64,12 @@ def atomic_write(
     if path.is_dir():
         raise InputError(f"cannot write {path}: it is a folder")
     try:
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=temp_prefix(path), suffix=TEMP_SUFFIX)
+        fd, tmp = _create_temp(path)
     except OSError as e:
         raise InputError(
             f"cannot write {path}: folder {folder} is not writable ({write_cause(e)})"
         ) from e
     try:
-        # fchmod is POSIX only; mkstemp's 0o600 is still safe
-        with contextlib.suppress(AttributeError, OSError):
-            os.fchmod(fd, 0o666 & ~_current_umask())
         kw = {} if "b" in mode else {"encoding": "utf-8", "newline": newline}
         f = os.fdopen(fd, "wb" if "b" in mode else "w", **kw)
         try:
@@ -103,46 +92,26 @@ def atomic_write(
         _fsync_folder(folder)
 
 
-#: The counter of :func:`write_bytes_atomically`'s temporary names (``next`` is atomic in CPython).
+#: The counter of the temporary files' names (``next`` is atomic in CPython).
 _NAMES = itertools.count()
+_TEMP_FLAGS = (
+    os.O_WRONLY | os.O_CREAT | os.O_EXCL
+    | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_BINARY", 0)
+)  # fmt: skip
 
 
-def write_bytes_atomically(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` as :func:`atomic_write` with ``durable=False`` does (a
-    temporary file beside it, then a rename), with a few system calls and no Python file
-    object: for the thousands of tables of a folder run, where ``atomic_write``'s random
-    temporary name, ``fchmod`` and file object cost more than the write (0.3 against 0.1 ms a
-    table on ext4). The temporary file is ``.NAME.PID.XXXXXXXX.tmp`` (a counter, ``O_EXCL``)
-    created with mode ``0o666`` less the umask, as ``atomic_write`` leaves its files. The caller
-    checks the folder; a failed write removes the temporary file and leaves ``path`` as it was.
-
-    Raises:
-        InputError: the file cannot be created, written or renamed (naming ``path`` and why).
-    """
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
-    flags |= getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_BINARY", 0)
+def _create_temp(path: Path) -> tuple[int, str]:
+    """A new temporary file beside ``path``, ``.NAME.PID.XXXXXXXX.tmp`` (a counter; ``O_EXCL``,
+    so a killed writer's file whose pid came back is skipped), created with mode ``0o666``
+    less the umask: the permissions of an ordinary new file, in one system call (a folder run
+    writes thousands: ``mkstemp``'s random names and an ``fchmod`` cost more than the write)."""
     prefix = str(path.parent / temp_prefix(path))
     while True:
         tmp = f"{prefix}{next(_NAMES):08x}{TEMP_SUFFIX}"
         try:
-            fd = os.open(tmp, flags, 0o666)
-            break
-        except FileExistsError:  # a killed writer's file with a reused pid: take the next name
+            return os.open(tmp, _TEMP_FLAGS, 0o666), tmp
+        except FileExistsError:
             continue
-        except OSError as e:
-            raise write_error(path, e) from e
-    try:
-        try:
-            view = memoryview(data)
-            while view:
-                view = view[os.write(fd, view) :]
-        finally:
-            os.close(fd)
-        os.replace(tmp, path)
-    except OSError as e:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise write_error(path, e) from e
 
 
 #: What a failed write means, beside the system's message, by ``errno``.

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import _check_readable, atomic_write, write_bytes_atomically
+from ._atomic import _check_readable, atomic_write
 from .._errors import InputError, located
 from ._exr import read_rgb_exr, write_rgb_exr
 from ._npz import npz_bytes
@@ -139,22 +139,15 @@ def _check_table_header(shape, dtype, where: str) -> None:
 
 
 def write_tables(paths, tables) -> None:
-    """Write tables as :func:`write_table` with ``durable=False`` does, one file each (a folder
-    run's batch): ``.npz`` tables through :func:`abrdf_jax.io._atomic.write_bytes_atomically`
-    (the same bytes, fewer system calls), other formats through :func:`write_table`. The
-    folders must exist (the caller made them); the first failure raises and later tables are
-    not written (earlier ones are complete files).
+    """:func:`write_table` with ``durable=False`` for each ``(path, table)``: a folder run's
+    batch, one task of a writer thread. The first failure raises; the tables before it are
+    complete files.
 
     Raises:
         InputError: as :func:`write_table`.
     """
     for path, table in zip(paths, tables, strict=True):
-        path = Path(path)
-        if _table_extension(path) != ".npz":
-            write_table(path, table, durable=False)
-            continue
-        arr = check_table(table, f"cannot write {path}")
-        write_bytes_atomically(path, npz_bytes(NPZ_KEY, arr))
+        write_table(path, table, durable=False)
 
 
 def write_table(

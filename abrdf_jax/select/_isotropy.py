@@ -283,12 +283,12 @@ def isotropy_tests(
             logl = _log_luminance(y, np.asarray(meas.mask)[None], log_eps, np)
         if measured:
             sums, used = _axial_sums(logl, cnt, np)
+        if noise is None and any(estimates[k] is None for k in ks):  # one pass for the layout
+            found = _estimate(meas, logl, "axial")
         out = []
         for j, k in enumerate(ks):
             if noise is None:
-                est = estimates[k]
-                if est is None:
-                    est = _estimate(meas, logl[j : j + 1], "axial")[0]
+                est = found[j] if estimates[k] is None else estimates[k]
                 sigma, source = float(est), "estimated"
             else:
                 sigma, source = float(noise), "given"
