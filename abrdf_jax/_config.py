@@ -75,8 +75,9 @@ class Config:
         kernel: RBF kernel (see :data:`abrdf_jax._kernels.KERNELS`).
         degree: polynomial tail degree, ``None`` for the kernel's minimum.
         parameterization: coordinates of a direction pair for the RBF: ``"onion"``
-            ``[αi, βi, αv, βv]`` (the paper's), ``"spherical"`` ``[θi, φi, θv, φv]`` or
-            ``"halfdiff"`` ``[θh, φh, θd, φd]``.
+            ``[αi, βi, αv, βv]`` (the paper's), ``"spherical"`` ``[θi, φi, θv, φv]``,
+            ``"halfdiff"`` ``[θh, φh, θd, φd]`` or ``"onion-hd"``, the onion coordinates
+            and two of the half-vector, ``√(θh π/2)`` and ``θd`` (:mod:`abrdf_jax._coords`).
         interp: 1D slice interpolation (``"linear"`` or ``"cubic"``).
         value_space: ``"linear"`` (the paper) or ``"log"``: the RBF interpolates
             ``ln(x + ε)`` with ``ε = log_eps · mean sample``, which keeps shiny materials'
@@ -201,13 +202,22 @@ TUNED_DEFAULTS = {
     ("gaussian", "log", 0): (0.45, 1e-2),  # 4.53
 }
 FALLBACK_REG = 1e-2
+#: The parameterizations of the train grid (``python -m benchmarks.merl_accuracy``): the widths
+#: and λ of :data:`TUNED_DEFAULTS` (the onion rows' best; for the recommended thin-plate spline
+#: on log samples the onion-hd rows' best is the same, and its width only sets the scale of λ)
+#: are their defaults; the others take their fallback width and :data:`FALLBACK_REG`.
+TUNED_PARAMETERIZATIONS = ("onion", "onion-hd")
 #: The train grid's best (``python -m benchmarks.merl_accuracy``): the thin-plate spline on the log
 #: of the samples, taken before slice interpolation. Until 2026-12-02 the grid had no
 #: ``"logsamples"`` and this was ``value_space="log"`` (the log after interpolation: train 3.68,
 #: test 4.69 ΔE76, against 3.14 and 4.05 now). Interpolating log samples also keeps an aliased
 #: specular spike from spreading linearly over the 27.7° between a sparse slice's samples (the
-#: extra-pairs capture of issue 12, docs/captures.md).
-RECOMMENDED = dict(kernel="thin_plate_spline", value_space="logsamples", degree=None)
+#: extra-pairs capture of issue 12, docs/captures.md). Since 2026-12-06 the RBF's coordinates are
+#: ``"onion-hd"``, the onion coordinates with two of the half vector (:mod:`abrdf_jax._coords`),
+#: the grid's best once it had them (train 2.92 → 2.69 mean ΔE76).
+RECOMMENDED = dict(
+    kernel="thin_plate_spline", value_space="logsamples", degree=None, parameterization="onion-hd"
+)
 
 #: Every named configuration, in one place: ``preset(name, budget)`` is the same ``Config`` in
 #: ``reconstruct --preset``, ``fit --preset``, ``btf reconstruct --preset`` and the Python API.
@@ -259,7 +269,7 @@ def default_values(
     and λ chosen on the train split (:data:`TUNED_DEFAULTS`) or the fallbacks, in ``dtype``."""
     config = config or Config()
     key = (config.kernel, config.value_space, config.degree)
-    if config.parameterization == "onion" and key in TUNED_DEFAULTS:
+    if config.parameterization in TUNED_PARAMETERIZATIONS and key in TUNED_DEFAULTS:
         width, reg = TUNED_DEFAULTS[key]
     else:
         from ._coords import parameterization  # the parameterization's own width (JAX module)

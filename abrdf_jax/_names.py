@@ -19,7 +19,7 @@ KERNELS = (
     "linear",
 )
 RULES = ("filip2012", "average", "crossing", "log", "diagonal")
-PARAMETERIZATIONS = ("onion", "spherical", "halfdiff")
+PARAMETERIZATIONS = ("onion", "spherical", "halfdiff", "onion-hd")
 VALUE_SPACES = ("linear", "log", "logsamples")
 INTERP_METHODS = ("linear", "cubic")
 #: Named configurations (``abrdf_jax.preset``); the same meaning in every command.

@@ -111,11 +111,23 @@ def system(k, p, lam, xp=None):
     return xp.block([[a, p], [p.T, xp.zeros((m, m), k.dtype)]])
 
 
+def coordinate_widths(widths, d: int, xp=None):
+    """The widths of ``d`` coordinates: ``widths`` broadcast (a scalar or ``(d,)``), or, for
+    ``(4,)`` widths of a parameterization with more than four coordinates (``"onion-hd"``),
+    the four followed by their geometric mean for each further coordinate."""
+    xp = namespace(xp)
+    w = xp.asarray(widths)
+    if w.ndim == 1 and w.shape[0] == 4 and d > 4:
+        extra = xp.exp(xp.mean(xp.log(w))) * xp.ones((d - 4,), w.dtype)
+        return xp.concatenate([w, extra])
+    return xp.broadcast_to(w, (d,))
+
+
 def prepared(x, widths, kernel, degree, xp=None):
     """Degree, widths ``(d,)``, centring and the scaled blocks ``(K, P, s)`` of a system."""
     xp = namespace(xp)
     degree = resolve_degree(kernel, degree)
-    widths = xp.broadcast_to(xp.asarray(widths, x.dtype), (x.shape[1],))
+    widths = coordinate_widths(xp.asarray(widths, x.dtype), x.shape[1], xp)
     shift, scale = centre_stats(x, xp)
     return (
         degree,

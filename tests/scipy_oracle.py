@@ -5,7 +5,8 @@ scipy: the slices are grouped from the sample list, each toroidal subspace is re
 grid pairs of its two rings (eq. 5 for the isotropic budget, eq. 2–4 with the min–max stretch for
 the anisotropic one, slices interpolated periodically and linearly, averaged over the two torus
 preimages), and ``scipy.interpolate.RBFInterpolator`` fills the other elevations in onion
-coordinates ``[αi, βi, αv, βv]`` scaled by the kernel widths. It imports nothing from
+coordinates ``[αi, βi, αv, βv]`` (with ``parameterization="onion-hd"`` also two half-vector
+angles) scaled by the kernel widths. It imports nothing from
 ``abrdf_jax``: the measurement layout (PROTOCOL.md's elevation pairs, the UBO rings) is written out
 here on purpose, so that a change to the package's constants shows up as a disagreement.
 
@@ -45,6 +46,30 @@ def vec(theta_deg, phi_deg):
 
 def onion(w):
     return np.stack([np.arctan2(w[..., 1], w[..., 2]), np.arcsin(np.clip(w[..., 0], -1, 1))], -1)
+
+
+def coords(wi, wv, parameterization):
+    """``[αi, βi, αv, βv]``, and for ``"onion-hd"`` also ``√(θh π/2)`` and ``θd``: the half
+    vector's angle to the normal and its angle to the light (``h = (wi + wv) / |wi + wv|``)."""
+    x = np.concatenate([onion(wi), onion(wv)], -1)
+    if parameterization == "onion":
+        return x
+    assert parameterization == "onion-hd", parameterization
+    h = wi + wv
+    h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+    th = np.arctan2(np.hypot(h[..., 0], h[..., 1]), h[..., 2])
+    td = np.arctan2(np.linalg.norm(np.cross(wi, h), axis=-1), np.sum(wi * h, -1))
+    return np.concatenate([x, np.sqrt(th * np.pi / 2)[..., None], td[..., None]], -1)
+
+
+def scaled(x, widths):
+    """Coordinates over their widths; the fifth and sixth coordinates (``"onion-hd"``) take
+    the geometric mean of the four widths."""
+    w = np.ravel(np.asarray(widths, float))
+    w = np.repeat(w, 4) if w.size == 1 else w
+    if x.shape[-1] > w.size:
+        w = np.concatenate([w, np.full(x.shape[-1] - w.size, np.exp(np.mean(np.log(w))))])
+    return x / w
 
 
 def periodic_linear(angle_deg, values, query_deg):
@@ -111,6 +136,7 @@ def reconstruct_scipy(
     alpha=15.0,
     log_eps=0.01,
     spike_cap=(0.93, 0.5),
+    parameterization="onion",
 ):
     """Full reconstruction to an (81, 81, 3) table with scipy's RBFInterpolator.
 
@@ -132,19 +158,19 @@ def reconstruct_scipy(
     for pair in PAIRS:
         a, b, val = subspace_on_grid(slices, pair, alpha)
         wi, wv = vec(np.full_like(a, pair[0]), a), vec(np.full_like(b, pair[1]), b)
-        xs.append(np.concatenate([onion(wi), onion(wv)], -1))
+        xs.append(coords(wi, wv, parameterization))
         ys.append(val)
         ycs.append(val if capped is None else subspace_on_grid(capped, pair, alpha)[2])
         ii = np.array([np.nonzero((th == pair[0]) & np.isclose(ph, x))[0][0] for x in a])
         vv = np.array([np.nonzero((th == pair[1]) & np.isclose(ph, x))[0][0] for x in b])
         idx.append(ii * 81 + vv)
-    x = np.concatenate(xs) / np.asarray(widths)
+    x = scaled(np.concatenate(xs), widths)
     y = np.concatenate(ys)
     idx = np.concatenate(idx)
     y_fit = np.log(np.maximum(y, 0) + eps) if value_space == "log" else np.concatenate(ycs)
     wi = vec(np.repeat(th, 81), np.repeat(ph, 81))
     wv = vec(np.tile(th, 81), np.tile(ph, 81))
-    xq = np.concatenate([onion(wi), onion(wv)], -1) / np.asarray(widths)
+    xq = scaled(coords(wi, wv, parameterization), widths)
     if degree is None:  # the kernel's minimum degree (scipy's own default would add a linear tail)
         degree = MIN_DEGREE[kernel]
     out = RBFInterpolator(x, y_fit, kernel=kernel, epsilon=1.0, smoothing=smoothing, degree=degree)(

@@ -89,3 +89,56 @@ def test_azimuths_on_the_seam_and_at_the_poles_are_zero_in_numpy_and_jax(dtype):
         hd = np.asarray(half_diff(xp.asarray(wi), xp.asarray(wv), xp))
         assert hd[0, 3] == 0  # wi = wv: d at its pole, φd = 0
         assert hd[1, 1] == 0  # mirror pair about the normal: h at its pole, φh = 0
+
+
+def test_onion_hd_is_onion_plus_the_half_vector_angles(rng):
+    """The first four coordinates of ``"onion-hd"`` are the onion ones; the last two are
+    ``√(θh π/2)`` and ``θd`` of Rusinkiewicz's half/difference angles, in numpy and JAX."""
+    from abrdf_jax._coords import HD_WEIGHT
+
+    wi = aj.to_vector(rng.uniform(0.05, 1.5, 64), rng.uniform(0, 2 * np.pi, 64), np)
+    wv = aj.to_vector(rng.uniform(0.05, 1.5, 64), rng.uniform(0, 2 * np.pi, 64), np)
+    hd = np.asarray(aj.half_diff(wi, wv, np))
+    want = np.sqrt(hd[:, 0] * np.pi / 2), hd[:, 2]
+    for xp in (np, jnp):
+        x = np.asarray(aj.pair_coordinates(xp.asarray(wi), xp.asarray(wv), "onion-hd", xp))
+        assert x.shape == (64, 6)
+        onion = np.asarray(aj.pair_coordinates(xp.asarray(wi), xp.asarray(wv), "onion", xp))
+        np.testing.assert_array_equal(x[:, :4], onion)
+        np.testing.assert_allclose(x[:, 4] / HD_WEIGHT, want[0], atol=1e-9)
+        np.testing.assert_allclose(x[:, 5] / HD_WEIGHT, want[1], atol=1e-9)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_onion_hd_is_accurate_and_differentiable_at_the_mirror_and_retro_pairs(dtype):
+    """At a mirror pair (θh = 0) the warped θh is 0 to rounding even in float32 (arccos of
+    the half vector's z would put it near 0.02 there), at ``wi = wv`` θd is 0, and the
+    gradient with respect to the angles is finite at both."""
+    import jax
+
+    from abrdf_jax._grid import to_vector
+
+    def coords(angles):
+        ti, pi_, tv, pv = angles
+        wi, wv = to_vector(ti, pi_)[None], to_vector(tv, pv)[None]
+        return aj.pair_coordinates(wi, wv, "onion-hd")[0]
+
+    mirror = jnp.asarray([0.5, 0.7, 0.5, 0.7 + np.pi], dtype)
+    retro = jnp.asarray([0.5, 0.7, 0.5, 0.7], dtype)
+    tol = 10 * np.finfo(dtype).eps ** 0.5
+    assert abs(float(coords(mirror)[4])) < tol
+    assert abs(float(coords(retro)[5])) < tol
+    for angles in (mirror, retro):
+        g = np.asarray(jax.jacfwd(coords)(angles))
+        assert np.all(np.isfinite(g))
+
+
+def test_coordinate_widths_extend_four_widths_by_their_geometric_mean():
+    from abrdf_jax._rbf_system import coordinate_widths
+
+    w = np.array([0.5, 1.0, 2.0, 4.0])
+    np.testing.assert_allclose(coordinate_widths(w, 6, np), [*w, 2**0.5, 2**0.5])
+    np.testing.assert_array_equal(coordinate_widths(w, 4, np), w)
+    np.testing.assert_array_equal(coordinate_widths(np.asarray(0.3), 6, np), [0.3] * 6)
+    with pytest.raises(ValueError):
+        coordinate_widths(np.ones(3), 6, np)  # neither a scalar, (d,) nor (4,)

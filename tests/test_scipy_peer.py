@@ -19,19 +19,28 @@ def model(wi, wv):
 
 
 @pytest.mark.parametrize(
-    "budget,kernel,value_space",
+    "budget,kernel,value_space,parameterization",
     [
-        ("iso102", "gaussian", "linear"),
-        ("aniso204", "gaussian", "linear"),
-        ("aniso204", "thin_plate_spline", "log"),
-        ("iso102", "multiquadric", "log"),
-        ("iso102", "thin_plate_spline", "logsamples"),
-        ("aniso204", "thin_plate_spline", "logsamples"),
+        ("iso102", "gaussian", "linear", "onion"),
+        ("aniso204", "gaussian", "linear", "onion"),
+        ("aniso204", "thin_plate_spline", "log", "onion"),
+        ("iso102", "multiquadric", "log", "onion"),
+        ("iso102", "thin_plate_spline", "logsamples", "onion"),
+        ("aniso204", "thin_plate_spline", "logsamples", "onion"),
+        ("iso102", "thin_plate_spline", "logsamples", "onion-hd"),
+        ("aniso204", "thin_plate_spline", "logsamples", "onion-hd"),
+        ("aniso204", "gaussian", "linear", "onion-hd"),
     ],
 )
-def test_jax_matches_scipy_peer(budget, kernel, value_space):
+def test_jax_matches_scipy_peer(budget, kernel, value_space, parameterization):
     # the scipy oracle has no slice smoothing (tests/test_smoothing.py tests it against the pipeline)
-    cfg = aj.Config(budget=budget, kernel=kernel, value_space=value_space, slice_smoothing=None)
+    cfg = aj.Config(
+        budget=budget,
+        kernel=kernel,
+        value_space=value_space,
+        slice_smoothing=None,
+        parameterization=parameterization,
+    )
     p = aj.Params(jnp.deg2rad(15.0), jnp.asarray([0.6, 0.5, 0.7, 0.6]), jnp.asarray(1e-3))
     s = aj.sample(model, cfg, p).to_numpy()
     meas, _ = aj.group_slices(s, dtype=np.float64)
@@ -46,5 +55,6 @@ def test_jax_matches_scipy_peer(budget, kernel, value_space):
         widths=np.asarray(p.widths),
         smoothing=1e-3,
         value_space=value_space,
+        parameterization=parameterization,
     )
     np.testing.assert_allclose(ours, peer, rtol=1e-7, atol=1e-9)
