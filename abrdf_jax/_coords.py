@@ -39,9 +39,9 @@ def _onion(wi, wv, xp):
     return xp.concatenate([onion_from_vector(wi, xp), onion_from_vector(wv, xp)], axis=-1)
 
 
-#: Weight of the half-vector coordinates of ``"onion-hd"`` against the onion coordinates (the
-#: kernel width of both is the same): 1.0 was the best of 0.5, 0.7, 1, 1.5, 2 and 4 on a
-#: scratch run over half of the MERL train split (docs/notes.md, fifteenth session).
+#: Weight of the half-vector coordinates of ``"onion-hd"`` against the onion coordinates (their
+#: kernel width is the geometric mean of the onion coordinates' widths): the best of 0.5–2 on
+#: the MERL train split (``python -m benchmarks.onion_hd``, results/onion_hd.md).
 HD_WEIGHT = 1.0
 
 
@@ -52,10 +52,8 @@ def _safe_norm(v, xp):
 
 
 def _onion_hd(wi, wv, xp):
-    s = wi + wv
-    h = (
-        s / xp.maximum(_safe_norm(s, xp), 1e-30)[..., None]
-    )  # wi = -wv cannot occur above the horizon
+    s = wi + wv  # never 0 above the horizon (wi = -wv)
+    h = s / xp.maximum(_safe_norm(s, xp), 1e-30)[..., None]
     # Angles by atan2 of the sine and cosine parts, accurate near 0 (arccos near 1 is not: in
     # float32 it puts the mirror pair's θh at about 3e-4, and the square root spreads that)
     th = xp.arctan2(_safe_norm(h[..., :2], xp), h[..., 2])

@@ -26,21 +26,27 @@ from abrdf_jax.select import CANDIDATES, DEFAULT_ANISO
 from ._common import metrics_of
 
 PRIOR = "prior"
+#: The learned candidates of ``select_models(..., prior=)``: the prior alone and the fused model.
+LEARNED = (PRIOR, "fused")
 
 
 def _dense(stack, ref, prior) -> dict:
-    """Dense ΔE76 ``{model: (B,)}`` of every default candidate and of the prior alone."""
+    """Dense ΔE76 ``{model: (B,)}`` of every default candidate, the prior alone and the fused
+    model (each learned one on the slices its choice reads: all (aniso204) or the diagonal ones
+    (iso102))."""
     out = {}
     for n in DEFAULT_ANISO:
         cfg = CANDIDATES[n].config()
         rec = aj.reconstruct_batch(stack, cfg, aj.Params.default(cfg, dtype=jnp.float32))
         out[n] = metrics_of(rec, ref)["de76"]
-    # the prior on the slices its choice reads: all (aniso204) or the diagonal ones (iso102)
-    out[PRIOR + "/aniso204"] = metrics_of(P.reconstruct_prior(stack, prior), ref)["de76"]
     diag = np.asarray(stack.count).copy()
     diag[:, 0::2] = 0
     iso = stack.replace(count=jnp.asarray(diag, stack.count.dtype))
-    out[PRIOR + "/iso102"] = metrics_of(P.reconstruct_prior(iso, prior), ref)["de76"]
+    hyper, reference = P.learned_hyper(prior, "fused", prior.dtype)
+    for budget, m in (("aniso204", stack), ("iso102", iso)):
+        out[f"{PRIOR}/{budget}"] = metrics_of(P.reconstruct_prior(m, prior), ref)["de76"]
+        fused = P.reconstruct_fused(m, prior, hyper, reference=reference)
+        out[f"fused/{budget}"] = metrics_of(fused, ref)["de76"]
     return out
 
 
@@ -48,7 +54,7 @@ def _rows(names, meas, dense, with_prior, without) -> list[dict]:
     rows = []
     for i, n in enumerate(names):
         s, s0 = with_prior[i], without[i]
-        key = s.name if s.name != PRIOR else f"{PRIOR}/{s.config.budget}"
+        key = s.name if s.name not in LEARNED else f"{s.name}/{s.config.budget}"
         rows.append(
             {
                 "material": n,
@@ -75,6 +81,7 @@ def _summary(rows) -> dict:
         "fixed": fixed,
         "best_fixed": best,
         "prior_chosen": sum(r["choice"] == PRIOR for r in rows),
+        "fused_chosen": sum(r["choice"] == "fused" for r in rows),
         # per material: the choice against the better of the RBF models' choice and the best RBF
         "worse_than_rbf_choice_3pct": [
             r["material"] for r in rows if r["de76_choice"] > 1.03 * r["de76_choice_without_prior"]
@@ -109,7 +116,8 @@ def run(merl_names, merl_stack, merl_ref, log=print) -> dict:
         log(
             f"  auto with the prior, {key}: ΔE76 {s['auto_with_prior']:.3f} (without "
             f"{s['auto_without_prior']:.3f}; best fixed {s['best_fixed']} "
-            f"{s['fixed'][s['best_fixed']]:.3f}); prior chosen for {s['prior_chosen']}/{s['n']}"
+            f"{s['fixed'][s['best_fixed']]:.3f}); prior chosen for {s['prior_chosen']}/{s['n']}, "
+            f"fused for {s['fused_chosen']}/{s['n']}"
         )
         for r in rows if key == "builtin" else ():
             log(
@@ -128,15 +136,16 @@ def markdown(sec: dict) -> str:
         "ΔE76:",
         "",
         "| set | auto + prior | auto (RBF only) | best fixed model | prior alone (all slices) "
-        "| prior chosen |",
-        "|---|---|---|---|---|---|",
+        "| fused (all slices) | prior chosen | fused chosen |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for key, label in (("merl", "MERL test"), ("builtin", "built-in analytic")):
         s = sec[key]
         lines.append(
             f"| {label} ({s['n']}) | {s['auto_with_prior']:.3f} | {s['auto_without_prior']:.3f} | "
             f"{s['best_fixed']} {s['fixed'][s['best_fixed']]:.3f} | "
-            f"{s['fixed'][PRIOR + '/aniso204']:.3f} | {s['prior_chosen']} |"
+            f"{s['fixed'][PRIOR + '/aniso204']:.3f} | {s['fixed']['fused/aniso204']:.3f} | "
+            f"{s['prior_chosen']} | {s['fused_chosen']} |"
         )
     lines += ["", "| built-in material | choice (+ prior) | ΔE76 | choice (RBF only) | ΔE76 |"]
     lines.append("|---|---|---|---|---|")

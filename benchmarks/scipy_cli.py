@@ -37,6 +37,7 @@ PAPER_KWARGS = dict(
     value_space="linear",
     alpha=15.0,
     log_eps=0.01,
+    parameterization="onion",
 )
 
 
@@ -114,6 +115,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--value-space", default=d["value_space"], choices=("linear", "log"))
     ap.add_argument("--alpha", type=float, default=d["alpha"], help="slice offset α (degrees)")
     ap.add_argument("--log-eps", type=float, default=d["log_eps"], help="ε of the log values")
+    ap.add_argument(
+        "--parameterization", default=d["parameterization"], choices=("onion", "onion-hd")
+    )
     return ap.parse_args(argv)
 
 

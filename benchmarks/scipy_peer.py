@@ -17,7 +17,8 @@ __all__ = ["reconstruct_scipy", "scipy_kwargs", "reconstruct_samples"]
 
 
 def scipy_kwargs(config: aj.Config, params: aj.Params) -> dict:
-    """The oracle's keyword arguments for ``config`` and ``params`` (kernel, widths, λ, values, α)."""
+    """The oracle's keyword arguments for ``config`` and ``params`` (kernel, widths, λ, values, α,
+    coordinates: the oracle has ``"onion"`` and ``"onion-hd"``)."""
     return dict(
         kernel=config.kernel,
         widths=tuple(np.asarray(params.widths, float)),
@@ -26,6 +27,7 @@ def scipy_kwargs(config: aj.Config, params: aj.Params) -> dict:
         value_space=config.value_space,
         alpha=params.alpha_deg,
         log_eps=config.log_eps,
+        parameterization=config.parameterization,
     )
 
 
