@@ -33,7 +33,8 @@ class Params(eqx.Module):
 
     Attributes:
         alpha: slice offset α in radians.
-        widths: ``(4,)`` RBF widths ℓ per coordinate of the parameterization (radians).
+        widths: ``(4,)`` RBF widths ℓ per coordinate of the parameterization (radians); the two
+            half-vector coordinates of ``"onion-hd"`` take the geometric mean of the four.
         reg: RBF regularisation λ (added to the Gram diagonal).
     """
 
