@@ -4,7 +4,9 @@ Run: ``python -m benchmarks.onion_hd [--quick]`` (about 3 minutes on 2 CPU cores
 8 materials per split). Writes ``benchmarks/results/onion_hd.json``, ``onion_hd.md`` and the
 chart ``onion_hd.png`` (``*_quick.*`` with ``--quick``).
 
-1. **Weight** (:data:`abrdf_jax._coords.HD_WEIGHT`, chosen here, on the MERL **train** split):
+1. **Weight** (``HD_WEIGHT`` of the package's coordinates module, chosen here, on the MERL
+   **train** split; this benchmark sets that private constant because it is where its value
+   is chosen, and puts it back):
    ``Config.recommended(parameterization="onion-hd")`` on the protocol's exact iso102 samples for
    several weights of the two half-vector coordinates, beside ``"onion"``; mean ΔE76.
 2. **Where the error is** (MERL **test** split): the protocol capture and dense slices (200
