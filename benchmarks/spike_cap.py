@@ -89,11 +89,19 @@ def markdown(rows, payload) -> str:
         "| spike_cap | " + " | ".join(kinds) + " | mean |",
         "|---" * (len(kinds) + 2) + "|",
     ]
+    default = str(aj.Config().spike_cap)
     for r in rows:
         base = r["mean"]["protocol"]
         cells = [f"{r['mean'][k]:.3f} ({r['mean'][k] / base:.2f}x)" for k in kinds]
-        mark = " **chosen**" if r["setting"] == payload["chosen"] else ""
+        mark = " **lowest**" if r["setting"] == payload["chosen"] else ""
+        mark += " (the default)" if r["setting"] == default else ""
         lines.append(f"| {r['setting']}{mark} | " + " | ".join(cells) + f" | {r['overall']:.3f} |")
+    if payload["chosen"] != default:
+        lines += [
+            "",
+            f"The lowest mean is not the default's: {payload['chosen']} against {default} "
+            "(`Config.spike_cap`); see docs/captures.md, step 7.",
+        ]
     return "\n".join(lines) + "\n"
 
 
