@@ -150,13 +150,10 @@ def check_budget(budget) -> None:
         raise InputError(f"budget must be 'iso102', 'aniso204' or None, got {budget!r}")
 
 
-def plan(
-    meas, alpha: float, candidates, budget, noise, level, min_effect, estimate=None, report=None
-) -> Plan:
+def plan(meas, alpha: float, candidates, budget, noise, level, min_effect, report=None) -> Plan:
     """Test isotropy and list the candidates left for a grouped measurement (everything before
-    the folds; numpy: the isotropy test and its χ² tail need no JAX). ``estimate``: the
-    measurement's noise estimate if at hand (:func:`~abrdf_jax.select.isotropy_test`);
-    ``report``: its isotropy test with these ``noise``, ``level`` and ``min_effect``, if made
+    the folds; numpy: the isotropy test and its χ² tail need no JAX). ``report``: its isotropy
+    test with these ``noise``, ``level`` and ``min_effect``, if made
     already (:func:`~abrdf_jax.select._isotropy.isotropy_tests`: a folder's at once)."""
     check_budget(budget)
     if budget == "aniso204" and not meas.has_axial:
@@ -165,9 +162,7 @@ def plan(
         report, aniso_ok = None, budget == "aniso204"
     else:
         if report is None:
-            report = isotropy_test(
-                meas, noise=noise, level=level, min_effect=min_effect, estimate=estimate
-            )
+            report = isotropy_test(meas, noise=noise, level=level, min_effect=min_effect)
         aniso_ok = not report.isotropic
     if candidates in ("auto", "kernels"):
         names = list(DEFAULT_ANISO if aniso_ok else DEFAULT_ISO)

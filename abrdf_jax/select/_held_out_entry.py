@@ -333,7 +333,6 @@ def entry_selections(
     min_group: int = MIN_GROUP,
     before_build=None,
     where=None,
-    estimates=None,
     learned=None,
     reports=None,
 ):
@@ -343,10 +342,9 @@ def entry_selections(
     ``min_group`` inputs or more, scored by held-out entries (:class:`HeldOutEntry`, from
     ``store``). ``None`` where the caller must run the JAX path
     (:func:`~abrdf_jax.select.select_models`). ``where``: each input's name, put before the
-    message of an :class:`~abrdf_jax.InputError` of its plan; ``estimates``: each input's
-    noise estimate (:func:`~abrdf_jax.select.estimate_noise_many`), if at hand, and ``reports``
-    its isotropy test with ``noise``, ``level`` and ``min_effect``
-    (:func:`~abrdf_jax.select._isotropy.isotropy_tests`); ``learned``: a
+    message of an :class:`~abrdf_jax.InputError` of its plan; ``reports``: each input's
+    isotropy test with ``noise``, ``level`` and ``min_effect``, if made already
+    (:func:`~abrdf_jax.select._isotropy.isotropy_tests`, a folder's at once); ``learned``: a
     prior (:class:`abrdf_jax._prior_operator.PriorSource`) whose prior-only and fused models join
     the candidates (as :func:`~abrdf_jax.select.select_model`'s ``prior``), scored by their own
     held-out entries (:mod:`abrdf_jax.select._learned_entry`). Parameters are numpy values
@@ -355,11 +353,10 @@ def entry_selections(
 
     t0 = time.perf_counter()
     plans = []
-    estimates = [None] * len(items) if estimates is None else estimates
     reports = [None] * len(items) if reports is None else reports
-    for i, ((m, a), est, rep) in enumerate(zip(items, estimates, reports)):
+    for i, ((m, a), rep) in enumerate(zip(items, reports)):
         try:
-            p = plan(m, a, "auto", budget, noise, level, min_effect, est, rep)
+            p = plan(m, a, "auto", budget, noise, level, min_effect, report=rep)
             plans.append(p if learned is None else with_prior(p, fused=True))
         except InputError as e:
             raise InputError(f"{where[i]}: {e}" if where is not None else str(e)) from e

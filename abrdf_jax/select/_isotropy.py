@@ -277,13 +277,14 @@ def isotropy_tests(
         meas = measurements[ks[0]]
         cnt = np.asarray(meas.count)
         measured = bool(np.any(cnt[0::2] >= 3))  # an axial slice to test
+        estimate = noise is None and any(estimates[k] is None for k in ks)
         logl = sums = used = None
-        if measured or (noise is None and any(estimates[k] is None for k in ks)):
+        if measured or estimate:
             y = stacked_values(measurements, ks)
             logl = _log_luminance(y, np.asarray(meas.mask)[None], log_eps, np)
         if measured:
             sums, used = _axial_sums(logl, cnt, np)
-        if noise is None and any(estimates[k] is None for k in ks):  # one pass for the layout
+        if estimate:  # one pass for the layout
             found = _estimate(meas, logl, "axial")
         out = []
         for j, k in enumerate(ks):
