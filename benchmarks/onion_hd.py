@@ -4,11 +4,13 @@ Run: ``python -m benchmarks.onion_hd [--quick]`` (about 3 minutes on 2 CPU cores
 8 materials per split). Writes ``benchmarks/results/onion_hd.json``, ``onion_hd.md`` and the
 chart ``onion_hd.png`` (``*_quick.*`` with ``--quick``).
 
-1. **Weight** (``HD_WEIGHT`` of the package's coordinates module, chosen here, on the MERL
-   **train** split; this benchmark sets that private constant because it is where its value
-   is chosen, and puts it back):
-   ``Config.recommended(parameterization="onion-hd")`` on the protocol's exact iso102 samples for
-   several weights of the two half-vector coordinates, beside ``"onion"``; mean ΔE76.
+1. **Weight** of the two half-vector coordinates against the onion coordinates, chosen here, on
+   the MERL **train** split: ``Config.recommended(parameterization="onion-hd")`` on the
+   protocol's exact iso102 samples, with six widths in ``Params`` (the default four and, for
+   the half-vector coordinates, their geometric mean divided by the weight: a weight ``w`` on a
+   coordinate is a width ``1/w`` times as large, the same kernel distances), beside
+   ``"onion"``; mean ΔE76. The package's rule (four widths: the geometric mean for the further
+   coordinates) is the weight 1.
 2. **Where the error is** (MERL **test** split): the protocol capture and dense slices (200
    samples a slice, :func:`abrdf_jax.simulate_capture`, no noise) reconstructed with the
    recommended settings in both parameterizations; ΔE76 split by the (θi, θv) rings of the
@@ -29,7 +31,7 @@ import jax
 import numpy as np
 
 import abrdf_jax as aj
-from abrdf_jax import _coords, materials, metrics
+from abrdf_jax import materials, metrics
 
 from ._common import RESULTS, machine, mean_metrics, merl_split, metrics_of, sample_batch
 from ._common import write_json
@@ -41,24 +43,23 @@ RINGS = (0.0, 15.0, 30.0, 45.0, 60.0, 75.0)
 MEASURED = (30.0, 75.0)
 
 
+def weighted(params: aj.Params, weight: float) -> aj.Params:
+    """``params`` with six widths: the four, then their geometric mean over ``weight`` twice."""
+    w = np.asarray(params.widths, np.float64)
+    extra = np.exp(np.mean(np.log(w))) / weight
+    return aj.Params(params.alpha, np.concatenate([w, [extra, extra]]).astype(w.dtype), params.reg)
+
+
 def weight_sweep(models, refs, log) -> list[dict]:
     """Mean ΔE76 on the protocol's samples for each weight, and for ``"onion"``."""
     rows = []
-    base = _coords.HD_WEIGHT
-    try:
-        for par, w in [("onion", None)] + [("onion-hd", w) for w in WEIGHTS]:
-            if w is not None:
-                _coords.HD_WEIGHT = w
-                jax.clear_caches()  # the weight is read when the reconstruction is traced
-            cfg = aj.Config.recommended(parameterization=par)
-            rec = aj.reconstruct_batch(sample_batch(models, cfg), cfg)
-            rows.append(
-                {"parameterization": par, "weight": w, **mean_metrics(metrics_of(rec, refs))}
-            )
-            log(f"train {par} weight {w}: ΔE76 {rows[-1]['de76']:.3f}")
-    finally:
-        _coords.HD_WEIGHT = base
-        jax.clear_caches()
+    for par, w in [("onion", None)] + [("onion-hd", w) for w in WEIGHTS]:
+        cfg = aj.Config.recommended(parameterization=par)
+        params = aj.Params.default(cfg)
+        params = params if w is None else weighted(params, w)
+        rec = aj.reconstruct_batch(sample_batch(models, cfg), cfg, params)
+        rows.append({"parameterization": par, "weight": w, **mean_metrics(metrics_of(rec, refs))})
+        log(f"train {par} weight {w}: ΔE76 {rows[-1]['de76']:.3f}")
     return rows
 
 
@@ -173,7 +174,7 @@ def main(argv=None) -> dict:
         "quick": args.quick,
         "seconds": time.time() - t0,
         "load": [load0, [round(x, 2) for x in os.getloadavg()]],
-        "hd_weight": _coords.HD_WEIGHT,
+        "hd_weight": 1.0,  # the package's rule (coordinate_widths), weight 1
         "weights": weights,
         "n_test": len(test),
         "rings_deg": RINGS,

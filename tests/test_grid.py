@@ -93,20 +93,34 @@ def test_azimuths_on_the_seam_and_at_the_poles_are_zero_in_numpy_and_jax(dtype):
 
 def test_onion_hd_is_onion_plus_the_half_vector_angles(rng):
     """The first four coordinates of ``"onion-hd"`` are the onion ones; the last two are
-    ``√(θh π/2)`` and ``θd`` of Rusinkiewicz's half/difference angles, in numpy and JAX."""
-    from abrdf_jax._coords import HD_WEIGHT
-
+    ``√(θh π/2)`` and ``θd`` of the half vector, against their textbook formulas in float64
+    (``θh = arccos h_z``, ``θd = arccos(wi · h)``, ``h`` the normalised sum), in numpy and JAX."""
     wi = aj.to_vector(rng.uniform(0.05, 1.5, 64), rng.uniform(0, 2 * np.pi, 64), np)
     wv = aj.to_vector(rng.uniform(0.05, 1.5, 64), rng.uniform(0, 2 * np.pi, 64), np)
-    hd = np.asarray(aj.half_diff(wi, wv, np))
-    want = np.sqrt(hd[:, 0] * np.pi / 2), hd[:, 2]
+    h = (wi + wv) / np.linalg.norm(wi + wv, axis=-1, keepdims=True)
+    want = np.sqrt(np.arccos(h[:, 2]) * np.pi / 2), np.arccos(np.sum(wi * h, axis=-1))
     for xp in (np, jnp):
         x = np.asarray(aj.pair_coordinates(xp.asarray(wi), xp.asarray(wv), "onion-hd", xp))
         assert x.shape == (64, 6)
         onion = np.asarray(aj.pair_coordinates(xp.asarray(wi), xp.asarray(wv), "onion", xp))
         np.testing.assert_array_equal(x[:, :4], onion)
-        np.testing.assert_allclose(x[:, 4] / HD_WEIGHT, want[0], atol=1e-9)
-        np.testing.assert_allclose(x[:, 5] / HD_WEIGHT, want[1], atol=1e-9)
+        np.testing.assert_allclose(x[:, 4], want[0], atol=1e-9)
+        np.testing.assert_allclose(x[:, 5], want[1], atol=1e-9)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_half_diff_elevations_are_accurate_near_the_poles(dtype):
+    """``θh`` and ``θd`` a few 1e-4 rad from their poles, in float32 as in float64: by atan2
+    of the sine and cosine parts (arccos of a cosine near 1 loses them: in float32 it gives
+    3e-4 for an exact mirror pair)."""
+    for delta in (0.0, 1e-4, 5e-4, 2e-3):
+        wi = aj.to_vector(np.asarray(0.6 + delta), np.asarray(0.0), np).astype(dtype)
+        wv = aj.to_vector(np.asarray(0.6 - delta), np.asarray(np.pi), np).astype(dtype)
+        for xp in (np, jnp):
+            th = float(aj.half_diff(xp.asarray(wi), xp.asarray(wv), xp)[0])
+            assert th == pytest.approx(delta, abs=2e-6 if dtype == np.float32 else 1e-12)
+            td = float(aj.half_diff(xp.asarray(wi), xp.asarray(wi), xp)[2])  # wi = wv
+            assert td == pytest.approx(0.0, abs=1e-6 if dtype == np.float32 else 1e-12)
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
