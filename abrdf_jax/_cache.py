@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import InputError
+from ._grouping import layout_key
 from ._compilation_cache import XLA, Warn, default_warn, prune, touch
 from ._compilation_cache import disable_compilation_cache as disable_compilation_cache
 from ._compilation_cache import enable_compilation_cache as enable_compilation_cache
@@ -173,16 +174,14 @@ def operator_key(
     sha256 (hex) of a canonical JSON of: the package version, :data:`CACHE_FORMAT`, a digest of
     the package's modules, the JAX/jaxlib versions and ``JAX_PLATFORMS`` (they change the built
     matrix's rounding), the entry dtype and the build dtype, every :class:`Config` field, the
-    parameter values (α, widths, λ) and the layout (pairs, axial slices, centre azimuths, the
-    valid slice parameters' bytes and dtype, the counts), and ``extra`` (what else an entry of
+    parameter values (α, widths, λ) and the layout (:func:`abrdf_jax._grouping.layout_key`, and
+    the slice parameters' dtype), and ``extra`` (what else an entry of
     another kind depends on, canonical JSON). No JAX is imported.
     """
     t = np.asarray(meas.t)
     count = np.asarray(meas.count).astype(np.int64)
     if t.ndim != 2 or count.shape != (t.shape[0],):
         raise InputError(f"operator_key needs one measurement's layout, got t of shape {t.shape}")
-    valid = np.arange(t.shape[1])[None, :] < count[:, None]
-    t_bytes = np.ascontiguousarray(np.where(valid, t, 0)).tobytes()
     doc = {
         "format": CACHE_FORMAT,
         "version": package_version(),
@@ -193,15 +192,7 @@ def operator_key(
         "build_dtype": build_dtype,
         "config": config_doc(config),
         "params": {n: _canon(getattr(params, n)) for n in ("alpha", "widths", "reg")},
-        "layout": {
-            "pairs": _canon(meas.pairs),
-            "has_axial": bool(meas.has_axial),
-            "centre_azimuths": meas.centre_azimuths,
-            "t_shape": list(t.shape),
-            "t_dtype": t.dtype.name,
-            "t_sha256": hashlib.sha256(t_bytes).hexdigest(),
-            "count": count.tolist(),
-        },
+        "layout": {"key": layout_key(meas), "t_dtype": t.dtype.name},
     }
     if extra is not None:
         doc["extra"] = extra

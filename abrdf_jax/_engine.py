@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from ._config import Config
+from ._grouping import layout_key as layout_key
 
 if TYPE_CHECKING:  # JAX pytrees: the pipeline path makes them (importing JAX), the operator
     # path needs none (the command line passes numpy slices and parameter values)
@@ -70,19 +71,6 @@ def as_jax(meas, params) -> tuple["Measurements", "Params"]:
     if params is not None and not isinstance(params, Params):
         params = Params(params.alpha, params.widths, params.reg)
     return meas, params
-
-
-def layout_key(meas: Measurements) -> str:
-    """A digest of a measurement's slice layout (pairs, centre layout, positions, counts): two
-    measurements with equal keys share one compiled operator."""
-    count = np.asarray(meas.count)
-    t = np.asarray(meas.t)
-    valid = np.arange(t.shape[-1])[None, :] < count[:, None]
-    h = hashlib.sha256()
-    h.update(repr((meas.pairs, meas.has_axial, meas.centre_azimuths, t.shape)).encode())
-    h.update(count.astype(np.int64).tobytes())
-    h.update(np.where(valid, t, 0.0).astype(np.float32).tobytes())
-    return h.hexdigest()
 
 
 def _batches(

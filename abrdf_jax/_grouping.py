@@ -471,3 +471,19 @@ def _expected_pairs(found) -> tuple:
     lv_v = sorted({b for _, b in found})
     grid = [(a, b) for a in lv_i for b in lv_v]
     return tuple(grid) if len(grid) <= len(found) + 1 else tuple(found)
+
+
+def layout_key(meas: Measurements) -> str:
+    """A digest (sha256, hex) of a measurement's slice layout (pairs, axial slices, centre layout,
+    the valid slice positions as float32, counts): two measurements with equal keys share one
+    compiled operator (in a run, :mod:`abrdf_jax._engine`, and in the operator store, whose key
+    holds it, :func:`abrdf_jax._cache.operator_key`). Accepts anything with the slice arrays of
+    a :class:`~abrdf_jax.Measurements` (numpy or JAX)."""
+    count = np.asarray(meas.count)
+    t = np.asarray(meas.t)
+    valid = np.arange(t.shape[-1])[None, :] < count[:, None]
+    h = hashlib.sha256()
+    h.update(repr((meas.pairs, meas.has_axial, meas.centre_azimuths, t.shape)).encode())
+    h.update(count.astype(np.int64).tobytes())
+    h.update(np.where(valid, t, 0.0).astype(np.float32).tobytes())
+    return h.hexdigest()
