@@ -6,6 +6,9 @@ runs them in turn and reports, after each, whether ``jax`` is in ``sys.modules``
 """
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -288,3 +291,21 @@ def test_warm_prior_reconstruct_imports_no_jax(tmp_path):
     pairs += [(f"out-cold/m{k}.npz", f"out-warm/m{k}.npz") for k in range(3)]
     for a, b in pairs:
         np.testing.assert_array_equal(io.read_table(tmp_path / a), io.read_table(tmp_path / b))
+
+
+def test_a_quiet_bar_imports_no_tqdm():
+    """``-q`` shows no bar, so it costs no ``tqdm`` import (about 0.05 s of a quiet folder run):
+    the quiet bar takes the calls the command line makes; a shown bar is tqdm's."""
+    code = (
+        "import sys\n"
+        "from abrdf_jax.cli._progress import progress\n"
+        "with progress(3, 'read', True) as bar:\n"
+        "    bar.update(1); bar.set_description('reconstruct'); bar.update(2)\n"
+        "print('tqdm' in sys.modules)\n"
+        "progress(3, 'read', False).close()\n"
+        "print('tqdm' in sys.modules)\n"
+    )
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).parents[1]))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["False", "True"]
