@@ -4,9 +4,9 @@ Each entry maps ``(wi, wv)`` unit vectors ``(..., 3)`` to coordinates ``(..., d)
 (``d = 4``, or 6 for ``"onion-hd"``) and carries the kernel width used when no width was tuned
 for it (:meth:`Params.default`). The four widths of :class:`~abrdf_jax.Params` scale the first
 four coordinates; further coordinates take their geometric mean, unless ``Params.widths`` has
-one width per coordinate (:func:`abrdf_jax._rbf_system.coordinate_widths`). To add a parameterization, add one
-:class:`Parameterization` to :data:`PARAMETERIZATIONS`; its name is then valid in
-``Config(parameterization=...)``, parameter files and the command line.
+one width per coordinate (:func:`abrdf_jax._rbf_system.coordinate_widths`). To add a
+parameterization, add one :class:`Parameterization` to :data:`PARAMETERIZATIONS`; its name is
+then valid in ``Config(parameterization=...)``, parameter files and the command line.
 
 ``"onion-hd"`` is the onion parameterization with two coordinates of the half-vector
 (Rusinkiewicz 1998) appended: ``√(θh · π/2)`` (the square-root warp of θh that MERL's tables
