@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from ._config import Config
-from ._grouping import layout_key as layout_key
+from ._grouping import layout_key
 
 if TYPE_CHECKING:  # JAX pytrees: the pipeline path makes them (importing JAX), the operator
     # path needs none (the command line passes numpy slices and parameter values)

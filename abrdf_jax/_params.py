@@ -34,12 +34,13 @@ class Params(eqx.Module):
     Attributes:
         alpha: slice offset α in radians.
         widths: ``(4,)`` RBF widths ℓ per coordinate of the parameterization (radians); the two
-            half-vector coordinates of ``"onion-hd"`` take the geometric mean of the four.
+            half-vector coordinates of ``"onion-hd"`` take the geometric mean of the four, or
+            ``(d,)``: one per coordinate (:func:`abrdf_jax._rbf_system.coordinate_widths`).
         reg: RBF regularisation λ (added to the Gram diagonal).
     """
 
     alpha: Float[Array, ""] = eqx.field(converter=_strong_array)
-    widths: Float[Array, " 4"] = eqx.field(converter=_strong_array)
+    widths: Float[Array, " w"] = eqx.field(converter=_strong_array)
     reg: Float[Array, ""] = eqx.field(converter=_strong_array)
 
     @classmethod

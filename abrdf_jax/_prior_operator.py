@@ -216,7 +216,7 @@ def prior_entry_key(model, meas, params) -> str:
     ``params.alpha``: its kind, the prior file's sha256, the model's own ``key_doc()``, the
     budget, the layout, the slices read, the package version and code, JAX's version."""
     from . import _cache
-    from ._engine import layout_key
+    from ._grouping import layout_key
 
     own = model.key_doc()
     doc = {

@@ -294,8 +294,8 @@ def test_warm_prior_reconstruct_imports_no_jax(tmp_path):
 
 
 def test_a_quiet_bar_imports_no_tqdm():
-    """``-q`` shows no bar, so it costs no ``tqdm`` import (about 0.05 s of a quiet folder run):
-    the quiet bar takes the calls the command line makes; a shown bar is tqdm's."""
+    """``-q`` shows no bar, so it costs no ``tqdm`` import: the quiet bar takes the calls the
+    command line makes; a shown bar is tqdm's."""
     code = (
         "import sys\n"
         "from abrdf_jax.cli._progress import progress\n"
@@ -305,7 +305,7 @@ def test_a_quiet_bar_imports_no_tqdm():
         "progress(3, 'read', False).close()\n"
         "print('tqdm' in sys.modules)\n"
     )
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).parents[1]))
+    env = dict(os.environ, PYTHONPATH=str(REPO))
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["False", "True"]

@@ -349,7 +349,7 @@ def entry_selections(
     the candidates (as :func:`~abrdf_jax.select.select_model`'s ``prior``), scored by their own
     held-out entries (:mod:`abrdf_jax.select._learned_entry`). Parameters are numpy values
     (:class:`abrdf_jax._config.ParamValues`)."""
-    from .._engine import layout_key
+    from .._grouping import layout_key
 
     t0 = time.perf_counter()
     plans = []
