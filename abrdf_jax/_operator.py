@@ -73,6 +73,8 @@ class ReconstructionOperator(eqx.Module):
         stage: ``"single"`` (the whole map is ``matrix``) or ``"two_stage"``.
         pairs, has_axial, centre_azimuths: the template's static layout.
         grid: whether the output is the 81×81 UBO table (else ``(q, C)`` at the targets).
+        keep_columns: ``(k, nnz)`` the nonzero columns of each kept row of ``matrix``
+            (:func:`kept_columns`), or ``None``: the kept rows' product is then dense.
     """
 
     matrix: Float[Array, "q f"]
@@ -87,6 +89,7 @@ class ReconstructionOperator(eqx.Module):
     has_axial: bool = eqx.field(static=True)
     grid: bool = eqx.field(static=True)
     centre_azimuths: int | None = eqx.field(static=True, default=None)
+    keep_columns: Int[Array, "k nnz"] | None = None
 
     @property
     def n_inputs(self) -> int:
@@ -204,23 +207,76 @@ def _to_compact(op: ReconstructionOperator, x, full: bool):
     return x.reshape(x.shape[0], s * nmax, x.shape[-1])[:, op.index, :]
 
 
-def _matmul_batch(m: Float[Array, "q f"], z: Float[Array, "B f C"]) -> Float[Array, "B q C"]:
-    """``out[b] = m @ z[b]`` as one GEMM ``(B·C, f) · (f, q)``: every material and channel is a row.
-
-    This order leaves only a small ``(C, q) → (q, C)`` transpose per material, which XLA fuses
-    with the exp and the clamp; ``(q, f) · (f, B·C)`` would need a strided ``(q, B) → (B, q)``
-    transpose of the whole output (measured ~1.7× slower for B = 1000 on CPU).
-    """
+def _rows(z: Float[Array, "B f C"]) -> Float[Array, "BC f"]:
+    """Features ``(B, f, C)`` as GEMM rows ``(B·C, f)``: every material and channel is a row."""
     b, f, c = z.shape
-    rows = jnp.transpose(z, (0, 2, 1)).reshape(b * c, f)
-    out = jnp.matmul(rows, m.T, precision=jax.lax.Precision.HIGHEST)
-    return jnp.transpose(out.reshape(b, c, m.shape[0]), (0, 2, 1))
+    return jnp.transpose(z, (0, 2, 1)).reshape(b * c, f)
+
+
+def _product(m: Float[Array, "q f"], rows: Float[Array, "BC f"]) -> Float[Array, "BC q"]:
+    return jnp.matmul(rows, m.T, precision=jax.lax.Precision.HIGHEST)
+
+
+def _unrows(out: Float[Array, "BC q"], b: int) -> Float[Array, "B q C"]:
+    """GEMM rows ``(B·C, q)`` back to ``(B, q, C)``.
+
+    The GEMM order ``(B·C, f) · (f, q)`` leaves only a small ``(C, q) → (q, C)`` transpose per
+    material, which XLA fuses with the exp and the clamp; ``(q, f) · (f, B·C)`` would need a
+    strided ``(q, B) → (B, q)`` transpose of the whole output (measured ~1.7× slower for
+    B = 1000 on CPU).
+    """
+    return jnp.transpose(out.reshape(b, -1, out.shape[-1]), (0, 2, 1))
+
+
+def _matmul_batch(m: Float[Array, "q f"], z: Float[Array, "B f C"]) -> Float[Array, "B q C"]:
+    """``out[b] = m @ z[b]`` as one GEMM ``(B·C, f) · (f, q)`` (see :func:`_unrows`)."""
+    return _unrows(_product(m, _rows(z)), z.shape[0])
 
 
 #: Materials per matrix product in a large batch: ``(3·TILE, n_in) · (n_in, 6561)`` runs at the
 #: machine's GEMM rate and its output (10 MB float32) stays in the last-level cache, where the
 #: exp, clamp and ``(C, q) → (q, C)`` transpose read it (``python -m benchmarks.throughput``).
 TILE = 128
+
+#: The kept rows' product runs as a sparse sum when each kept row of the matrix has at most this
+#: fraction of its columns nonzero (with linear slice interpolation a restored value reads 4 to
+#: 8 samples of 102 or 210), else as a dense product.
+SPARSE_KEPT = 0.25
+
+
+def kept_columns(matrix, keep) -> np.ndarray | None:
+    """``(k, nnz)`` column indices of the nonzeros of the kept rows ``matrix[keep]`` (each row's
+    nonzeros, then columns where the row is zero: their weights are 0), or ``None`` (no kept
+    rows, a traced matrix, or rows too dense for :data:`SPARSE_KEPT`: the dense product)."""
+    if isinstance(matrix, jax.core.Tracer) or len(keep) == 0:
+        return None
+    rows = np.asarray(matrix)[np.asarray(keep)] != 0
+    nnz = max(int(rows.sum(axis=1).max()), 1)
+    if nnz > SPARSE_KEPT * rows.shape[1]:
+        return None
+    # a stable sort puts each row's nonzero columns first, in order, then its zero ones
+    return np.argsort(~rows, axis=1, kind="stable")[:, :nnz].astype(np.int32)
+
+
+def _kept(op: ReconstructionOperator):
+    """What the kept rows' product reads, taken once per call: ``M[keep]`` ``(k, f)``, or its
+    nonzero weights ``(k, nnz)`` at :attr:`ReconstructionOperator.keep_columns`."""
+    kept = op.matrix[op.keep]
+    if op.keep_columns is None:
+        return kept
+    return jnp.take_along_axis(kept, op.keep_columns, axis=1)
+
+
+def _kept_product(op: ReconstructionOperator, kept, rows: Float[Array, "BC f"]):
+    """``rows · M[keep]ᵀ`` ``(B·C, k)``; with :attr:`keep_columns` a sum of ``nnz`` gathered
+    columns (one fused loop; a dense product of the kept rows did ~30 times the flops)."""
+    if op.keep_columns is None:
+        return _product(kept, rows)
+    cols = op.keep_columns
+    acc = kept[None, :, 0] * rows[:, cols[:, 0]]
+    for j in range(1, cols.shape[1]):
+        acc = acc + kept[None, :, j] * rows[:, cols[:, j]]
+    return acc
 
 
 def _decoded(op: ReconstructionOperator, vs, z, zc, eps, kept=None):
@@ -230,15 +286,17 @@ def _decoded(op: ReconstructionOperator, vs, z, zc, eps, kept=None):
     ``M · zc`` except at the rows where the restored subspaces are kept: there the uncapped
     restoration ``M[keep] · z`` goes back, as in the pipeline (those rows of ``M`` are the
     restoration itself; ``M · zc + M[keep] · (z − zc)`` there, within float32 rounding, but
-    set rather than added: no read of the product, ~10 % faster at 1,000 materials);
-    ``kept`` is ``M[keep]``, taken once per call."""
+    set rather than added: no read of the product). The kept rows are set in the GEMM's own
+    row layout, before the transpose that XLA fuses with the exp (set after it, the transposed
+    product is written out once more: ``python -m benchmarks.btf``'s chunk map 15 % slower).
+    ``kept`` is :func:`_kept`, taken once per call."""
     if zc is None:
         return vs.decode(_matmul_batch(op.matrix, z), eps)
-    lin = _matmul_batch(op.matrix, zc)
+    lin = _product(op.matrix, _rows(zc))
     if op.keep.shape[0]:
-        fix = _matmul_batch(op.matrix[op.keep] if kept is None else kept, z)
-        lin = lin.at[:, op.keep, :].set(fix)
-    return vs.decode(lin, eps)
+        fix = _kept_product(op, _kept(op) if kept is None else kept, _rows(z))
+        lin = lin.at[:, op.keep].set(fix, unique_indices=True)
+    return vs.decode(_unrows(lin, z.shape[0]), eps)
 
 
 def _tiled(op: ReconstructionOperator, vs, z, zc, eps, out, kept=None):
@@ -301,7 +359,7 @@ def _apply_impl(op: ReconstructionOperator, x, full: bool, out=None):
         res = _decoded(op, vs, z, zc, eps)
     else:
         out = jnp.zeros((b, q, c), x.dtype) if out is None else out.reshape(b, q, c)
-        kept = None if zc is None else op.matrix[op.keep]  # once, not per tile
+        kept = None if zc is None else _kept(op)  # once, not per tile
         res = _tiled(op, vs, z, zc, eps, out, kept)
     if op.grid:
         res = res.reshape(b, 81, 81, c)
@@ -435,8 +493,10 @@ def compile_operator(
     built = operator_matrix(
         config, params, template, build_dtype=build_dtype, targets=targets, nonlinear=nonlinear
     )
+    matrix = built.matrix.astype(dtype)
+    cols = kept_columns(matrix, built.keep)
     return ReconstructionOperator(
-        built.matrix.astype(dtype),
+        matrix,
         jnp.asarray(built.index, jnp.int32),
         jnp.asarray(built.keep, jnp.int32),
         jnp.asarray(built.t, dtype),
@@ -448,4 +508,5 @@ def compile_operator(
         template.has_axial,
         targets is None,
         template.centre_azimuths,
+        None if cols is None else jnp.asarray(cols),
     )
