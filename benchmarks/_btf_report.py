@@ -92,7 +92,7 @@ def markdown(out: dict, suffix: str) -> str:
         f"{single['abrdfs_per_second']:.1f} ABRDF/s |",
         f"| BTF, whole path (read, reconstruct, write), warm | {h['texels_per_second_warm']:.0f} texels/s "
         f"({h['vs_single_material']:.0f}× the single material) |",
-        f"| BTF chunk map in memory (one chunk of {op['texels']}, no I/O), {op['backend']} | "
+        f"| BTF chunk map in memory (one chunk of {op['texels']}, no I/O, as `ShardedRunner` runs it), {op['backend']} | "
         f"{op['texels_per_second']:.0f} texels/s, {op['gflops']:.1f} GFLOP/s |",
         f"| float32 GEMM roofline, operator shape {op['gemm_shape']} | {roof['operator_shape']:.1f} GFLOP/s "
         f"(chunk map reaches {100 * op['fraction_of_roofline']:.0f} %) |",

@@ -148,24 +148,26 @@ def _single_material() -> dict:
 
 
 def _operator_in_memory(meas_path: Path) -> dict:
-    """One chunk through the BTF chunk map, no I/O: texels per second and GFLOP/s."""
+    """One chunk through the BTF chunk map as ``reconstruct_btf`` runs it (``btf.ShardedRunner``:
+    blocks of texels, the float16 cast inside), no I/O: texels per second and GFLOP/s."""
     import jax
     import jax.numpy as jnp
+    import numpy as np
 
+    import abrdf_jax as aj
     from abrdf_jax import btf
 
     meas = btf.ChunkedStore.open(meas_path)
     cfg = btf.default_config()
-    import abrdf_jax as aj
-
     fn = btf.make_chunk_fn(cfg, aj.Params.default(cfg, dtype=jnp.float32), meas.geometry)
-    y = jnp.asarray(meas.read(0, min(CHUNK, meas.n_texels)), jnp.float32)
-    f = jax.jit(lambda y: fn(y).astype(jnp.float16))
-    f(y).block_until_ready()
+    runner = btf.ShardedRunner(fn, jax.local_devices(), np.float16)
+    y = np.asarray(meas.read(0, min(CHUNK, meas.n_texels)), np.float32)
+    y = np.concatenate([y, np.repeat(y[-1:], runner.batch_size(len(y)) - len(y), axis=0)])
+    runner(y).block_until_ready()
     ts = []
     for _ in range(5):
         t = time.perf_counter()
-        f(y).block_until_ready()
+        runner(y).block_until_ready()
         ts.append(time.perf_counter() - t)
     s = statistics.median(ts)
     n_in = int(fn.operator.n_inputs) if fn.operator is not None else None
