@@ -101,6 +101,43 @@ def test_atomic_write_exception_leaves_no_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_atomic_write_drop_cache_advises_after_the_fsync(tmp_path, monkeypatch):
+    """``drop_cache``: the written, fsync-ed file's pages are released with posix_fadvise
+    (DONTNEED) before the rename; not without ``durable``; a platform without the call or one
+    that refuses it still writes the file."""
+    calls = []
+    monkeypatch.setattr(os, "fsync", lambda fd: calls.append(("fsync", fd)))
+    monkeypatch.setattr(
+        os,
+        "posix_fadvise",
+        lambda fd, off, n, advice: calls.append(("advise", advice)),
+        raising=False,
+    )
+    monkeypatch.setattr(os, "POSIX_FADV_DONTNEED", 4, raising=False)
+    p = tmp_path / "chunk.bin"
+    with atomic_write(p, drop_cache=True) as f:
+        f.write(b"x" * 10)
+    assert p.read_bytes() == b"x" * 10
+    assert [c[0] for c in calls[:2]] == ["fsync", "advise"] and calls[1][1] == 4
+    calls.clear()
+    with atomic_write(p, drop_cache=True, durable=False) as f:
+        f.write(b"y")
+    with atomic_write(p) as f:
+        f.write(b"z")
+    assert "advise" not in [c[0] for c in calls]
+
+    def refuse(*a):
+        raise OSError("not supported")
+
+    monkeypatch.setattr(os, "posix_fadvise", refuse)
+    with atomic_write(p, drop_cache=True) as f:
+        f.write(b"w")
+    monkeypatch.delattr(os, "posix_fadvise")
+    with atomic_write(p, drop_cache=True) as f:
+        f.write(b"v")
+    assert p.read_bytes() == b"v"
+
+
 def test_atomic_write_missing_folder(tmp_path):
     p = tmp_path / "nope" / "out.bin"
     with pytest.raises(InputError, match=r"cannot write .*out\.bin: folder .*nope does not exist"):

@@ -332,7 +332,7 @@ class ChunkedStore(ChunkIndex):
         data, marker = self._files(k)
         with contextlib.suppress(FileNotFoundError):
             marker.unlink()  # the chunk is invalid from now until the new marker lands
-        with atomic_write(data, "wb") as f:
+        with atomic_write(data, "wb", drop_cache=True) as f:  # streamed: not read again soon
             f.write(header)
             f.write(body)
         meta = self._expected_marker(k)

@@ -39,7 +39,7 @@ def _make_folders(folder: Path) -> None:
 
 def _put(path: Path, data) -> None:
     _make_folders(path.parent)
-    with atomic_write(path, "wb") as f:
+    with atomic_write(path, "wb", drop_cache=True) as f:  # streamed chunks: not read again soon
         f.write(data)
 
 

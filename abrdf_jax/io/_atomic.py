@@ -30,7 +30,12 @@ TEMP_SUFFIX = ".tmp"
 
 @contextlib.contextmanager
 def atomic_write(
-    path: str | os.PathLike, mode: str = "wb", *, newline: str | None = None, durable: bool = True
+    path: str | os.PathLike,
+    mode: str = "wb",
+    *,
+    newline: str | None = None,
+    durable: bool = True,
+    drop_cache: bool = False,
 ) -> Iterator[IO]:
     """Open a temporary file beside ``path``; move it onto ``path`` only if the block succeeds.
 
@@ -46,6 +51,11 @@ def atomic_write(
         durable: flush and ``fsync`` the file and its folder; ``False`` only renames (for
             thousands of files whose completion another file marks, as the BTF export's
             ``pairs.json``).
+        drop_cache: with ``durable``, tell the kernel after the ``fsync`` that the file's pages
+            are not needed again soon (``posix_fadvise(DONTNEED)`` where the platform has it):
+            for large streamed outputs (BTF chunks), whose pages are written back already and
+            would otherwise fill the page cache and cost the writer the kernel's work of finding
+            fresh pages for the next chunk (``python -m benchmarks.btf``'s write stage).
 
     Yields:
         The open temporary file object.
@@ -78,6 +88,8 @@ def atomic_write(
                 if durable:
                     f.flush()
                     os.fsync(f.fileno())
+                    if drop_cache:
+                        _drop_cache(f.fileno())
         except OSError as e:  # disk full, I/O error: name the file (the temp file is removed below)
             raise write_error(path, e) from e
         try:
@@ -90,6 +102,15 @@ def atomic_write(
         raise
     if durable:
         _fsync_folder(folder)
+
+
+def _drop_cache(fd: int) -> None:
+    """Advise the kernel to drop the (clean, just ``fsync``-ed) pages of ``fd``; a no-op where
+    the platform lacks ``posix_fadvise`` or refuses (advice only)."""
+    advise = getattr(os, "posix_fadvise", None)
+    if advise is not None:
+        with contextlib.suppress(OSError):
+            advise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
 
 
 #: The counter of the temporary files' names (``next`` is atomic in CPython).
