@@ -45,6 +45,7 @@ from ._finite import check_concrete
 from ._grid import _centre_target_index, centre_layout, keep_centres, ubo_target_vectors
 from ._host_build import NONLINEAR_MODES as NONLINEAR_MODES, BuiltMatrix as BuiltMatrix
 from ._host_build import build_stage, sample_index, template_layout
+from ._kept_rows import kept_columns, kept_product, kept_weights
 from ._measurements import Measurements
 from ._params import Config, Params
 from ._pipeline import fit_inputs, rbf_map, subspace_values
@@ -238,46 +239,6 @@ def _matmul_batch(m: Float[Array, "q f"], z: Float[Array, "B f C"]) -> Float[Arr
 #: exp, clamp and ``(C, q) → (q, C)`` transpose read it (``python -m benchmarks.throughput``).
 TILE = 128
 
-#: The kept rows' product runs as a sparse sum when each kept row of the matrix has at most this
-#: fraction of its columns nonzero (with linear slice interpolation a restored value reads 4 to
-#: 8 samples of 102 or 210), else as a dense product.
-SPARSE_KEPT = 0.25
-
-
-def kept_columns(matrix, keep) -> np.ndarray | None:
-    """``(k, nnz)`` column indices of the nonzeros of the kept rows ``matrix[keep]`` (each row's
-    nonzeros, then columns where the row is zero: their weights are 0), or ``None`` (no kept
-    rows, a traced matrix, or rows too dense for :data:`SPARSE_KEPT`: the dense product)."""
-    if isinstance(matrix, jax.core.Tracer) or len(keep) == 0:
-        return None
-    rows = np.asarray(matrix)[np.asarray(keep)] != 0
-    nnz = max(int(rows.sum(axis=1).max()), 1)
-    if nnz > SPARSE_KEPT * rows.shape[1]:
-        return None
-    # a stable sort puts each row's nonzero columns first, in order, then its zero ones
-    return np.argsort(~rows, axis=1, kind="stable")[:, :nnz].astype(np.int32)
-
-
-def _kept(op: ReconstructionOperator):
-    """What the kept rows' product reads, taken once per call: ``M[keep]`` ``(k, f)``, or its
-    nonzero weights ``(k, nnz)`` at :attr:`ReconstructionOperator.keep_columns`."""
-    kept = op.matrix[op.keep]
-    if op.keep_columns is None:
-        return kept
-    return jnp.take_along_axis(kept, op.keep_columns, axis=1)
-
-
-def _kept_product(op: ReconstructionOperator, kept, rows: Float[Array, "BC f"]):
-    """``rows · M[keep]ᵀ`` ``(B·C, k)``; with :attr:`keep_columns` a sum of ``nnz`` gathered
-    columns (one fused loop; a dense product of the kept rows did ~30 times the flops)."""
-    if op.keep_columns is None:
-        return _product(kept, rows)
-    cols = op.keep_columns
-    acc = kept[None, :, 0] * rows[:, cols[:, 0]]
-    for j in range(1, cols.shape[1]):
-        acc = acc + kept[None, :, j] * rows[:, cols[:, j]]
-    return acc
-
 
 def _decoded(op: ReconstructionOperator, vs, z, zc, eps, kept=None):
     """Features ``z`` ``(T, f, C)`` of ``T`` materials to their outputs ``(T, q, C)``.
@@ -289,12 +250,13 @@ def _decoded(op: ReconstructionOperator, vs, z, zc, eps, kept=None):
     set rather than added: no read of the product). The kept rows are set in the GEMM's own
     row layout, before the transpose that XLA fuses with the exp (set after it, the transposed
     product is written out once more: ``python -m benchmarks.btf``'s chunk map 15 % slower).
-    ``kept`` is :func:`_kept`, taken once per call."""
+    ``kept`` is :func:`~._kept_rows.kept_weights`, taken once per call."""
     if zc is None:
         return vs.decode(_matmul_batch(op.matrix, z), eps)
     lin = _product(op.matrix, _rows(zc))
     if op.keep.shape[0]:
-        fix = _kept_product(op, _kept(op) if kept is None else kept, _rows(z))
+        kept = kept_weights(op) if kept is None else kept
+        fix = kept_product(op, kept, _rows(z))
         lin = lin.at[:, op.keep].set(fix, unique_indices=True)
     return vs.decode(_unrows(lin, z.shape[0]), eps)
 
@@ -359,7 +321,7 @@ def _apply_impl(op: ReconstructionOperator, x, full: bool, out=None):
         res = _decoded(op, vs, z, zc, eps)
     else:
         out = jnp.zeros((b, q, c), x.dtype) if out is None else out.reshape(b, q, c)
-        kept = None if zc is None else _kept(op)  # once, not per tile
+        kept = None if zc is None else kept_weights(op)  # once, not per tile
         res = _tiled(op, vs, z, zc, eps, out, kept)
     if op.grid:
         res = res.reshape(b, 81, 81, c)

@@ -621,7 +621,7 @@ def test_per_texel_model_choice(tmp_path):
     assert isinstance(fn, btf.ModelChoiceChunkFunction) and fn.backend == "operator+choice"
     iso, aniso = np.asarray(fn.iso(jnp.asarray(y))), np.asarray(fn.aniso(jnp.asarray(y)))
     expected = np.where(np.asarray(truth)[:, None, None], iso, aniso)
-    # rtol: float32 rounding; the kept rows' sparse sum (_operator._kept_product) is fused
+    # rtol: float32 rounding; the kept rows' sparse sum (_kept_rows.kept_product) is fused
     # differently inside the store's jitted blocks than in a direct call (a few ulps after the exp)
     np.testing.assert_allclose(out.read(), expected, rtol=1e-5, atol=1e-7)
     assert np.abs(iso[1] - aniso[1]).max() > 1e-2  # the two models differ on the anisotropic texel

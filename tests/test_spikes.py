@@ -62,7 +62,7 @@ def test_operator_and_numpy_entry_apply_the_cap(spiked):
 
 
 def test_kept_columns_finds_each_rows_nonzeros():
-    from abrdf_jax._operator import kept_columns
+    from abrdf_jax._kept_rows import kept_columns
 
     m = np.zeros((5, 12), np.float32)
     m[1, [2, 7]] = 1.0
