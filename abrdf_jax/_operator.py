@@ -44,7 +44,7 @@ from ._errors import InputError
 from ._finite import check_concrete
 from ._grid import _centre_target_index, centre_layout, keep_centres, ubo_target_vectors
 from ._host_build import NONLINEAR_MODES as NONLINEAR_MODES, BuiltMatrix as BuiltMatrix
-from ._host_build import build_stage, sample_index, template_layout
+from ._host_build import build_stage, host_matrix, sample_index, template_layout
 from ._kept_rows import kept_columns, kept_product, kept_weights
 from ._measurements import Measurements
 from ._params import Config, Params
@@ -434,7 +434,11 @@ def compile_operator(
             slice parameters and counts every later input shares, e.g. ``sample(..., as_measurements=True)``.
         dtype: dtype of the operator and its outputs; default the template's.
         build_dtype: dtype in which the matrix is computed (then cast to ``dtype``); default
-            float64 when ``jax_enable_x64`` is on, else ``dtype``.
+            float64 when ``jax_enable_x64`` is on, else ``dtype``. ``"host"``: float64 in numpy
+            without JAX (the command line's build, :func:`abrdf_jax._host_build.host_matrix`:
+            faster on a cold call, and a float32 operator then matches the float64
+            reconstruction to float32 rounding) where the setting allows it (one matrix on the
+            UBO grid, an RBF system that is not singular), else the default.
         targets: ``(wi, wv)`` unit vectors ``(q, 3)``: evaluate there instead of the UBO grid.
         nonlinear: ``"raise"`` (default) for settings that are not linear in the (log) samples,
             or ``"two_stage"``: per-material subspace step, then the RBF matrix.
@@ -450,12 +454,21 @@ def compile_operator(
     if not isinstance(template, Measurements):
         raise InputError(f"template must be a Measurements, got {type(template).__name__}")
     dtype = jnp.dtype(dtype or template.y.dtype)
+    built = None
+    if isinstance(build_dtype, str) and build_dtype == "host":
+        build_dtype = None
+        if targets is None and build_stage(config, template, nonlinear) == "single":
+            try:
+                built = host_matrix(config, params, template)
+            except np.linalg.LinAlgError:  # singular after the guard: the JAX build reports it
+                built = None
     if build_dtype is None:
         build_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
-    built = operator_matrix(
-        config, params, template, build_dtype=build_dtype, targets=targets, nonlinear=nonlinear
-    )
-    matrix = built.matrix.astype(dtype)
+    if built is None:
+        built = operator_matrix(
+            config, params, template, build_dtype=build_dtype, targets=targets, nonlinear=nonlinear
+        )
+    matrix = jnp.asarray(built.matrix, dtype)
     cols = kept_columns(matrix, built.keep)
     return ReconstructionOperator(
         matrix,

@@ -133,3 +133,38 @@ def test_large_batches_are_tiled_and_the_output_can_be_reused():
     )
     assert np.all(np.isfinite(g_big))
     np.testing.assert_allclose(g_big, g_pieces, rtol=1e-4, atol=1e-6 * np.abs(g_pieces).max())
+
+
+def test_host_build_equals_the_jax_float64_build(monkeypatch):
+    """``build_dtype="host"`` (the float64 numpy build the BTF chunk map and the command line
+    use) gives the matrix of the JAX float64 build, in any working dtype; with targets it falls
+    back to the JAX build."""
+    from abrdf_jax import btf
+
+    cfg = btf.default_config()  # aniso204, rule average, log samples, spike cap
+    params = aj.Params.default(cfg)
+    # the matrix depends on the layout only, not on the values
+    meas = aj.sample(np.full((81, 81, 3), 0.2), cfg, as_measurements=True)
+    ref = aj.compile_operator(cfg, params, meas, build_dtype=jnp.float64)
+    from abrdf_jax import _operator
+
+    jax_build = _operator.operator_matrix
+
+    def refuse(*a, **k):
+        raise AssertionError("the JAX build ran")
+
+    monkeypatch.setattr(_operator, "operator_matrix", refuse)
+    host = aj.compile_operator(cfg, params, meas, build_dtype="host")
+    assert host.matrix.dtype == ref.matrix.dtype == jnp.float64
+    np.testing.assert_allclose(host.matrix, ref.matrix, rtol=0, atol=1e-9)
+    assert np.array_equal(host.keep, ref.keep) and np.array_equal(host.index, ref.index)
+    low = aj.compile_operator(
+        cfg, params.astype(jnp.float32), meas.astype(jnp.float32), build_dtype="host"
+    )
+    assert low.matrix.dtype == jnp.float32
+    np.testing.assert_allclose(low.matrix, ref.matrix, rtol=0, atol=1e-6)  # float32 rounding
+    monkeypatch.setattr(_operator, "operator_matrix", jax_build)
+    wi = aj.to_vector(jnp.deg2rad(jnp.array([30.0])), jnp.deg2rad(jnp.array([10.0])))
+    wv = aj.to_vector(jnp.deg2rad(jnp.array([45.0])), jnp.deg2rad(jnp.array([200.0])))
+    at = aj.compile_operator(cfg, params, meas, build_dtype="host", targets=(wi, wv))
+    assert at.matrix.shape == (1, host.matrix.shape[1])

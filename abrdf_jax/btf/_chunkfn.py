@@ -130,7 +130,8 @@ def make_chunk_fn(
     operator, source, why = None, None, None
     if backend in ("auto", "operator"):
         try:
-            operator = compile_operator(config, params, template)
+            # built in float64 numpy (no compile; float32 rounding of the float64 operator)
+            operator = compile_operator(config, params, template, build_dtype="host")
         except InputError as e:
             why = f"the operator does not apply: {e}"
         if operator is not None:
