@@ -380,15 +380,11 @@ def build_entry(
             ``compile_operator`` does (the rules ``"filip2012"``/``"log"`` on aniso204, or
             ``value_space="log"``).
     """
-    from ._host_build import host_matrix
+    from ._host_build import host_matrix_or_none
     from ._names import LOG_SAMPLES
 
-    built = None
-    if build_dtype == "float64":  # in numpy: a cold call need not import JAX (_host_build)
-        try:
-            built = host_matrix(config, params, meas)
-        except np.linalg.LinAlgError:  # singular after the guard: the JAX build reports it
-            built = None
+    # in numpy: a cold call need not import JAX (_host_build)
+    built = host_matrix_or_none(config, params, meas) if build_dtype == "float64" else None
     if built is None:
         from ._operator import operator_matrix
 

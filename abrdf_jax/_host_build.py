@@ -127,6 +127,15 @@ def host_matrix(config, values, template) -> BuiltMatrix:
     )
 
 
+def host_matrix_or_none(config, values, template) -> BuiltMatrix | None:
+    """:func:`host_matrix`, or ``None`` where its RBF system stays singular after the guard
+    (the caller's JAX build then reports it)."""
+    try:
+        return host_matrix(config, values, template)
+    except np.linalg.LinAlgError:
+        return None
+
+
 class _TargetRbf(NamedTuple):
     """What an operator's RBF part needs besides the values: the centres' system blocks and
     the kernel and tail at the UBO targets that no kept centre overwrites."""

@@ -2,21 +2,22 @@
 
 Where the restored subspaces go back (``ReconstructionOperator.keep``: the grid pairs of the RBF
 centres) the operator's output is ``M[keep] · z`` of the *uncapped* features (``_spikes.py``).
-Those rows of ``M`` are the restoration itself: each reads the few samples around its pair (4 to
-8 of 102 or 210 with linear slice interpolation), so their product is a sum of a few gathered
-columns, not a second dense product (``python -m benchmarks.btf``, ``python -m benchmarks``:
-the recommended operator's throughput).
+Those rows of ``M`` are the restoration itself: each reads the few samples around its pair
+(``(op.matrix[op.keep] != 0).sum(1)``: 2 to 4 of 102 for the recommended iso102 setting, 8 of
+210 in the BTF chunk map of ``btf.measurement_geometry()``), so their product is a sum of a few
+gathered columns, not a second dense product (``python -m benchmarks.btf``, ``python -m
+benchmarks``: the recommended operator's throughput).
 """
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 
 #: The kept rows' product runs as a sparse sum when each kept row of the matrix has at most this
-#: fraction of its columns nonzero (with linear slice interpolation a restored value reads 4 to
-#: 8 samples of 102 or 210), else as a dense product.
+#: fraction of its columns nonzero (with linear slice interpolation a restored value reads a few
+#: samples: module docstring), else as a dense product.
 SPARSE_KEPT = 0.25
 
 
@@ -43,14 +44,13 @@ def kept_weights(op):
     return jnp.take_along_axis(kept, op.keep_columns, axis=1)
 
 
-def kept_product(op, kept, rows: Float[Array, "BC f"]) -> Float[Array, "BC k"]:
-    """``rows · M[keep]ᵀ`` ``(B·C, k)`` from :func:`kept_weights` ``kept``: with
-    ``op.keep_columns`` a sum of ``nnz`` gathered columns (one fused loop; a dense product of
-    the kept rows did ~30 times the flops), else the dense product."""
-    if op.keep_columns is None:
-        return jnp.matmul(rows, kept.T, precision=jax.lax.Precision.HIGHEST)
-    cols = op.keep_columns
-    acc = kept[None, :, 0] * rows[:, cols[:, 0]]
+def kept_product(
+    weights: Float[Array, "k nnz"], cols: Int[Array, "k nnz"], rows: Float[Array, "BC f"]
+) -> Float[Array, "BC k"]:
+    """``rows · M[keep]ᵀ`` ``(B·C, k)`` from the kept rows' nonzero ``weights`` at columns
+    ``cols`` (:func:`kept_weights`, ``op.keep_columns``): a sum of ``nnz`` gathered columns, one
+    fused loop (the dense product of the kept rows does ``f / nnz`` times the flops)."""
+    acc = weights[None, :, 0] * rows[:, cols[:, 0]]
     for j in range(1, cols.shape[1]):
-        acc = acc + kept[None, :, j] * rows[:, cols[:, j]]
+        acc = acc + weights[None, :, j] * rows[:, cols[:, j]]
     return acc

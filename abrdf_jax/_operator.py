@@ -44,7 +44,7 @@ from ._errors import InputError
 from ._finite import check_concrete
 from ._grid import _centre_target_index, centre_layout, keep_centres, ubo_target_vectors
 from ._host_build import NONLINEAR_MODES as NONLINEAR_MODES, BuiltMatrix as BuiltMatrix
-from ._host_build import build_stage, host_matrix, sample_index, template_layout
+from ._host_build import build_stage, host_matrix_or_none, sample_index, template_layout
 from ._kept_rows import kept_columns, kept_product, kept_weights
 from ._measurements import Measurements
 from ._params import Config, Params
@@ -256,7 +256,9 @@ def _decoded(op: ReconstructionOperator, vs, z, zc, eps, kept=None):
     lin = _product(op.matrix, _rows(zc))
     if op.keep.shape[0]:
         kept = kept_weights(op) if kept is None else kept
-        fix = kept_product(op, kept, _rows(z))
+        rows = _rows(z)
+        cols = op.keep_columns
+        fix = _product(kept, rows) if cols is None else kept_product(kept, cols, rows)
         lin = lin.at[:, op.keep].set(fix, unique_indices=True)
     return vs.decode(_unrows(lin, z.shape[0]), eps)
 
@@ -458,10 +460,7 @@ def compile_operator(
     if isinstance(build_dtype, str) and build_dtype == "host":
         build_dtype = None
         if targets is None and build_stage(config, template, nonlinear) == "single":
-            try:
-                built = host_matrix(config, params, template)
-            except np.linalg.LinAlgError:  # singular after the guard: the JAX build reports it
-                built = None
+            built = host_matrix_or_none(config, params, template)
     if build_dtype is None:
         build_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
     if built is None:
