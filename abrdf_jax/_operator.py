@@ -46,6 +46,7 @@ from ._grid import _centre_target_index, centre_layout, keep_centres, ubo_target
 from ._host_build import NONLINEAR_MODES as NONLINEAR_MODES, BuiltMatrix as BuiltMatrix
 from ._host_build import build_stage, host_matrix_or_none, sample_index, template_layout
 from ._kept_rows import kept_columns, kept_product, kept_weights
+from ._low_rank import low_rank_factors
 from ._measurements import Measurements
 from ._params import Config, Params
 from ._pipeline import fit_inputs, rbf_map, subspace_values
@@ -76,6 +77,9 @@ class ReconstructionOperator(eqx.Module):
         grid: whether the output is the 81×81 UBO table (else ``(q, C)`` at the targets).
         keep_columns: ``(k, nnz)`` the nonzero columns of each kept row of ``matrix``
             (:func:`kept_columns`), or ``None``: the kept rows' product is then dense.
+        factors: ``(U, W)``, ``U · W = matrix`` with ``U`` ``(q, r)``, ``W`` ``(r, f)`` where
+            the matrix's rank ``r`` is low enough to save work (:mod:`abrdf_jax._low_rank`):
+            every product then runs through them; or ``None``.
     """
 
     matrix: Float[Array, "q f"]
@@ -91,6 +95,7 @@ class ReconstructionOperator(eqx.Module):
     grid: bool = eqx.field(static=True)
     centre_azimuths: int | None = eqx.field(static=True, default=None)
     keep_columns: Int[Array, "k nnz"] | None = None
+    factors: tuple[Float[Array, "q r"], Float[Array, "r f"]] | None = None
 
     @property
     def n_inputs(self) -> int:
@@ -218,6 +223,15 @@ def _product(m: Float[Array, "q f"], rows: Float[Array, "BC f"]) -> Float[Array,
     return jnp.matmul(rows, m.T, precision=jax.lax.Precision.HIGHEST)
 
 
+def _op_product(op: "ReconstructionOperator", rows: Float[Array, "BC f"]) -> Float[Array, "BC q"]:
+    """``rows · Mᵀ`` of the operator's matrix, through its low-rank factors where it has them:
+    ``(rows · Wᵀ) · Uᵀ``."""
+    if op.factors is None:
+        return _product(op.matrix, rows)
+    u, w = op.factors
+    return _product(u, _product(w, rows))
+
+
 def _unrows(out: Float[Array, "BC q"], b: int) -> Float[Array, "B q C"]:
     """GEMM rows ``(B·C, q)`` back to ``(B, q, C)``.
 
@@ -227,11 +241,6 @@ def _unrows(out: Float[Array, "BC q"], b: int) -> Float[Array, "B q C"]:
     B = 1000 on CPU).
     """
     return jnp.transpose(out.reshape(b, -1, out.shape[-1]), (0, 2, 1))
-
-
-def _matmul_batch(m: Float[Array, "q f"], z: Float[Array, "B f C"]) -> Float[Array, "B q C"]:
-    """``out[b] = m @ z[b]`` as one GEMM ``(B·C, f) · (f, q)`` (see :func:`_unrows`)."""
-    return _unrows(_product(m, _rows(z)), z.shape[0])
 
 
 #: Materials per matrix product in a large batch: ``(3·TILE, n_in) · (n_in, 6561)`` runs at the
@@ -252,8 +261,8 @@ def _decoded(op: ReconstructionOperator, vs, z, zc, eps, kept=None):
     product is written out once more: ``python -m benchmarks.btf``'s chunk map 15 % slower).
     ``kept`` is :func:`~._kept_rows.kept_weights`, taken once per call."""
     if zc is None:
-        return vs.decode(_matmul_batch(op.matrix, z), eps)
-    lin = _product(op.matrix, _rows(zc))
+        return vs.decode(_unrows(_op_product(op, _rows(z)), z.shape[0]), eps)
+    lin = _op_product(op, _rows(zc))
     if op.keep.shape[0]:
         kept = kept_weights(op) if kept is None else kept
         rows = _rows(z)
@@ -467,6 +476,7 @@ def compile_operator(
         built = operator_matrix(
             config, params, template, build_dtype=build_dtype, targets=targets, nonlinear=nonlinear
         )
+    factors = low_rank_factors(built.matrix)
     matrix = jnp.asarray(built.matrix, dtype)
     cols = kept_columns(matrix, built.keep)
     return ReconstructionOperator(
@@ -483,4 +493,5 @@ def compile_operator(
         targets is None,
         template.centre_azimuths,
         None if cols is None else jnp.asarray(cols),
+        None if factors is None else tuple(jnp.asarray(a, dtype) for a in factors),
     )

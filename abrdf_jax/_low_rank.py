@@ -1,0 +1,45 @@
+"""The compiled operator's matrix as two thin factors where its rank is below its width.
+
+The operator's matrix ``M`` ``(q, f)`` is ``K · A``: the RBF evaluation at the ``q`` targets
+times the map from the ``f`` samples to the RBF's coefficients, through the restored subspaces
+(``_operator.py``). Its rank is therefore at most what those share, and often below ``f``: 84 of
+102 columns for the recommended iso102 setting, 156 of 210 for the BTF chunk map of
+``btf.measurement_geometry()`` (``numpy.linalg.svd`` of the float64 build; singular values past
+the rank sit at 1e-13 of the largest, float64 rounding). Then ``M = U · W`` with ``U`` ``(q, r)``
+and ``W`` ``(r, f)``, and a batch's product ``rows · Mᵀ`` is ``(rows · Wᵀ) · Uᵀ``:
+``r · (q + f)`` multiply-adds per row instead of ``q · f`` (0.77 of them for the BTF chunk map,
+0.84 for iso102), the same result to rounding.
+
+Only a float64 matrix is factored: in a float32 build the rounding noise of the build (~1e-7
+of the largest singular value) hides where the rank ends.
+"""
+
+import jax
+import numpy as np
+
+#: Singular values at or below this fraction of the largest are the build's rounding (float64:
+#: ~1e-13 past the rank in the operators above; the smallest kept ones are ~1e-9).
+RANK_RTOL = 1e-11
+
+#: Factor only when the two products do at most this fraction of the dense product's work.
+MAX_WORK = 0.9
+
+
+def low_rank_factors(matrix) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(U, W)`` with ``U · W = matrix`` to float64 rounding, ``U`` ``(q, r)``, ``W`` ``(r, f)``
+    (the singular values split evenly between them), or ``None``: a traced or non-float64
+    matrix, or a rank too close to the width to save :data:`MAX_WORK` of the work."""
+    if isinstance(matrix, jax.core.Tracer):
+        return None
+    m = np.asarray(matrix)
+    if m.dtype != np.float64 or m.ndim != 2 or 0 in m.shape or not np.isfinite(m).all():
+        return None
+    q, f = m.shape
+    u, s, vt = np.linalg.svd(m, full_matrices=False)
+    if not s[0] > 0:
+        return None
+    r = int(np.count_nonzero(s > RANK_RTOL * s[0]))
+    if r * (q + f) > MAX_WORK * q * f:
+        return None
+    root = np.sqrt(s[:r])
+    return u[:, :r] * root, root[:, None] * vt[:r]
