@@ -93,7 +93,14 @@ def markdown(out: dict, suffix: str) -> str:
         f"| BTF, whole path (read, reconstruct, write), warm | {h['texels_per_second_warm']:.0f} texels/s "
         f"({h['vs_single_material']:.0f}× the single material) |",
         f"| BTF chunk map in memory (one chunk of {op['texels']}, no I/O, as `ShardedRunner` runs it), {op['backend']} | "
-        f"{op['texels_per_second']:.0f} texels/s, {op['gflops']:.1f} GFLOP/s |",
+        f"{op['texels_per_second']:.0f} texels/s, {op['gflops']:.1f} GFLOP/s"
+        + (
+            f" (dense-equivalent; {op['executed_gflops']:.1f} executed through its rank-"
+            f"{op['low_rank']} factors)"
+            if op.get("low_rank")
+            else ""
+        )
+        + " |",
         f"| float32 GEMM roofline, operator shape {op['gemm_shape']} | {roof['operator_shape']:.1f} GFLOP/s "
         f"(chunk map reaches {100 * op['fraction_of_roofline']:.0f} %) |",
         f"| float32 GEMM, 2048³ | {roof['square_2048']:.1f} GFLOP/s |",

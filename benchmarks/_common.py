@@ -51,6 +51,18 @@ def sample_batch(models, config, params=None) -> aj.Measurements:
     return jax.jit(jax.vmap(lambda m: aj.sample(m, config, params, as_measurements=True)))(models)
 
 
+def operator_flops(op, batch: int) -> tuple[float, float]:
+    """``(dense, executed)`` flops of ``batch`` materials (3 channels) through a compiled
+    operator's matrix product: the dense ``(q, n_in)`` product's, which the roofline fractions
+    use (a rate in ABRDFs normalised by the machine's GEMM rate), and what runs: through the
+    low-rank factors ``op.factors`` where the operator has them (``r · (q + n_in)`` a row)."""
+    q, f = op.matrix.shape
+    dense = 2.0 * q * f * 3 * batch
+    if op.factors is None:
+        return dense, dense
+    return dense, 2.0 * sum(int(a.size) for a in op.factors) * 3 * batch
+
+
 def metrics_of(rec, ref) -> dict:
     m = evaluate_batch(jnp.asarray(rec), jnp.asarray(ref))
     return {k: np.asarray(v) for k, v in m.items()}

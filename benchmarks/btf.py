@@ -110,7 +110,20 @@ def _run_child(meas: Path, out: Path, devices: int | None = None, fmt: str = "np
     return doc
 
 
-def _gemm_rate(m: int, k: int, n: int, repeats: int = 5) -> float:
+def _median_seconds(call, repeats: int = 5) -> float:
+    """Median wall seconds of ``call()`` (its result waited for), after one warm-up call."""
+    import jax
+
+    jax.block_until_ready(call())
+    ts = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(call())
+        ts.append(time.perf_counter() - t)
+    return statistics.median(ts)
+
+
+def _gemm_rate(m: int, k: int, n: int) -> float:
     """float32 GFLOP/s of an ``(m, k) @ (k, n)`` product (median of repeats, after a warm-up)."""
     import jax
     import jax.numpy as jnp
@@ -118,18 +131,11 @@ def _gemm_rate(m: int, k: int, n: int, repeats: int = 5) -> float:
     a = jax.random.normal(jax.random.PRNGKey(0), (m, k), jnp.float32)
     b = jax.random.normal(jax.random.PRNGKey(1), (k, n), jnp.float32)
     f = jax.jit(jnp.matmul)
-    f(a, b).block_until_ready()
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        f(a, b).block_until_ready()
-        ts.append(time.perf_counter() - t)
-    return 2.0 * m * k * n / statistics.median(ts) / 1e9
+    return 2.0 * m * k * n / _median_seconds(lambda: f(a, b)) / 1e9
 
 
 def _single_material() -> dict:
     """The single-material figure: one ``reconstruct`` (recommended, aniso204), after compilation."""
-    import jax
 
     import abrdf_jax as aj
     from abrdf_jax.materials import get_material
@@ -137,13 +143,7 @@ def _single_material() -> dict:
     cfg = aj.Config.recommended(budget="aniso204")
     p = aj.Params.default(cfg)
     m = aj.sample(get_material("ward-brushed-steel"), cfg, p, as_measurements=True)
-    jax.block_until_ready(aj.reconstruct(m, cfg, p))
-    ts = []
-    for _ in range(5):
-        t = time.perf_counter()
-        jax.block_until_ready(aj.reconstruct(m, cfg, p))
-        ts.append(time.perf_counter() - t)
-    s = statistics.median(ts)
+    s = _median_seconds(lambda: aj.reconstruct(m, cfg, p))
     return dict(config=repr(cfg), seconds_per_abrdf=s, abrdfs_per_second=1 / s)
 
 
@@ -157,21 +157,18 @@ def _operator_in_memory(meas_path: Path) -> dict:
     import abrdf_jax as aj
     from abrdf_jax import btf
 
+    from ._common import operator_flops
+
     meas = btf.ChunkedStore.open(meas_path)
     cfg = btf.default_config()
     fn = btf.make_chunk_fn(cfg, aj.Params.default(cfg, dtype=jnp.float32), meas.geometry)
     runner = btf.ShardedRunner(fn, jax.local_devices(), np.float16)
     y = np.asarray(meas.read(0, min(CHUNK, meas.n_texels)), np.float32)
     y = np.concatenate([y, np.repeat(y[-1:], runner.batch_size(len(y)) - len(y), axis=0)])
-    runner(y).block_until_ready()
-    ts = []
-    for _ in range(5):
-        t = time.perf_counter()
-        runner(y).block_until_ready()
-        ts.append(time.perf_counter() - t)
-    s = statistics.median(ts)
-    n_in = int(fn.operator.n_inputs) if fn.operator is not None else None
-    flops = 2.0 * 81 * 81 * n_in * 3 * y.shape[0] if n_in else float("nan")
+    s = _median_seconds(lambda: runner(y))
+    op = fn.operator  # the benchmark's default configuration is linear: the operator path
+    n_in = int(op.n_inputs)
+    flops, executed = operator_flops(op, y.shape[0])  # dense-equivalent, and what runs
     return dict(
         backend=fn.backend,
         texels=int(y.shape[0]),
@@ -179,6 +176,8 @@ def _operator_in_memory(meas_path: Path) -> dict:
         texels_per_second=y.shape[0] / s,
         n_inputs=n_in,
         gflops=flops / s / 1e9,
+        executed_gflops=executed / s / 1e9,
+        low_rank=None if op.factors is None else int(op.factors[1].shape[0]),
         gemm_shape=[81 * 81, n_in, 3 * int(y.shape[0])],
     )
 
