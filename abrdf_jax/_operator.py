@@ -477,14 +477,17 @@ def compile_operator(
             config, params, template, build_dtype=build_dtype, targets=targets, nonlinear=nonlinear
         )
     factors = low_rank_factors(built.matrix)
-    matrix = jnp.asarray(built.matrix, dtype)
-    cols = kept_columns(matrix, built.keep)
+
+    def put(x, dt):  # host arrays cast in numpy: no eager JAX op (each compiles on a cold call)
+        return jnp.asarray(np.asarray(x, dt) if isinstance(x, np.ndarray) else x, dt)
+
+    cols = kept_columns(matrix := put(built.matrix, dtype), built.keep)
     return ReconstructionOperator(
         matrix,
-        jnp.asarray(built.index, jnp.int32),
-        jnp.asarray(built.keep, jnp.int32),
-        jnp.asarray(built.t, dtype),
-        jnp.asarray(built.count, jnp.int32),
+        put(built.index, jnp.int32),
+        put(built.keep, jnp.int32),
+        put(built.t, dtype),
+        put(built.count, jnp.int32),
         params.astype(dtype),
         config,
         built.stage,
@@ -493,5 +496,5 @@ def compile_operator(
         targets is None,
         template.centre_azimuths,
         None if cols is None else jnp.asarray(cols),
-        None if factors is None else tuple(jnp.asarray(a, dtype) for a in factors),
+        None if factors is None else tuple(put(a, dtype) for a in factors),
     )
