@@ -15,7 +15,9 @@ of the largest singular value) hides where the rank ends.
 """
 
 import jax
+import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 #: Singular values at or below this fraction of the largest are the build's rounding (float64:
 #: ~1e-13 past the rank in the operators above; the smallest kept ones are ~1e-9).
@@ -43,3 +45,14 @@ def low_rank_factors(matrix) -> tuple[np.ndarray, np.ndarray] | None:
         return None
     root = np.sqrt(s[:r])
     return u[:, :r] * root, root[:, None] * vt[:r]
+
+
+def product(
+    matrix: Float[Array, "q f"], rows: Float[Array, "n f"], factors=None
+) -> Float[Array, "n q"]:
+    """``rows · matrixᵀ``, through ``factors`` ``(U, W)`` (:func:`low_rank_factors`) where
+    given: ``(rows · Wᵀ) · Uᵀ``."""
+    if factors is not None:
+        u, w = factors
+        return product(u, product(w, rows))
+    return jnp.matmul(rows, matrix.T, precision=jax.lax.Precision.HIGHEST)

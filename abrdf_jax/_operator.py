@@ -46,7 +46,7 @@ from ._grid import _centre_target_index, centre_layout, keep_centres, ubo_target
 from ._host_build import NONLINEAR_MODES as NONLINEAR_MODES, BuiltMatrix as BuiltMatrix
 from ._host_build import build_stage, host_matrix_or_none, sample_index, template_layout
 from ._kept_rows import kept_columns, kept_product, kept_weights
-from ._low_rank import low_rank_factors
+from ._low_rank import low_rank_factors, product as _product
 from ._measurements import Measurements
 from ._params import Config, Params
 from ._pipeline import fit_inputs, rbf_map, subspace_values
@@ -219,19 +219,6 @@ def _rows(z: Float[Array, "B f C"]) -> Float[Array, "BC f"]:
     return jnp.transpose(z, (0, 2, 1)).reshape(b * c, f)
 
 
-def _product(m: Float[Array, "q f"], rows: Float[Array, "BC f"]) -> Float[Array, "BC q"]:
-    return jnp.matmul(rows, m.T, precision=jax.lax.Precision.HIGHEST)
-
-
-def _op_product(op: "ReconstructionOperator", rows: Float[Array, "BC f"]) -> Float[Array, "BC q"]:
-    """``rows · Mᵀ`` of the operator's matrix, through its low-rank factors where it has them:
-    ``(rows · Wᵀ) · Uᵀ``."""
-    if op.factors is None:
-        return _product(op.matrix, rows)
-    u, w = op.factors
-    return _product(u, _product(w, rows))
-
-
 def _unrows(out: Float[Array, "BC q"], b: int) -> Float[Array, "B q C"]:
     """GEMM rows ``(B·C, q)`` back to ``(B, q, C)``.
 
@@ -261,8 +248,8 @@ def _decoded(op: ReconstructionOperator, vs, z, zc, eps, kept=None):
     product is written out once more: ``python -m benchmarks.btf``'s chunk map 15 % slower).
     ``kept`` is :func:`~._kept_rows.kept_weights`, taken once per call."""
     if zc is None:
-        return vs.decode(_unrows(_op_product(op, _rows(z)), z.shape[0]), eps)
-    lin = _op_product(op, _rows(zc))
+        return vs.decode(_unrows(_product(op.matrix, _rows(z), op.factors), z.shape[0]), eps)
+    lin = _product(op.matrix, _rows(zc), op.factors)
     if op.keep.shape[0]:
         kept = kept_weights(op) if kept is None else kept
         rows = _rows(z)
@@ -481,7 +468,9 @@ def compile_operator(
     def put(x, dt):  # host arrays cast in numpy: no eager JAX op (each compiles on a cold call)
         return jnp.asarray(np.asarray(x, dt) if isinstance(x, np.ndarray) else x, dt)
 
-    cols = kept_columns(matrix := put(built.matrix, dtype), built.keep)
+    host = built.matrix  # the kept rows' columns read off the host copy where there is one
+    host = np.asarray(host, dtype) if isinstance(host, np.ndarray) else host
+    cols, matrix = kept_columns(host, built.keep), put(host, dtype)
     return ReconstructionOperator(
         matrix,
         put(built.index, jnp.int32),
