@@ -417,7 +417,7 @@ def compile_operator(
     template: Measurements,
     *,
     dtype=None,
-    build_dtype=None,
+    build_dtype="host",
     targets: tuple[Float[Array, "q 3"], Float[Array, "q 3"]] | None = None,
     nonlinear: str = "raise",
 ) -> ReconstructionOperator:
@@ -431,12 +431,14 @@ def compile_operator(
         template: one measurement (unbatched, or a stack whose members share one layout) whose
             slice parameters and counts every later input shares, e.g. ``sample(..., as_measurements=True)``.
         dtype: dtype of the operator and its outputs; default the template's.
-        build_dtype: dtype in which the matrix is computed (then cast to ``dtype``); default
-            float64 when ``jax_enable_x64`` is on, else ``dtype``. ``"host"``: float64 in numpy
-            without JAX (the command line's build, :func:`abrdf_jax._host_build.host_matrix`:
-            faster on a cold call, and a float32 operator then matches the float64
-            reconstruction to float32 rounding) where the setting allows it (one matrix on the
-            UBO grid, an RBF system that is not singular), else the default.
+        build_dtype: dtype in which the matrix is computed in JAX (then cast to ``dtype``).
+            Default ``"host"``: float64 in numpy without JAX (the command line's build,
+            :func:`abrdf_jax._host_build.host_matrix`: no compilation on a cold call, a float32
+            operator then matches the float64 reconstruction to float32 rounding, and its
+            low-rank factors can be read off, :mod:`abrdf_jax._low_rank`) where the setting
+            allows it (one matrix on the UBO grid, concrete parameters and template, an RBF
+            system that is not singular), else JAX in float64 when ``jax_enable_x64`` is on,
+            else in ``dtype``.
         targets: ``(wi, wv)`` unit vectors ``(q, 3)``: evaluate there instead of the UBO grid.
         nonlinear: ``"raise"`` (default) for settings that are not linear in the (log) samples,
             or ``"two_stage"``: per-material subspace step, then the RBF matrix.
@@ -453,9 +455,12 @@ def compile_operator(
         raise InputError(f"template must be a Measurements, got {type(template).__name__}")
     dtype = jnp.dtype(dtype or template.y.dtype)
     built = None
-    if isinstance(build_dtype, str) and build_dtype == "host":
+    if build_dtype is None or (isinstance(build_dtype, str) and build_dtype == "host"):
         build_dtype = None
-        if targets is None and build_stage(config, template, nonlinear) == "single":
+        concrete = not any(
+            isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves((params, template))
+        )
+        if concrete and targets is None and build_stage(config, template, nonlinear) == "single":
             built = host_matrix_or_none(config, params, template)
     if build_dtype is None:
         build_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype

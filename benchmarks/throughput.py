@@ -40,6 +40,7 @@ import statistics
 import sys
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -149,7 +150,13 @@ PRESETS = {
     "recommended": lambda: aj.Config.recommended(value_space="logsamples"),
     # the same without the spike cap (Config.spike_cap): what the cap's second product costs
     "recommended-nocap": lambda: aj.Config.recommended(value_space="logsamples", spike_cap=None),
+    # the recommended operator with its dense matrix product instead of its low-rank factors
+    # (abrdf_jax._low_rank): what the factors gain, in the same run
+    "recommended-dense": lambda: aj.Config.recommended(value_space="logsamples"),
 }
+
+#: Presets run with the dense product (their operator's ``factors`` dropped).
+DENSE = ("recommended-dense",)
 
 
 def _params(cfg: aj.Config, dtype) -> aj.Params:
@@ -182,6 +189,8 @@ def measure(mode: str = "quick", log=print) -> dict:
         params = _params(cfg, dtype)
         t = time.perf_counter()
         op = jax.block_until_ready(aj.compile_operator(cfg, params, meas, dtype=dtype))
+        if name in DENSE:
+            op = eqx.tree_at(lambda o: o.factors, op, replace=None)
         build = time.perf_counter() - t
         rows = []
         for b in BATCHES[mode]:
@@ -240,6 +249,8 @@ def measure(mode: str = "quick", log=print) -> dict:
         meas = template(cfg, per, dtype)
         t = time.perf_counter()
         op = jax.block_until_ready(aj.compile_operator(cfg, params, meas, dtype=dtype))
+        if name in DENSE:
+            op = eqx.tree_at(lambda o: o.factors, op, replace=None)
         build = time.perf_counter() - t
         x = values(op, meas, 100)
         jax.block_until_ready(op(x))

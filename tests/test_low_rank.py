@@ -65,3 +65,25 @@ def test_float32_build_has_no_factors():
     params = aj.Params.default(cfg)
     meas = aj.sample(get_material("ggx-plastic"), cfg, params, as_measurements=True)
     assert aj.compile_operator(cfg, params, meas, build_dtype=jnp.float32).factors is None
+
+
+def test_default_build_is_the_host_one_and_a_trace_builds_in_jax():
+    """``compile_operator``'s default build is float64 numpy (factors read off it); with traced
+    parameters (under ``jit``) it builds in JAX instead, without factors, the same matrix to the
+    float32 build's rounding."""
+    cfg = aj.preset("operator", "iso102")
+    params = aj.Params.default(cfg)
+    meas = aj.sample(get_material("ggx-plastic"), cfg, params, as_measurements=True)
+    op = aj.compile_operator(cfg, params, meas)
+    assert op.factors is not None
+    seen = []
+
+    def build(p):
+        traced = aj.compile_operator(cfg, p, meas)
+        seen.append(traced.factors)
+        return traced.matrix
+
+    m = np.asarray(jax.jit(build)(params))
+    assert seen == [None]
+    ref = np.asarray(op.matrix)
+    np.testing.assert_allclose(m, ref, rtol=0, atol=2e-3 * np.abs(ref).max())
