@@ -432,7 +432,7 @@ def compile_operator(
             slice parameters and counts every later input shares, e.g. ``sample(..., as_measurements=True)``.
         dtype: dtype of the operator and its outputs; default the template's.
         build_dtype: dtype in which the matrix is computed in JAX (then cast to ``dtype``).
-            Default ``"host"``: float64 in numpy without JAX (the command line's build,
+            Default ``"host"`` (``None`` alike): float64 in numpy without JAX (the command line's build,
             :func:`abrdf_jax._host_build.host_matrix`: no compilation on a cold call, a float32
             operator then matches the float64 reconstruction to float32 rounding, and its
             low-rank factors can be read off, :mod:`abrdf_jax._low_rank`) where the setting

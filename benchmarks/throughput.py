@@ -151,7 +151,7 @@ PRESETS = {
     # the same without the spike cap (Config.spike_cap): what the cap's second product costs
     "recommended-nocap": lambda: aj.Config.recommended(value_space="logsamples", spike_cap=None),
     # the recommended operator with its dense matrix product instead of its low-rank factors
-    # (abrdf_jax._low_rank): what the factors gain, in the same run
+    # (ReconstructionOperator.factors): what the factors gain, in the same run
     "recommended-dense": lambda: aj.Config.recommended(value_space="logsamples"),
 }
 
@@ -342,7 +342,7 @@ def table(tp: dict, scipy_seconds: float | None = None) -> str:
         )
         if p.get("factor_rank"):
             txt += (
-                f"; run through its rank-{p['factor_rank']} factors (abrdf_jax._low_rank: the "
+                f"; run through its rank-{p['factor_rank']} factors (the operator's `factors`: the "
                 "fractions count the dense product's flops)"
             )
         if scipy_seconds:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import abrdf_jax as aj
-from abrdf_jax._low_rank import MAX_WORK, low_rank_factors
+from abrdf_jax._low_rank import MAX_COLUMNS, MAX_WORK, low_rank_factors
 from abrdf_jax._operator import TILE
 from abrdf_jax.materials import get_material
 
@@ -28,6 +28,8 @@ def test_no_factors_where_they_would_not_pay_or_cannot_be_trusted():
     r = int(MAX_WORK * 400 * 90 / (400 + 90)) + 1  # just above the work limit
     near = rng.normal(size=(400, r)) @ rng.normal(size=(r, 90))
     assert low_rank_factors(near) is None
+    wide = rng.normal(size=(600, 10)) @ rng.normal(size=(10, MAX_COLUMNS + 1))
+    assert low_rank_factors(wide) is None  # its SVD would cost more than the build
     low = rng.normal(size=(400, 10)) @ rng.normal(size=(10, 90))
     assert low_rank_factors(low.astype(np.float32)) is None  # float32: rounding hides the rank
     assert low_rank_factors(np.zeros((400, 90))) is None
