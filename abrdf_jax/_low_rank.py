@@ -4,8 +4,8 @@ The operator's matrix ``M`` ``(q, f)`` is ``K · A``: the RBF evaluation at the 
 times the map from the ``f`` samples to the RBF's coefficients, through the restored subspaces
 (``_operator.py``). Its rank is therefore at most what those share, and often below ``f``: 84 of
 102 columns for the recommended iso102 setting, 156 of 210 for the BTF chunk map of
-``btf.measurement_geometry()`` (``numpy.linalg.svd`` of the float64 build; singular values past
-the rank sit at 1e-13 of the largest, float64 rounding). Then ``M = U · W`` with ``U`` ``(q, r)``
+``btf.measurement_geometry()`` (the factors' ranks ``python -m benchmarks`` and ``python -m
+benchmarks.btf`` print). Then ``M = U · W`` with ``U`` ``(q, r)``
 and ``W`` ``(r, f)``, and a batch's product ``rows · Mᵀ`` is ``(rows · Wᵀ) · Uᵀ``:
 ``r · (q + f)`` multiply-adds per row instead of ``q · f`` (0.77 of them for the BTF chunk map,
 0.84 for iso102), the same result to rounding.
@@ -19,16 +19,16 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-#: Singular values at or below this fraction of the largest are the build's rounding (float64:
-#: ~1e-13 past the rank in the operators above; the smallest kept ones are ~1e-9).
+#: Singular values at or below this fraction of the largest are taken as the float64 build's
+#: rounding (float64's ε is 2.2e-16): the factors reproduce the matrix to that fraction.
 RANK_RTOL = 1e-11
 
 #: Factor only when the two products do at most this fraction of the dense product's work.
 MAX_WORK = 0.9
 
 #: Factor only matrices of at most this many columns (samples): the SVD costs ``~4 q f²``
-#: flops, 0.08 s for the BTF chunk map's ``(6561, 210)`` and seconds for the thousands of
-#: samples of a dense capture's operator, which then keeps the dense product.
+#: flops, a few GFLOP for the BTF chunk map's ``(6561, 210)`` and hundreds for the thousands
+#: of samples of a dense capture's operator, which then keeps the dense product.
 MAX_COLUMNS = 512
 
 

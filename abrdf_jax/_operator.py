@@ -473,9 +473,9 @@ def compile_operator(
     def put(x, dt):  # host arrays cast in numpy: no eager JAX op (each compiles on a cold call)
         return jnp.asarray(np.asarray(x, dt) if isinstance(x, np.ndarray) else x, dt)
 
-    host = built.matrix  # the kept rows' columns read off the host copy where there is one
-    host = np.asarray(host, dtype) if isinstance(host, np.ndarray) else host
-    cols, matrix = kept_columns(host, built.keep), put(host, dtype)
+    host = built.matrix  # cast in numpy where built there; the kept rows' columns read off it
+    host = host.astype(dtype) if isinstance(host, np.ndarray) else host
+    cols, matrix = kept_columns(host, built.keep), jnp.asarray(host, dtype)
     return ReconstructionOperator(
         matrix,
         put(built.index, jnp.int32),

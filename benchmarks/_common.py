@@ -51,6 +51,19 @@ def sample_batch(models, config, params=None) -> aj.Measurements:
     return jax.jit(jax.vmap(lambda m: aj.sample(m, config, params, as_measurements=True)))(models)
 
 
+def median_seconds(call, repeats: int = 5, warmup: bool = True) -> float:
+    """Median wall seconds of ``call()`` over ``repeats`` calls, each waited for
+    (``jax.block_until_ready``), after one untimed warm-up call unless ``warmup=False``."""
+    if warmup:
+        jax.block_until_ready(call())
+    ts = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(call())
+        ts.append(time.perf_counter() - t)
+    return float(np.median(ts))
+
+
 def operator_flops(op, batch: int) -> tuple[float, float]:
     """``(dense, executed)`` flops of ``batch`` materials (3 channels) through a compiled
     operator's matrix product: the dense ``(q, n_in)`` product's, which the roofline fractions

@@ -37,7 +37,6 @@ import json
 import os
 import resource
 import shutil
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -110,28 +109,17 @@ def _run_child(meas: Path, out: Path, devices: int | None = None, fmt: str = "np
     return doc
 
 
-def _median_seconds(call, repeats: int = 5) -> float:
-    """Median wall seconds of ``call()`` (its result waited for), after one warm-up call."""
-    import jax
-
-    jax.block_until_ready(call())
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(call())
-        ts.append(time.perf_counter() - t)
-    return statistics.median(ts)
-
-
 def _gemm_rate(m: int, k: int, n: int) -> float:
     """float32 GFLOP/s of an ``(m, k) @ (k, n)`` product (median of repeats, after a warm-up)."""
     import jax
     import jax.numpy as jnp
 
+    from ._common import median_seconds
+
     a = jax.random.normal(jax.random.PRNGKey(0), (m, k), jnp.float32)
     b = jax.random.normal(jax.random.PRNGKey(1), (k, n), jnp.float32)
     f = jax.jit(jnp.matmul)
-    return 2.0 * m * k * n / _median_seconds(lambda: f(a, b)) / 1e9
+    return 2.0 * m * k * n / median_seconds(lambda: f(a, b)) / 1e9
 
 
 def _single_material() -> dict:
@@ -140,10 +128,12 @@ def _single_material() -> dict:
     import abrdf_jax as aj
     from abrdf_jax.materials import get_material
 
+    from ._common import median_seconds
+
     cfg = aj.Config.recommended(budget="aniso204")
     p = aj.Params.default(cfg)
     m = aj.sample(get_material("ward-brushed-steel"), cfg, p, as_measurements=True)
-    s = _median_seconds(lambda: aj.reconstruct(m, cfg, p))
+    s = median_seconds(lambda: aj.reconstruct(m, cfg, p))
     return dict(config=repr(cfg), seconds_per_abrdf=s, abrdfs_per_second=1 / s)
 
 
@@ -157,7 +147,7 @@ def _operator_in_memory(meas_path: Path) -> dict:
     import abrdf_jax as aj
     from abrdf_jax import btf
 
-    from ._common import operator_flops
+    from ._common import median_seconds, operator_flops
 
     meas = btf.ChunkedStore.open(meas_path)
     cfg = btf.default_config()
@@ -165,7 +155,7 @@ def _operator_in_memory(meas_path: Path) -> dict:
     runner = btf.ShardedRunner(fn, jax.local_devices(), np.float16)
     y = np.asarray(meas.read(0, min(CHUNK, meas.n_texels)), np.float32)
     y = np.concatenate([y, np.repeat(y[-1:], runner.batch_size(len(y)) - len(y), axis=0)])
-    s = _median_seconds(lambda: runner(y))
+    s = median_seconds(lambda: runner(y))
     op = fn.operator  # the benchmark's default configuration is linear: the operator path
     n_in = int(op.n_inputs)
     flops, executed = operator_flops(op, y.shape[0])  # dense-equivalent, and what runs

@@ -9,7 +9,6 @@ download), iso102, float32 for JAX (the package default) and float64 for scipy (
 from __future__ import annotations
 
 import argparse
-import statistics
 import time
 
 import jax
@@ -18,17 +17,13 @@ import numpy as np
 import abrdf_jax as aj
 from abrdf_jax.materials import default_materials
 
-from ._common import machine, write_json
+from ._common import machine, median_seconds, write_json
 from .scipy_peer import reconstruct_samples
 
 
 def timeit(fn, repeats):
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn())
-        ts.append(time.perf_counter() - t)
-    return statistics.median(ts)
+    """Median seconds of ``fn()`` (the callers warm up on another input first)."""
+    return median_seconds(fn, repeats, warmup=False)
 
 
 def measurements(n, cfg):

@@ -131,7 +131,7 @@ def make_chunk_fn(
     if backend in ("auto", "operator"):
         try:
             # built in float64 numpy (no compile; float32 rounding of the float64 operator)
-            operator = compile_operator(config, params, template, build_dtype="host")
+            operator = compile_operator(config, params, template)  # float64 numpy build
         except InputError as e:
             why = f"the operator does not apply: {e}"
         if operator is not None:
