@@ -79,6 +79,16 @@ KINDS = _kinds()
 QUICK_KINDS = tuple(k for k, v in KINDS.items() if v.quick)
 
 
+def protocol_pair_cells() -> np.ndarray:
+    """``(81, 81)`` mask of the UBO table's cells at the protocol's four elevation pairs
+    (θi, θv) ∈ {30, 75}²: 36 × 36 of the 81 × 81 cells (20 %), the only cells where a capture
+    at the protocol's pairs measures anything; every other cell is interpolated across
+    elevation, however dense the slices."""
+    theta = np.asarray(aj.ubo_grid()[0])
+    rows = [(theta[:, None] == a) & (theta[None, :] == b) for a, b in aj.PROTOCOL_PAIRS]
+    return np.logical_or.reduce(rows)
+
+
 @dataclass(frozen=True)
 class MaterialSet:
     """A set of materials captured with one budget."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ._captures_kinds import KINDS
+from ._captures_kinds import KINDS, protocol_pair_cells
 
 
 def _f(result: dict, key: str, fmt: str = ".2f") -> str:
@@ -53,6 +53,7 @@ def markdown(payload: dict) -> str:
                     notes.append(f"- {k}, {who}: n/a: {res['n/a'][:300]}")
         if notes:
             out += ["", *notes]
+        out += ["", *_where(block["kinds"])]
     out += ["", "## Targets (issue 12)", "", "| target | set | kind | value | limit | result |"]
     out.append("|---|---|---|---|---|---|")
     for t in payload["targets"]:
@@ -72,6 +73,39 @@ def markdown(payload: dict) -> str:
     return "\n".join(out) + "\n"
 
 
+def _where(kinds: dict) -> list[str]:
+    """The package's mean ΔE76 at the protocol's pairs and elsewhere, and the bound it sets."""
+    share = float(protocol_pair_cells().mean())
+    out = [
+        f"Where the package's error lies: mean ΔE76 over the cells at the protocol's four "
+        f"elevation pairs (θi, θv ∈ {{30°, 75°}}: {share:.0%} of the 81 × 81 cells, the only ones "
+        f"a capture at those pairs measures) and over the other {1 - share:.0%} (interpolated "
+        "across elevation):",
+        "",
+        "| capture | at the protocol's pairs | elsewhere | all cells |",
+        "|---|---|---|---|",
+    ]
+    for k, r in kinds.items():
+        p = r["package"]
+        if "n/a" in p:
+            continue
+        out.append(
+            f"| {k} | {p['de76_protocol_pairs']:.2f} | {p['de76_elsewhere']:.2f} | "
+            f"{p['de76']:.2f} |"
+        )
+    base = kinds.get("protocol", {}).get("package", {})
+    if "de76_elsewhere" in base and base["de76"] > 0:
+        bound = (1 - share) * base["de76_elsewhere"] / base["de76"]
+        out += [
+            "",
+            "Denser slices at the same pairs add samples only at the first column's cells: "
+            f"were its error 0 and the rest unchanged, the mean would be {bound:.3f} of the "
+            "protocol capture's: the ratio denser slices reach unless they also improve the "
+            "interpolation elsewhere.",
+        ]
+    return out
+
+
 def pass_fail_lines(payload: dict) -> list[str]:
     """One ``PASS``/``FAIL`` line per target, for the console."""
     out = []
@@ -89,6 +123,13 @@ METHODS = (
     ("package", "abrdf_jax CLI", "o-"),
     ("scipy", "scipy peer", "s--"),
     ("mean_fill", "mean fill", "^:"),
+)
+
+
+#: The package's ΔE76 split by cells (``benchmarks.captures.SPLIT``) in the density chart.
+SPLIT_LINES = (
+    ("de76_protocol_pairs", "abrdf_jax CLI, at the protocol's pairs", "v--"),
+    ("de76_elsewhere", "abrdf_jax CLI, elsewhere", "^:"),
 )
 
 
@@ -122,6 +163,10 @@ def charts(payload: dict, folder: Path, suffix: str) -> list[str]:
                 xs, ys = _series(kinds, names, method, metric)
                 if xs:
                     ax.plot(xs, ys, style, label=label, ms=4)
+            for key, label, style in SPLIT_LINES if metric == "de76" else ():
+                xs, ys = _series(kinds, names, "package", key)
+                if xs:
+                    ax.plot(xs, ys, style, label=label, ms=3, color="C0", alpha=0.6)
             ax.set_xscale("log")
             ticks = [x for k, x in names if k in kinds]
             ax.set_xticks(ticks, [f"{x:g}" for x in ticks])

@@ -37,7 +37,7 @@ import numpy as np
 import abrdf_jax as aj
 from abrdf_jax import io, materials, metrics
 
-from ._captures_kinds import KINDS, QUICK_KINDS, SETS, check_targets
+from ._captures_kinds import KINDS, QUICK_KINDS, SETS, check_targets, protocol_pair_cells
 from ._captures_report import charts, markdown, pass_fail_lines
 from ._common import RESULTS, machine, write_json
 
@@ -51,18 +51,35 @@ def _load():
     return [round(x, 2) for x in os.getloadavg()]
 
 
+#: Where the error lies: mean ΔE76 over the cells at the protocol's pairs and over the rest.
+SPLIT = ("de76_protocol_pairs", "de76_elsewhere")
+_CELLS = protocol_pair_cells()
+
+
 def summary(per: dict[str, dict]) -> dict:
-    """Mean and median ΔE76 and LogErr over materials, and the per-material figures."""
+    """Mean and median ΔE76 and LogErr over materials, the means of :data:`SPLIT`, and the
+    per-material figures."""
     out = {}
     for key in ("de76", "logerr"):
         v = np.array([m[key] for m in per.values()], float)
         out[key], out[f"{key}_median"] = float(np.mean(v)), float(np.median(v))
+    for key in SPLIT:
+        out[key] = float(np.mean([m[key] for m in per.values()]))
     return out | {"per_material": per}
 
 
 def errors(rec, ref) -> dict:
-    m = metrics.evaluate(np.asarray(rec, np.float32), np.asarray(ref, np.float32))
-    return {"de76": float(m["de76"]), "logerr": float(m["logerr"])}
+    """ΔE76 and LogErr of one table, and ΔE76 split by :func:`protocol_pair_cells` (the mean
+    of the per-pair map :func:`abrdf_jax.metrics.delta_e76_pairs` is ΔE76 itself)."""
+    rec, ref = np.asarray(rec, np.float32), np.asarray(ref, np.float32)
+    m = metrics.evaluate(rec, ref)
+    de = np.asarray(metrics.delta_e76_pairs(rec, ref))
+    return {
+        "de76": float(m["de76"]),
+        "logerr": float(m["logerr"]),
+        SPLIT[0]: float(de[_CELLS].mean()),
+        SPLIT[1]: float(de[~_CELLS].mean()),
+    }
 
 
 def valid(table) -> str | None:

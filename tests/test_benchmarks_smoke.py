@@ -10,6 +10,8 @@ the Pareto flags must agree with the points, and the throughput block's figures 
 import json
 import math
 
+import pytest
+
 from benchmarks import suite
 
 POINT_KEYS = {
@@ -139,8 +141,12 @@ def test_captures_smoke_writes_valid_json(tmp_path):
                 assert res["n/a"], (kind, method)
                 continue
             assert set(res["per_material"]) == set(block["materials"])
-            for key in ("de76", "de76_median", "logerr", "logerr_median"):
+            for key in ("de76", "de76_median", "logerr", "logerr_median", *captures.SPLIT):
                 assert math.isfinite(res[key]) and res[key] >= 0, (kind, method, key)
+            share = 1296 / 6561  # the protocol's pairs: 36 x 36 of the 81 x 81 cells
+            for m in res["per_material"].values():  # the split's cells add up to the whole
+                whole = share * m[captures.SPLIT[0]] + (1 - share) * m[captures.SPLIT[1]]
+                assert whole == pytest.approx(m["de76"], rel=1e-4), (kind, method)
     assert block["kinds"]["protocol"]["cli"]["exit_code"] == 0  # the ideal capture runs today
     assert block["kinds"]["protocol"]["n_samples"]["ggx-aniso-metal"] == 204
     targets = payload["targets"]
@@ -148,5 +154,6 @@ def test_captures_smoke_writes_valid_json(tmp_path):
     assert all(isinstance(t["pass"], bool) for t in targets)
     md = (tmp_path / "captures_quick.md").read_text()
     assert "| capture |" in md and "## Targets" in md and "gap-20" in md
+    assert "Where the package's error lies" in md and "unless they also improve" in md
     for chart in ("captures_density_quick.png", "captures_noise_quick.png"):
         assert (tmp_path / chart).stat().st_size > 10_000
