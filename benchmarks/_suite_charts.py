@@ -138,8 +138,17 @@ def plot_throughput(payload: dict, path=None):
         c="0.5",
         ls=":",
         lw=1,
-        label="the same-shape GEMM alone",
+        label="the same-shape GEMM alone (XLA)",
     )
+    nb = tp.get("gemm_same_shape_numpy")
+    if nb:
+        ax.axhline(
+            nb["gflops"] * 1e9 / flops_per_abrdf,
+            c="0.5",
+            ls="-.",
+            lw=1,
+            label=f"the same-shape GEMM alone (numpy, {nb['blas']})",
+        )
     scipy = (tp.get("targets") or {}).get("scipy_abrdfs_per_second")
     if scipy:
         ax.axhline(scipy, c="#ff7f0e", ls="-.", lw=1, label=f"scipy peer ({scipy:.1f} ABRDF/s)")

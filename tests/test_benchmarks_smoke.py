@@ -79,6 +79,9 @@ def test_suite_smoke_writes_valid_json(data_dir, tmp_path, monkeypatch):
     # rates derived consistently from those times
     tp = payload["throughput"]
     assert tp["batches"] == [1, 10] and tp["gemm_square"]["gflops"] > 0
+    nb = tp["gemm_same_shape_numpy"]  # the same GEMM in numpy's BLAS, beside XLA's
+    assert nb["shape"] == tp["gemm_same_shape"]["shape"] == [30, 102, 6561]
+    assert math.isclose(nb["gflops"], 2.0 * 30 * 102 * 6561 / nb["seconds"] / 1e9, rel_tol=1e-9)
     pre = tp["presets"]["paper"]
     assert pre["matrix_shape"] == [6561, 102] and pre["n_inputs"] == 102
     for row, b in zip(pre["rows"], tp["batches"]):
@@ -95,7 +98,7 @@ def test_suite_smoke_writes_valid_json(data_dir, tmp_path, monkeypatch):
     assert (tmp_path / "speed_accuracy_smoke.png").stat().st_size > 10_000
     assert (tmp_path / "throughput_batch_smoke.png").stat().st_size > 10_000
     md = (tmp_path / "suite_smoke.md").read_text()
-    assert "| configuration |" in md and "| batch |" in md
+    assert "| configuration |" in md and "| batch |" in md and "in numpy's" in md
     # --replot rebuilds the table from the stored JSON alone
     (tmp_path / "suite_smoke.md").unlink()
     suite.main(["--smoke", "--out", str(tmp_path), "--replot", "--no-plot"], log=lambda *a: None)
