@@ -305,32 +305,33 @@ def folder_settings(args) -> dict:
 
 
 def _run(args, files, targets, out, folder_mode, prior) -> int:
-    args.resumed, args.all_files = [], files
+    resumed, all_files = [], files
     if args.overwrite and not folder_mode:
         raise InputError("--overwrite is for an output folder; an output file is always replaced")
-    args.settings = folder_settings(args) if folder_mode else None
+    settings = folder_settings(args) if folder_mode else None
     same = folder_mode and common.folder_settings_check(
-        out.parent / (out.name + ".model.json"), args.settings, args.overwrite
+        out.parent / (out.name + ".model.json"), settings, args.overwrite
     )
     if args.resume:
         if not folder_mode:
             raise InputError("--resume needs an output folder (several inputs or a folder)")
         if same:
-            files, targets, args.resumed = common.resumable(files, targets, out)
+            files, targets, resumed = common.resumable(files, targets, out)
         if not files:
-            print(f"{out}: all {len(args.resumed)} tables are complete (--resume); nothing to do")
+            print(f"{out}: all {len(resumed)} tables are complete (--resume); nothing to do")
             return 0
     # Read and check every input before computing or writing anything.
     forced = common.forced_budget(args)
     caches: list[common.Caches] = []
     before = lambda: caches.append(common.Caches(args.cache_dir, common.warn))  # noqa: E731
-    place = {str(f): k for k, f in enumerate(args.all_files)}  # each input's place in the job
+    place = {str(f): k for k, f in enumerate(all_files)}  # each input's place in the job
     blocks = common.input_blocks(
         files, targets, forced, args.alpha, before, args.quiet, [place[str(f)] for f in files]
     )
     caches[0].prior = prior
     if folder_mode:
-        return _reconstruct_folder(blocks, len(files), out, args, caches[0], forced, place)
+        job = (len(files), out, place, resumed, settings)
+        return _reconstruct_folder(blocks, job, args, caches[0], forced)
     ((items, _),) = blocks
     with common.stage(items[0], "choosing the model", args.quiet):
         choices = choose_all(items, args, forced, caches[0])
@@ -369,13 +370,14 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, cache
     return 0
 
 
-def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, place) -> int:
+def _reconstruct_folder(blocks, job: tuple, args, caches, forced) -> int:
     """Every input through :func:`abrdf_jax._engine.reconstruct_many` (operator groups and
     padded pipeline batches), block by block (:func:`common.input_blocks`), each batch's tables
     written by a small thread pool while the next batch computes, the folder's model record
     rewritten (atomically) after every batch: an interrupted run keeps every table it
     finished, and the record lists only those. Memory: one block and ~2 KiB a finished file.
-    ``place``: each input's place in the whole job (``--resume`` keeps the batches' rows)."""
+    ``job``: the files to do now, the output folder, each input's place in the whole job
+    (``--resume`` keeps the batches' rows), the records ``--resume`` kept, the settings."""
     from concurrent.futures import ThreadPoolExecutor
 
     import numpy as np
@@ -384,10 +386,11 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, p
     from .._arrays import check_finite
     from .._engine import job_keys, plan_job, reconstruct_many
 
+    n_files, out, place, resumed, settings = job
     out.mkdir(exist_ok=True)
-    kept = common.kept_batches(args.resumed, place)
+    kept = common.kept_batches(resumed, place)
     failed: list[str] = []
-    done = [common.compact(c) for c in args.resumed]  # records of the outputs --resume kept
+    done = [common.compact(c) for c in resumed]  # records of the outputs --resume kept
     paths, models, budgets = {"operator": 0, "pipeline": 0}, [], set()
     with (
         common.progress(n_files, "reconstruct", args.quiet) as bar,
@@ -404,7 +407,7 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, p
             pending.clear()
             # the record of a big folder is large: rewritten at most every RECORD_EVERY s
             if final or time.perf_counter() - saved[0] >= RECORD_EVERY:
-                common.save_model_record(out, done, True, args.settings)
+                common.save_model_record(out, done, True, settings)
                 saved[0] = time.perf_counter()
 
         for items, targets in blocks:
@@ -472,14 +475,14 @@ def _reconstruct_folder(blocks, n_files: int, out: Path, args, caches, forced, p
                     pending.append((futures, records))
                     bar.update(len(idx))
         settle(final=True)
-    n = n_files + len(args.resumed)
+    n = n_files + len(resumed)
     engines = ", ".join(f"{v} by the {k}" for k, v in paths.items() if v)
-    kept = f", {len(args.resumed)} kept (--resume)" if args.resumed else ""
+    kept = f", {len(resumed)} kept (--resume)" if resumed else ""
     print(
         f"{out}: wrote {n_files - len(failed)} tables{kept} ({', '.join(sorted(budgets))}; "
         f"{engines}; models {common.summary(models)})"
     )
-    print(f"model record: {common.save_model_record(out, done, True, args.settings)}")
+    print(f"model record: {common.save_model_record(out, done, True, settings)}")
     for msg in failed:
         common.say(f"error: {msg}")
     if failed:
