@@ -58,6 +58,7 @@ _EXPORTS = {
     "_operator": ("ReconstructionOperator", "compile_operator"),
     "_host_operator": ("compile_numpy_operator",),
     "_smoothing": ("slice_smoothing",),
+    "_bivariate": ("bivariate_coordinates", "bivariate_matrix", "reconstruct_bivariate"),
 }
 _SUBPACKAGES = ("btf", "cli", "io", "materials", "metrics", "prior", "render", "select", "tuning")
 __getattr__, __dir__, __all__ = lazy_exports(__name__, globals(), _EXPORTS, _SUBPACKAGES)

@@ -85,3 +85,21 @@ def learned_choice(item, source, name: str, budget: str, how: str, reason=None, 
     """:func:`prior_choice` of one measured input (``reason`` ``None``: a fixed model's, said
     here)."""
     return prior_choice(item.path, source, budget, item.alpha, how, reason, extra, name)
+
+
+def bivariate_choice(item, budget: str) -> dict:
+    """``--model bivariate``: the bivariate ``(θh, θd)`` model of an isotropic material
+    (:func:`abrdf_jax.reconstruct_bivariate`; ``config`` is its ``BivariateModel``)."""
+    from .._bivariate import LOG_EPS, SMOOTHING, BivariateModel
+    from .._config import Config, default_values
+
+    slices = "diagonal slices (iso102)" if budget == "iso102" else "all slices (aniso204)"
+    reason = (
+        "--model bivariate: a thin-plate spline in (sqrt(theta_h), theta_d) of the log BRDF, "
+        "assuming an isotropic material (docs/captures.md)"
+    )
+    rec = {"input": str(item.path), "model": "bivariate", "how": "fixed", "reason": reason}
+    rec["config"] = {"budget": budget, "slices": slices, "log_eps": LOG_EPS}
+    rec["params"] = {"alpha_deg": float(item.alpha), "smoothing": SMOOTHING}
+    params = default_values(Config(budget=budget), item.alpha)  # α for the layout
+    return {"name": "bivariate", "config": BivariateModel(budget), "params": params, "record": rec}

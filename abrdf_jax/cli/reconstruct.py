@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from .._errors import InputError
-from .._names import MODEL_TOL, MODELS, PRESETS, TABLE_SUFFIXES
+from .._names import DIRECT_MODELS, MODEL_TOL, MODELS, PRESETS, TABLE_SUFFIXES
 from . import _common as common
 
 #: Threads writing the finished tables while the next batch computes.
@@ -46,7 +46,7 @@ HELP = {
     "--params the model is chosen automatically (--model auto)",
     "--params": "fitted configuration and parameters from 'abrdf-jax fit' (fixes the model)",
     "--model": "auto (default: isotropy test, then the simplest candidate within --tol of the best "
-    "held-out error) or a fixed model: " + ", ".join(MODELS),
+    "held-out error) or a fixed model: " + ", ".join((*MODELS, *DIRECT_MODELS)),
     "--tol": f"tolerance of the automatic choice, relative (default {MODEL_TOL:g})",
     "--resume": "folder mode: keep the tables of an earlier (interrupted) run that are complete "
     "and named in its model record; reconstruct only the others (the same tables, bit for bit, "
@@ -94,8 +94,9 @@ def register(sub) -> None:
 def check_model_arguments(args) -> None:
     """Fail before any work on contradictory model options."""
     fixed = None if args.model == "auto" else args.model
-    if fixed is not None and fixed not in MODELS:
-        raise InputError(f"unknown model {fixed!r}; choose auto or one of: {', '.join(MODELS)}")
+    if fixed is not None and fixed not in (*MODELS, *DIRECT_MODELS):
+        names = ", ".join((*MODELS, *DIRECT_MODELS))
+        raise InputError(f"unknown model {fixed!r}; choose auto or one of: {names}")
     given = {"model": fixed, "preset": args.preset, "params": args.params}
     fixing = [f"--{k} {v}" for k, v in given.items() if v is not None]
     if len(fixing) > 1:
@@ -109,7 +110,8 @@ def check_model_arguments(args) -> None:
         if v is not None and not (math.isfinite(v) and v >= 0):
             raise InputError(f"--{name} must be {what} >= 0, got {v}")
     common.check_prior_arguments(args)
-    if fixed not in (None, *common.LEARNED_MODELS) and (args.isotropic or args.anisotropic):
+    skip = (None, *common.LEARNED_MODELS, *DIRECT_MODELS)  # their budget follows the data
+    if fixed not in skip and (args.isotropic or args.anisotropic):
         from ..select import candidate  # the candidate's budget (imports the numerics)
 
         iso = candidate(fixed).settings["budget"] == "iso102"
@@ -139,6 +141,10 @@ def choose(item: common.Measured, args, forced: str | None, caches: "common.Cach
         return _auto_choices([item], args, forced, caches)[0]
     if args.model in common.LEARNED_MODELS:
         return common.learned_choice(item, caches.prior, args.model, budget, "fixed")
+    if args.model in DIRECT_MODELS:
+        from ._learned import bivariate_choice
+
+        return bivariate_choice(item, budget)
     if args.preset is not None:
         config, how, flag = preset(args.preset, budget), "preset", f"--preset {args.preset}"
         c = next((c for c in CANDIDATES.values() if c.config() == config), None)  # its name, if any

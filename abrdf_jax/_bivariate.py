@@ -1,0 +1,233 @@
+"""A bivariate model of an isotropic material: its values as a function of ``(θh, θd)`` alone.
+
+Romeiro, Vasilyev and Zickler (2008, "Passive reflectometry", ECCV) observed that measured
+isotropic BRDFs are well approximated by functions of the half angle ``θh`` and the
+difference angle ``θd`` (Rusinkiewicz 1998) alone: the dependence on ``φd`` is weak. In those
+two angles the samples of the protocol's slices lie on curves (a diagonal slice of the pair
+``(θ, θ)`` runs from ``(θh, θd) = (0, θ)`` at the mirror direction to ``(θ, 0)`` at the
+retro-reflection), and a pair that was never measured, ``(45°, 45°)`` say, lies *between*
+those curves: the fill across elevations is an interpolation in the plane the curves sweep,
+not an extrapolation along the elevation axes as in the onion coordinates of the RBF.
+
+The fit: a thin-plate spline in 2-D (degree-1 polynomial, ridge ``smoothing`` on the kernel's
+diagonal) of ``ln(max(y / cos θi, 0) + ε)`` (the BRDF: the protocol's values carry
+``cos θi``) at the coordinates ``(√(θh / (π/2)), θd / (π/2))`` (the square-root warp of θh
+that MERL's tables use, which spreads the specular peak), evaluated at the targets, then
+``exp``, minus ``ε``, times ``cos θi`` of the target, clamped at 0. ``ε`` is
+``log_eps · mean |y / cos θi|`` per channel (as ``Config.log_eps``). It is linear in the log
+samples: one matrix per sample layout (:func:`bivariate_matrix`). The samples are used at
+their recorded directions, whatever the slices, pairs, gaps or offsets; more than
+:data:`MAX_POINTS` are averaged in :data:`BINS` × :data:`BINS` cells of the plane first.
+
+It assumes isotropy (an anisotropic material's ``φ`` dependence is lost) and reciprocity; it is
+numpy only (no JAX). Measured by ``python -m benchmarks.bivariate`` (docs/captures.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import ClassVar
+
+import numpy as np
+
+from ._errors import InputError
+from ._grid import half_diff, to_vector, ubo_grid
+
+#: Ridge λ on the thin-plate kernel's diagonal (log units squared): the fit is insensitive to
+#: it between 1e-5 and 1e-1 on the MERL train split (``python -m benchmarks.bivariate``).
+SMOOTHING = 1e-3
+#: ``ε = LOG_EPS · mean |y / cos θi|`` per channel: the floor of the log (``Config.log_eps``).
+LOG_EPS = 1e-3
+#: Above this many samples the plane is binned (:data:`BINS` per axis) before the solve, which
+#: costs ``O(n³)``: a continuous capture's thousands of samples become a few thousand cells.
+MAX_POINTS = 2048
+BINS = 128
+
+
+def bivariate_coordinates(wi: np.ndarray, wv: np.ndarray) -> np.ndarray:
+    """``(√(θh / (π/2)), θd / (π/2))`` of direction pairs ``(..., 3)``: ``(..., 2)`` in ``[0, 1]``."""
+    hd = half_diff(np.asarray(wi, np.float64), np.asarray(wv, np.float64), np)
+    return np.stack(
+        [np.sqrt(np.maximum(hd[..., 0], 0.0) / (math.pi / 2)), hd[..., 2] / (math.pi / 2)], -1
+    )
+
+
+def _kernel(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The thin-plate kernel ``r² ln r`` between the points ``a`` ``(m, 2)`` and ``b`` ``(n, 2)``."""
+    r2 = np.sum((a[:, None, :] - b[None, :, :]) ** 2, axis=-1)
+    return 0.5 * r2 * np.log(np.where(r2 > 0.0, r2, 1.0))
+
+
+def _poly(x: np.ndarray) -> np.ndarray:
+    return np.concatenate([np.ones((len(x), 1)), x], axis=1)
+
+
+def _binned(src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cell centres ``(m, 2)`` (the mean of their points) and the averaging matrix ``(m, n)``."""
+    cell = np.clip((src * BINS).astype(np.int64), 0, BINS - 1)
+    _, which = np.unique(cell[:, 0] * BINS + cell[:, 1], return_inverse=True)
+    avg = np.zeros((which.max() + 1, len(src)))
+    avg[which, np.arange(len(src))] = 1.0
+    avg /= avg.sum(axis=1, keepdims=True)
+    return avg @ src, avg
+
+
+def bivariate_matrix(src: np.ndarray, dst: np.ndarray, smoothing: float = SMOOTHING) -> np.ndarray:
+    """The map ``(q, n)`` from values at the points ``src`` ``(n, 2)`` to the thin-plate spline's
+    values at ``dst`` ``(q, 2)`` (float64; module docstring). A degree-1 polynomial is
+    reproduced exactly: each row sums to 1."""
+    src, dst = np.asarray(src, np.float64), np.asarray(dst, np.float64)
+    avg = None
+    if len(src) > MAX_POINTS:
+        src, avg = _binned(src)
+    n = len(src)
+    system = np.zeros((n + 3, n + 3))
+    system[:n, :n] = _kernel(src, src) + smoothing * np.eye(n)
+    system[:n, n:] = _poly(src)
+    system[n:, :n] = _poly(src).T
+    at = np.concatenate([_kernel(dst, src), _poly(dst)], axis=1)  # (q, n + 3)
+    try:
+        matrix = np.linalg.solve(system, at.T)[:n].T  # the system is symmetric
+    except np.linalg.LinAlgError as e:  # fewer than 3 distinct points in a line, say
+        raise InputError(f"the bivariate fit is singular ({e}): too few distinct samples") from e
+    return matrix if avg is None else matrix @ avg
+
+
+def _columns(samples) -> tuple[np.ndarray, ...]:
+    """``(θi, φi, θv, φv)`` in radians and ``rgb`` of :class:`~abrdf_jax.Samples` (or anything
+    with those fields in degrees, e.g. ``io.read_sample_columns``'s), checked."""
+    try:
+        cols = [
+            np.asarray(getattr(samples, k), np.float64)
+            for k in ("theta_i", "phi_i", "theta_v", "phi_v")
+        ]
+        rgb = np.asarray(samples.rgb, np.float64)
+    except AttributeError as e:
+        raise InputError(
+            f"samples must be Samples (theta_i, phi_i, theta_v, phi_v, rgb): {e}"
+        ) from None
+    n = cols[0].shape
+    if len(n) != 1 or n[0] < 3 or any(c.shape != n for c in cols) or rgb.shape != (*n, 3):
+        raise InputError(
+            f"samples: expected at least 3 samples with angles (n,) and rgb (n, 3); got angles "
+            f"{[c.shape for c in cols]} and rgb {rgb.shape}"
+        )
+    for name, c in zip(("theta_i", "phi_i", "theta_v", "phi_v", "rgb"), (*cols, rgb)):
+        if not np.all(np.isfinite(c)):
+            raise InputError(f"samples.{name} has non-finite values")
+    if np.any(cols[0] >= 90.0):
+        raise InputError("samples.theta_i must be below 90 degrees (the values divide by cos θi)")
+    return (*np.deg2rad(cols), rgb)
+
+
+def _grid_targets() -> tuple[np.ndarray, np.ndarray]:
+    theta, phi = (np.deg2rad(np.asarray(a, np.float64)) for a in ubo_grid())
+    ti, tv = np.meshgrid(theta, theta, indexing="ij")
+    pi_, pv = np.meshgrid(phi, phi, indexing="ij")
+    return to_vector(ti, pi_, np).reshape(-1, 3), to_vector(tv, pv, np).reshape(-1, 3)
+
+
+def reconstruct_bivariate(
+    samples, *, targets=None, smoothing: float = SMOOTHING, log_eps: float = LOG_EPS
+) -> np.ndarray:
+    """Reconstruct an isotropic material as a function of ``(θh, θd)`` (module docstring).
+
+    Args:
+        samples: the measurement, :class:`~abrdf_jax.Samples` (any slices, pairs and offsets:
+            each sample is used at its own direction).
+        targets: ``(wi, wv)`` unit vectors ``(q, 3)`` to evaluate at; default the UBO grid.
+        smoothing: the ridge λ of the thin-plate fit (:data:`SMOOTHING`).
+        log_eps: ``ε`` of the log, relative to the mean value (:data:`LOG_EPS`).
+
+    Returns:
+        float32 ``(81, 81, 3)`` ABRDF table (``(q, 3)`` for ``targets``), ``≥ 0``.
+
+    Raises:
+        InputError: fewer than 3 samples, non-finite values, ``θi ≥ 90°``, a bad ``targets``,
+            ``smoothing < 0`` or ``log_eps ≤ 0``, or too few distinct samples for the fit.
+    """
+    if not (np.isfinite(smoothing) and smoothing >= 0):
+        raise InputError(f"smoothing must be a finite number >= 0, got {smoothing!r}")
+    if not (np.isfinite(log_eps) and log_eps > 0):
+        raise InputError(f"log_eps must be a finite number > 0, got {log_eps!r}")
+    ti, pi_, tv, pv, rgb = _columns(samples)
+    if targets is None:
+        wi_t, wv_t = _grid_targets()
+    else:
+        wi_t, wv_t = (np.asarray(t, np.float64) for t in targets)
+        if wi_t.ndim != 2 or wi_t.shape[-1] != 3 or wv_t.shape != wi_t.shape:
+            raise InputError(f"targets must be two (q, 3) arrays; got {wi_t.shape}, {wv_t.shape}")
+    src = bivariate_coordinates(to_vector(ti, pi_, np), to_vector(tv, pv, np))
+    matrix = bivariate_matrix(src, bivariate_coordinates(wi_t, wv_t), smoothing)
+    brdf = rgb / np.cos(ti)[:, None]
+    eps = log_eps * np.mean(np.abs(brdf), axis=0) + np.sqrt(np.finfo(np.float32).tiny)
+    z = np.log(np.maximum(brdf, 0.0) + eps)
+    out = (np.exp(matrix @ z) - eps) * np.maximum(wi_t[:, 2:3], 0.0)
+    out = np.maximum(out, 0.0).astype(np.float32)
+    return out.reshape(81, 81, 3) if targets is None else out
+
+
+# --------------------------------------------------------------------------------------------
+# The command line's model (``reconstruct --model bivariate``): one map per slice layout
+# --------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class BivariateModel:
+    """The bivariate model of one budget, what the command line passes to
+    :func:`abrdf_jax._engine.reconstruct_many` in place of a :class:`~abrdf_jax.Config`
+    (``operator_only``: one map per slice layout). It reads the grouped slices, as every model
+    of the command line does (off-slice samples at their projection onto the slice); ``iso102``
+    reads the diagonal slices only, ``aniso204`` all of them."""
+
+    budget: str
+    name: ClassVar[str] = "bivariate"
+    operator_only: ClassVar[bool] = True
+
+    def operator(self, params, template, store=None, warn=None, before_build=None):
+        """The apply function of ``template``'s layout: stacked slice values ``(B, S, nmax, C)``
+        → ``(B, 81, 81, C)`` float32 (store arguments accepted and unused: a build is one
+        small solve)."""
+        t = np.asarray(template.t, np.float64)
+        count = tuple(int(c) for c in np.asarray(template.count))
+        pairs = tuple(tuple(float(x) for x in p) for p in template.pairs)
+        alpha = float(np.asarray(params.alpha))
+        return _layout_apply(self.budget, alpha, pairs, tuple(t.ravel().tolist()), count, t.shape)
+
+
+@functools.lru_cache(maxsize=16)
+def _layout_apply(budget: str, alpha: float, pairs: tuple, t_flat: tuple, count: tuple, shape):
+    """The map of one slice layout (hashable arguments: a folder's layouts are built once)."""
+    from ._slices import slice_vectors
+
+    t = np.asarray(t_flat, np.float64).reshape(shape)
+    wi, wv, flat = [], [], []
+    for s in range(shape[0]):
+        if budget == "iso102" and s % 2 == 0:  # the axial slices: not read
+            continue
+        a, b = slice_vectors(t[s, : count[s]], s % 2, pairs[s // 2], alpha, np)
+        wi.append(a)
+        wv.append(b)
+        flat.extend(s * shape[1] + np.arange(count[s]))
+    wi, wv, flat = np.concatenate(wi), np.concatenate(wv), np.asarray(flat)
+    if len(flat) < 3:
+        raise InputError(
+            f"the bivariate model needs at least 3 samples; the layout has {len(flat)}"
+        )
+    matrix = bivariate_matrix(
+        bivariate_coordinates(wi, wv), bivariate_coordinates(*_grid_targets())
+    )
+    cos_src, cos_dst = wi[:, 2], _grid_targets()[0][:, 2]
+
+    def apply(y):
+        y = np.asarray(y, np.float64)
+        x = y.reshape(len(y), -1, y.shape[-1])[:, flat, :] / cos_src[None, :, None]  # BRDF
+        eps = LOG_EPS * np.mean(np.abs(x), axis=1) + np.sqrt(np.finfo(np.float32).tiny)
+        z = np.log(np.maximum(x, 0.0) + eps[:, None, :])
+        lin = np.moveaxis(np.tensordot(matrix, z, axes=([1], [1])), 0, 1)  # (B, q, C), BLAS
+        out = (np.exp(lin) - eps[:, None, :]) * cos_dst[:, None]
+        return np.maximum(out, 0.0).astype(np.float32).reshape(len(y), 81, 81, y.shape[-1])
+
+    return apply

@@ -1,0 +1,190 @@
+"""The bivariate (θh, θd) model: oracles of the thin-plate fit, exact recovery of functions it
+can represent, any capture geometry, and clear errors (abrdf_jax._bivariate)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import abrdf_jax as aj
+from abrdf_jax import _bivariate, materials, metrics
+
+
+def _points(n, seed=0):
+    return np.random.default_rng(seed).uniform(0.0, 1.0, (n, 2))
+
+
+def test_matrix_reproduces_degree_one_polynomials():
+    """Thin-plate spline with a linear term: a linear function is fitted exactly, so each row
+    of the map sums to 1 and the map carries the coordinates themselves to the targets."""
+    src, dst = _points(60), _points(25, seed=1)
+    m = _bivariate.bivariate_matrix(src, dst, smoothing=1e-3)
+    assert m.shape == (25, 60)
+    np.testing.assert_allclose(m.sum(axis=1), 1.0, atol=1e-9)
+    np.testing.assert_allclose(m @ src, dst, atol=1e-9)
+
+
+def test_matrix_interpolates_without_smoothing():
+    src = _points(40)
+    m = _bivariate.bivariate_matrix(src, src, smoothing=0.0)
+    np.testing.assert_allclose(m, np.eye(40), atol=1e-7)
+
+
+def test_binned_fit_still_reproduces_linear_functions(monkeypatch):
+    """Above MAX_POINTS samples the plane is binned (cell means of coordinates and values): a
+    linear function stays exact, and the map still has one column per sample."""
+    monkeypatch.setattr(_bivariate, "MAX_POINTS", 50)
+    monkeypatch.setattr(_bivariate, "BINS", 8)
+    src, dst = _points(400), _points(30, seed=2)
+    m = _bivariate.bivariate_matrix(src, dst)
+    assert m.shape == (30, 400)
+    f = 0.3 + 1.7 * src[:, 0] - 0.4 * src[:, 1]
+    np.testing.assert_allclose(m @ f, 0.3 + 1.7 * dst[:, 0] - 0.4 * dst[:, 1], atol=1e-9)
+
+
+def _table_of(fn):
+    """``fn(u, v)`` (the BRDF at the bivariate coordinates) times cos θi on the UBO grid."""
+    wi, wv = _bivariate._grid_targets()
+    uv = _bivariate.bivariate_coordinates(wi, wv)
+    brdf = fn(uv[:, 0], uv[:, 1])[:, None] * np.array([1.0, 0.6, 0.3])
+    return (brdf * wi[:, 2:3]).reshape(81, 81, 3)
+
+
+class _Bivariate:
+    """A material whose BRDF is ``exp(0.2 + 1.3 u − 0.8 v)`` at the bivariate coordinates
+    ``(u, v)``: linear in the log, so the fit recovers it exactly."""
+
+    def __call__(self, wi, wv):
+        uv = _bivariate.bivariate_coordinates(np.asarray(wi), np.asarray(wv))
+        brdf = np.exp(0.2 + 1.3 * uv[..., 0] - 0.8 * uv[..., 1])[..., None]
+        return brdf * np.array([1.0, 0.6, 0.3]) * np.asarray(wi)[..., 2:3]
+
+
+def _samples_of(fn, capture):
+    wi = aj.to_vector(np.deg2rad(capture.theta_i), np.deg2rad(capture.phi_i), np)
+    wv = aj.to_vector(np.deg2rad(capture.theta_v), np.deg2rad(capture.phi_v), np)
+    return aj.Samples(
+        capture.theta_i, capture.phi_i, capture.theta_v, capture.phi_v, np.asarray(fn(wi, wv))
+    )
+
+
+@pytest.mark.parametrize(
+    "kind",
+    [
+        {},
+        {"per_slice": 60},
+        {"jitter_deg": 0.5, "seed": 3},
+        {"pairs": ((35.0, 35.0), (35.0, 70.0), (70.0, 35.0), (70.0, 70.0))},
+    ],
+)
+def test_recovers_a_bivariate_material_from_any_capture(kind):
+    """Every capture geometry (protocol, dense, jittered, off the UBO rings): the samples are
+    used at their own directions, and a material of the model's form comes back to float32
+    rounding everywhere, at the pairs no slice measured too."""
+    lambert = materials.get_material("lambert-clay")
+    capture = aj.simulate_capture(lambert, budget="iso102", **kind)
+    fn = _Bivariate()
+    table = aj.reconstruct_bivariate(_samples_of(fn, capture), log_eps=1e-12)
+    truth = _table_of(lambda u, v: np.exp(0.2 + 1.3 * u - 0.8 * v))
+    assert table.shape == (81, 81, 3) and table.dtype == np.float32
+    np.testing.assert_allclose(table, truth, rtol=2e-5, atol=1e-7)
+
+
+def test_targets_evaluate_anywhere():
+    capture = aj.simulate_capture(materials.get_material("lambert-clay"), budget="iso102")
+    samples = _samples_of(_Bivariate(), capture)
+    rng = np.random.default_rng(5)
+    v = rng.normal(size=(2, 50, 3))
+    v[..., 2] = np.abs(v[..., 2]) + 0.1
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    out = aj.reconstruct_bivariate(samples, targets=(v[0], v[1]), log_eps=1e-12)
+    np.testing.assert_allclose(out, _Bivariate()(v[0], v[1]), rtol=2e-5, atol=1e-7)
+
+
+def test_accuracy_on_isotropic_analytic_materials():
+    """A Lambertian material is a constant BRDF: exact; a GGX plastic (isotropic, nearly a
+    function of θh and θd) far below the mean fill's error."""
+    for name, bound in (("lambert-clay", 1e-3), ("ggx-plastic", 2.0)):
+        m = materials.get_material(name)
+        s = aj.simulate_capture(m, budget="iso102", seed=0)
+        ref = materials.dense_table(m)
+        de = float(metrics.evaluate(aj.reconstruct_bivariate(s), ref)["de76"])
+        fill = np.broadcast_to(np.mean(np.asarray(s.rgb), 0), (81, 81, 3)).astype(np.float32)
+        assert de < bound and de < 0.1 * float(metrics.evaluate(fill, ref)["de76"]), (name, de)
+
+
+def _good():
+    return aj.simulate_capture(materials.get_material("lambert-clay"), budget="iso102")
+
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda s: aj.reconstruct_bivariate(object()), "samples must be Samples"),
+        (
+            lambda s: aj.reconstruct_bivariate(
+                aj.Samples(s.theta_i[:2], s.phi_i[:2], s.theta_v[:2], s.phi_v[:2], s.rgb[:2])
+            ),
+            "at least 3 samples",
+        ),
+        (  # any object with the fields (e.g. io.read_sample_columns's) is checked too
+            lambda s: aj.reconstruct_bivariate(
+                SimpleNamespace(
+                    theta_i=s.theta_i,
+                    phi_i=s.phi_i,
+                    theta_v=s.theta_v,
+                    phi_v=s.phi_v,
+                    rgb=np.where(np.arange(len(s))[:, None] == 4, np.nan, np.asarray(s.rgb)),
+                )
+            ),
+            "samples.rgb has non-finite",
+        ),
+        (lambda s: aj.reconstruct_bivariate(s, smoothing=-1.0), "smoothing must be"),
+        (lambda s: aj.reconstruct_bivariate(s, log_eps=0.0), "log_eps must be"),
+        (
+            lambda s: aj.reconstruct_bivariate(s, targets=(np.zeros((4, 3)), np.zeros((5, 3)))),
+            "targets must be",
+        ),
+    ],
+)
+def test_bad_input_is_a_clear_error(call, match):
+    with pytest.raises(aj.InputError, match=match):
+        call(_good())
+
+
+def test_command_line_model_bivariate(tmp_path):
+    """``reconstruct --model bivariate``: one file and a folder (one map per layout, the same
+    tables), equal to the library call on the same samples (exact slice samples: the grouped
+    positions are the recorded ones); the model record says what ran; unknown models list it."""
+    from abrdf_jax import io
+
+    from tests.cli_runner import run_cli
+
+    names = ("ggx-plastic", "lambert-clay", "ward-brushed-steel")
+    folder = tmp_path / "in"
+    folder.mkdir()
+    expected = {}
+    for k, name in enumerate(names):
+        s = aj.simulate_capture(materials.get_material(name), budget="iso102", seed=k)
+        io.write_samples_csv(folder / f"{name}.csv", s)
+        expected[name] = aj.reconstruct_bivariate(io.read_samples_csv(folder / f"{name}.csv"))
+    one = run_cli(
+        "reconstruct", "in/ggx-plastic.csv", "-o", "one.npz", "--model", "bivariate", cwd=tmp_path
+    )
+    assert one.returncode == 0, one.stderr
+    assert "model: bivariate (fixed)" in one.stdout
+    np.testing.assert_allclose(
+        io.read_table(tmp_path / "one.npz"), expected["ggx-plastic"], rtol=1e-4, atol=1e-6
+    )
+    many = run_cli("reconstruct", "in", "-o", "out", "--model", "bivariate", "-q", cwd=tmp_path)
+    assert many.returncode == 0, many.stderr
+    assert "models bivariate x3" in many.stdout
+    for name in names:
+        table = io.read_table(tmp_path / "out" / f"{name}.npz")
+        np.testing.assert_allclose(table, expected[name], rtol=1e-4, atol=1e-6)
+    import json
+
+    record = json.loads((tmp_path / "out.model.json").read_text())
+    assert {e["model"] for e in record["inputs"]} == {"bivariate"}
+    bad = run_cli("reconstruct", "in", "-o", "x", "--model", "bivariat", cwd=tmp_path)
+    assert bad.returncode == 2 and "bivariate" in bad.stderr and not (tmp_path / "x").exists()
