@@ -188,3 +188,26 @@ def test_command_line_model_bivariate(tmp_path):
     assert {e["model"] for e in record["inputs"]} == {"bivariate"}
     bad = run_cli("reconstruct", "in", "-o", "x", "--model", "bivariat", cwd=tmp_path)
     assert bad.returncode == 2 and "bivariate" in bad.stderr and not (tmp_path / "x").exists()
+
+
+def test_benchmark_smoke(tmp_path, data_dir):
+    """``python -m benchmarks.bivariate --quick``: the train sweep, both splits and the analytic
+    set, each kind's RBF (one CLI folder call) and bivariate figures, the report and the chart
+    (figures of a smoke run are not checked against values: the full run is the measurement)."""
+    import json
+
+    from benchmarks import bivariate
+
+    bivariate.main(["--quick", "--out", str(tmp_path)], log=lambda *a: None)
+    payload = json.loads((tmp_path / "bivariate_quick.json").read_text())
+    assert set(payload["sets"]) == {"merl-train", "merl-test", "analytic"}
+    assert len(payload["sets"]["merl-train"]["sweep"]) == 9
+    for block in payload["sets"].values():
+        for r in block["kinds"].values():
+            for method in ("rbf", "bivariate"):
+                assert set(r[method]["per_material"]) == set(block["materials"])
+                assert np.isfinite(r[method]["de76"]) and r[method]["de76"] > 0
+            assert set(r["bivariate_better"]) <= set(block["materials"])
+    md = (tmp_path / "bivariate_quick.md").read_text()
+    assert "## merl-test" in md and "log_eps" in md
+    assert (tmp_path / "bivariate_quick.png").stat().st_size > 10_000
