@@ -470,6 +470,7 @@ from ._learned import (  # noqa: E402, F401
     FUSED_MODEL,
     LEARNED_MODELS,
     PRIOR_MODEL,
+    bivariate_choice,
     learned_choice,
     check_prior_arguments,
     prior_choice,

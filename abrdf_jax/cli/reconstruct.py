@@ -142,9 +142,7 @@ def choose(item: common.Measured, args, forced: str | None, caches: "common.Cach
     if args.model in common.LEARNED_MODELS:
         return common.learned_choice(item, caches.prior, args.model, budget, "fixed")
     if args.model in DIRECT_MODELS:
-        from ._learned import bivariate_choice
-
-        return bivariate_choice(item, budget)
+        return common.bivariate_choice(item, budget)
     if args.preset is not None:
         config, how, flag = preset(args.preset, budget), "preset", f"--preset {args.preset}"
         c = next((c for c in CANDIDATES.values() if c.config() == config), None)  # its name, if any
