@@ -24,6 +24,7 @@ GROUP_STYLE = {  # colour of each group on the chart
     "tuned": "#ff9896",
     "operator": "#393b79",
     "learned (default prior)": "#e6550d",
+    "bivariate": "#00a087",
 }
 
 

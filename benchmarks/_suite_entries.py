@@ -107,6 +107,12 @@ def _learned_build(fused: bool):
     return build
 
 
+def _bivariate_build(ctx, lay, dtype):
+    """The bivariate (θh, θd) model (:func:`abrdf_jax.reconstruct_bivariate`): one thin-plate
+    fit per material, numpy float64, timed whole (coordinates, solve, evaluation)."""
+    return lambda batch: np.stack([aj.reconstruct_bivariate(s) for s in batch.samples()])
+
+
 def _mean_fill_build(ctx, lay, dtype):
     fn = jax.jit(mean_fill)
     return lambda batch: fn(batch.meas)
@@ -327,6 +333,19 @@ def register_defaults() -> None:
                 "the sample directions",
             )
         )
+        if iso:
+            register(
+                Entry(
+                    f"bivariate {lay}",
+                    "bivariate",
+                    lay,
+                    _bivariate_build,
+                    modes=fq,
+                    jit=False,
+                    note="abrdf-jax reconstruct --model bivariate: a thin-plate spline in "
+                    "(sqrt(theta_h), theta_d) per material, numpy",
+                )
+            )
         for fused, what in ((False, "prior only"), (True, "fused")):
             register(
                 Entry(
