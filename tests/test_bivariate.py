@@ -42,6 +42,16 @@ def test_binned_fit_still_reproduces_linear_functions(monkeypatch):
     np.testing.assert_allclose(m @ f, 0.3 + 1.7 * dst[:, 0] - 0.4 * dst[:, 1], atol=1e-9)
 
 
+def test_binning_bounds_the_solve(monkeypatch):
+    """However spread the samples, the solve holds at most MAX_POINTS cells (coarser bins)."""
+    monkeypatch.setattr(_bivariate, "MAX_POINTS", 40)
+    src = _points(3000)  # spread over the whole plane: 128 x 128 cells would keep ~3000
+    centres, avg = _bivariate._binned(src)
+    assert len(centres) <= 40 and avg.shape == (len(centres), 3000)
+    np.testing.assert_allclose(avg.sum(axis=1), 1.0)
+    np.testing.assert_allclose(avg @ src, centres)
+
+
 def _table_of(fn):
     """``fn(u, v)`` (the BRDF at the bivariate coordinates) times cos θi on the UBO grid."""
     wi, wv = _bivariate._grid_targets()
