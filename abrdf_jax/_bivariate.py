@@ -34,6 +34,7 @@ import numpy as np
 
 from ._errors import InputError
 from ._grid import half_diff, to_vector, ubo_grid
+from ._host_eps import sample_eps
 
 #: Ridge λ on the thin-plate kernel's diagonal (log units squared): the best of 1e-5, 1e-3 and
 #: 1e-1 on the MERL train split (``python -m benchmarks.bivariate``'s sweep; the others 3–9 %
@@ -137,6 +138,25 @@ def _grid_targets() -> tuple[np.ndarray, np.ndarray]:
     return to_vector(ti, pi_, np).reshape(-1, 3), to_vector(tv, pv, np).reshape(-1, 3)
 
 
+@functools.lru_cache(maxsize=1)
+def _grid() -> tuple[np.ndarray, np.ndarray]:
+    """The UBO grid's bivariate coordinates ``(6561, 2)`` and ``cos θi`` ``(6561,)``, once."""
+    wi, wv = _grid_targets()
+    return bivariate_coordinates(wi, wv), wi[:, 2]
+
+
+def _values(matrix, x, cos_src, cos_dst, log_eps: float) -> np.ndarray:
+    """The model's map on the samples' values ``x`` ``(B, n, C)`` (ABRDF, at sources with
+    ``cos θi`` ``cos_src``): the log BRDF through ``matrix`` ``(q, n)``, back to ABRDF values at
+    targets with ``cos θi`` ``cos_dst``, clamped at 0; float32 ``(B, q, C)``."""
+    brdf = x / cos_src[None, :, None]
+    eps = sample_eps(brdf, log_eps, axis=1)[:, None, :]  # (B, 1, C)
+    z = np.log(np.maximum(brdf, 0.0) + eps)
+    lin = np.moveaxis(np.tensordot(matrix, z, axes=([1], [1])), 0, 1)  # (B, q, C), BLAS
+    out = (np.exp(lin) - eps) * np.maximum(cos_dst, 0.0)[None, :, None]
+    return np.maximum(out, 0.0).astype(np.float32)
+
+
 def reconstruct_bivariate(
     samples, *, targets=None, smoothing: float = SMOOTHING, log_eps: float = LOG_EPS
 ) -> np.ndarray:
@@ -162,19 +182,15 @@ def reconstruct_bivariate(
         raise InputError(f"log_eps must be a finite number > 0, got {log_eps!r}")
     ti, pi_, tv, pv, rgb = _columns(samples)
     if targets is None:
-        wi_t, wv_t = _grid_targets()
+        dst, cos_dst = _grid()
     else:
         wi_t, wv_t = (np.asarray(t, np.float64) for t in targets)
         if wi_t.ndim != 2 or wi_t.shape[-1] != 3 or wv_t.shape != wi_t.shape:
             raise InputError(f"targets must be two (q, 3) arrays; got {wi_t.shape}, {wv_t.shape}")
+        dst, cos_dst = bivariate_coordinates(wi_t, wv_t), wi_t[:, 2]
     src = bivariate_coordinates(to_vector(ti, pi_, np), to_vector(tv, pv, np))
-    matrix = bivariate_matrix(src, bivariate_coordinates(wi_t, wv_t), smoothing)
-    brdf = rgb / np.cos(ti)[:, None]
-    eps = log_eps * np.mean(np.abs(brdf), axis=0) + np.sqrt(np.finfo(np.float32).tiny)
-    z = np.log(np.maximum(brdf, 0.0) + eps)
-    out = (np.exp(matrix @ z) - eps) * np.maximum(wi_t[:, 2:3], 0.0)
-    out = np.maximum(out, 0.0).astype(np.float32)
-    return out.reshape(81, 81, 3) if targets is None else out
+    out = _values(bivariate_matrix(src, dst, smoothing), rgb[None], np.cos(ti), cos_dst, log_eps)
+    return out[0].reshape(81, 81, 3) if targets is None else out[0]
 
 
 # --------------------------------------------------------------------------------------------
@@ -198,8 +214,10 @@ class BivariateModel:
         """The apply function of ``template``'s layout: stacked slice values ``(B, S, nmax, C)``
         → ``(B, 81, 81, C)`` float32 (store arguments accepted and unused: a build is one
         small solve)."""
+        from ._prior_operator import slice_counts  # iso102: the axial slices' counts 0
+
         t = np.asarray(template.t, np.float64)
-        count = tuple(int(c) for c in np.asarray(template.count))
+        count = tuple(int(c) for c in slice_counts(template, self.budget))
         pairs = tuple(tuple(float(x) for x in p) for p in template.pairs)
         alpha = float(np.asarray(params.alpha))
         return _layout_apply(self.budget, alpha, pairs, tuple(t.ravel().tolist()), count, t.shape)
@@ -207,35 +225,34 @@ class BivariateModel:
 
 @functools.lru_cache(maxsize=16)
 def _layout_apply(budget: str, alpha: float, pairs: tuple, t_flat: tuple, count: tuple, shape):
-    """The map of one slice layout (hashable arguments: a folder's layouts are built once)."""
+    """The map of one slice layout (hashable arguments: a folder's layouts are built once;
+    ``count`` already says which slices are read)."""
+    from ._host_build import sample_index
     from ._slices import slice_vectors
 
     t = np.asarray(t_flat, np.float64).reshape(shape)
-    wi, wv, flat = [], [], []
-    for s in range(shape[0]):
-        if budget == "iso102" and s % 2 == 0:  # the axial slices: not read
-            continue
-        a, b = slice_vectors(t[s, : count[s]], s % 2, pairs[s // 2], alpha, np)
-        wi.append(a)
-        wv.append(b)
-        flat.extend(s * shape[1] + np.arange(count[s]))
-    wi, wv, flat = np.concatenate(wi), np.concatenate(wv), np.asarray(flat)
+    flat = sample_index(t, np.asarray(count))
     if len(flat) < 3:
         raise InputError(
             f"the bivariate model needs at least 3 samples; the layout has {len(flat)}"
         )
-    matrix = bivariate_matrix(
-        bivariate_coordinates(wi, wv), bivariate_coordinates(*_grid_targets())
+    wi, wv = (
+        np.concatenate(v)
+        for v in zip(
+            *(
+                slice_vectors(t[s, : count[s]], s % 2, pairs[s // 2], alpha, np)
+                for s in range(shape[0])
+            )
+        )
     )
-    cos_src, cos_dst = wi[:, 2], _grid_targets()[0][:, 2]
+    dst, cos_dst = _grid()
+    matrix = bivariate_matrix(bivariate_coordinates(wi, wv), dst)
+    cos_src = wi[:, 2]
 
     def apply(y):
         y = np.asarray(y, np.float64)
-        x = y.reshape(len(y), -1, y.shape[-1])[:, flat, :] / cos_src[None, :, None]  # BRDF
-        eps = LOG_EPS * np.mean(np.abs(x), axis=1) + np.sqrt(np.finfo(np.float32).tiny)
-        z = np.log(np.maximum(x, 0.0) + eps[:, None, :])
-        lin = np.moveaxis(np.tensordot(matrix, z, axes=([1], [1])), 0, 1)  # (B, q, C), BLAS
-        out = (np.exp(lin) - eps[:, None, :]) * cos_dst[:, None]
-        return np.maximum(out, 0.0).astype(np.float32).reshape(len(y), 81, 81, y.shape[-1])
+        x = y.reshape(len(y), -1, y.shape[-1])[:, flat, :]
+        out = _values(matrix, x, cos_src, cos_dst, LOG_EPS)
+        return out.reshape(len(y), 81, 81, y.shape[-1])
 
     return apply

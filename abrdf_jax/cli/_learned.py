@@ -66,9 +66,8 @@ def prior_choice(
     if reason is None:  # a fixed model
         what = "the prior alone" if name == PRIOR_MODEL else "the prior + a kernel on its residual"
         reason = f"--model {name}: {what}, on the {budget} slices"
-    slices = "diagonal slices (iso102)" if budget == "iso102" else "all slices (aniso204)"
     rec = {"input": str(where), "model": name, "how": how}
-    rec["config"] = {"budget": budget, "slices": slices}
+    rec["config"] = {"budget": budget, "slices": _slices_read(budget)}
     rec["params"] = {"alpha_deg": float(alpha), "lam": source.lam}
     if name == FUSED_MODEL:
         from .._fused_operator import FusedModel as model
@@ -79,6 +78,11 @@ def prior_choice(
     rec |= {"prior": source.record(), "reason": reason, **(extra or {})}
     params = default_values(Config(budget=budget), alpha)  # α for the operator's layout
     return {"name": name, "config": model(source, budget), "params": params, "record": rec}
+
+
+def _slices_read(budget: str) -> str:
+    """What a model record says of the slices read (iso102: the diagonal ones only)."""
+    return "diagonal slices (iso102)" if budget == "iso102" else "all slices (aniso204)"
 
 
 def learned_choice(item, source, name: str, budget: str, how: str, reason=None, extra=None):
@@ -93,13 +97,12 @@ def bivariate_choice(item, budget: str) -> dict:
     from .._bivariate import LOG_EPS, SMOOTHING, BivariateModel
     from .._config import Config, default_values
 
-    slices = "diagonal slices (iso102)" if budget == "iso102" else "all slices (aniso204)"
     reason = (
         "--model bivariate: a thin-plate spline in (sqrt(theta_h), theta_d) of the log BRDF, "
         "assuming an isotropic material (docs/captures.md)"
     )
     rec = {"input": str(item.path), "model": "bivariate", "how": "fixed", "reason": reason}
-    rec["config"] = {"budget": budget, "slices": slices, "log_eps": LOG_EPS}
+    rec["config"] = {"budget": budget, "slices": _slices_read(budget), "log_eps": LOG_EPS}
     rec["params"] = {"alpha_deg": float(item.alpha), "smoothing": SMOOTHING}
     params = default_values(Config(budget=budget), item.alpha)  # α for the layout
     return {"name": "bivariate", "config": BivariateModel(budget), "params": params, "record": rec}

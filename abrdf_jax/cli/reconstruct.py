@@ -21,6 +21,9 @@ from .._errors import InputError
 from .._names import DIRECT_MODELS, MODEL_TOL, MODELS, PRESETS, TABLE_SUFFIXES
 from . import _common as common
 
+#: Every model ``--model`` can fix: the automatic choice's candidates and learned models, then
+#: the models outside the choice.
+FIXED_MODELS = (*MODELS, *DIRECT_MODELS)
 #: Threads writing the finished tables while the next batch computes.
 WRITERS = 2
 #: Tables a writer task writes (:func:`abrdf_jax.io.write_tables`).
@@ -46,7 +49,7 @@ HELP = {
     "--params the model is chosen automatically (--model auto)",
     "--params": "fitted configuration and parameters from 'abrdf-jax fit' (fixes the model)",
     "--model": "auto (default: isotropy test, then the simplest candidate within --tol of the best "
-    "held-out error) or a fixed model: " + ", ".join((*MODELS, *DIRECT_MODELS)),
+    "held-out error) or a fixed model: " + ", ".join(FIXED_MODELS),
     "--tol": f"tolerance of the automatic choice, relative (default {MODEL_TOL:g})",
     "--resume": "folder mode: keep the tables of an earlier (interrupted) run that are complete "
     "and named in its model record; reconstruct only the others (the same tables, bit for bit, "
@@ -94,8 +97,8 @@ def register(sub) -> None:
 def check_model_arguments(args) -> None:
     """Fail before any work on contradictory model options."""
     fixed = None if args.model == "auto" else args.model
-    if fixed is not None and fixed not in (*MODELS, *DIRECT_MODELS):
-        names = ", ".join((*MODELS, *DIRECT_MODELS))
+    if fixed is not None and fixed not in FIXED_MODELS:
+        names = ", ".join(FIXED_MODELS)
         raise InputError(f"unknown model {fixed!r}; choose auto or one of: {names}")
     given = {"model": fixed, "preset": args.preset, "params": args.params}
     fixing = [f"--{k} {v}" for k, v in given.items() if v is not None]
