@@ -161,10 +161,10 @@ def markdown(payload: dict) -> str:
                 f"{b['logerr']:.3f} | {len(r['bivariate_better'])} of {len(block['materials'])} | "
                 f"{oracle:.2f} | {r['bivariate_seconds_per_material'] * 1e3:.0f} |"
             )
-        if set_name == "analytic":
-            r = block["kinds"]["protocol"]
+        lines.append("")
+        for kind, r in block["kinds"].items():
             worse = [n for n in block["materials"] if n not in r["bivariate_better"]]
-            lines += ["", "Worse than the RBF: " + (", ".join(worse) or "none") + "."]
+            lines.append(f"- {kind}, bivariate worse than the RBF: " + (", ".join(worse) or "none"))
         if "sweep" in block:
             lines += [
                 "",
