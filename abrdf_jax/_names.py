@@ -64,8 +64,9 @@ FOLD_KINDS = ("pairs", "samples")
 LOSSES = ("lab", "log", "lab+log")
 WIDTH_MODES = ("per_dim", "shared", "fixed")
 BTF_BACKENDS = ("auto", "operator", "pipeline")
-#: Models outside the automatic choice, fixed by ``--model NAME`` only: the bivariate
-#: ``(θh, θd)`` model of isotropic materials (``abrdf_jax.reconstruct_bivariate``).
+#: Models outside the RBF family and the learned ones: the bivariate ``(θh, θd)`` model of
+#: isotropic materials (``abrdf_jax.reconstruct_bivariate``; ``--model auto``'s choice for a
+#: material the isotropy test accepts, without a prior).
 DIRECT_MODELS = ("bivariate",)
 #: The models that read a learned prior (``--model NAME``), in rank order.
 LEARNED_MODELS = ("prior", "fused")

@@ -13,8 +13,8 @@ reflectometry": isotropic BRDFs are nearly functions of ``(θh, θd)``):
   :func:`abrdf_jax.simulate_capture` (seed ``12 + i`` per material, as ``benchmarks.captures``)
   in several kinds (the protocol capture, 100 samples a slice, 0.5° jitter, two extra pairs,
   pairs off the UBO rings); the RBF is the command line as a user runs it, one folder call
-  per kind (``python -m abrdf_jax.cli reconstruct DIR -o OUT -q``: for iso102 captures the
-  automatic choice has one candidate, ``iso``, the recommended RBF), the bivariate
+  per kind (``python -m abrdf_jax.cli reconstruct DIR -o OUT -q --model iso``: the recommended
+  RBF, what ``--model auto`` chose for iso102 captures before the bivariate model), the bivariate
   model the library call on the same samples; ΔE76 and LogErr against the dense truth, mean
   and median over materials, the materials where each is better, and the mean of the better of
   the two per material (what a perfect choice between them would reach).
@@ -76,7 +76,7 @@ def compare(models: dict, refs: dict, kind: str, work: Path, log) -> dict:
     folder.mkdir(parents=True)
     for n, s in samples.items():
         io.write_samples_csv(folder / f"{n}.csv", s)
-    cli = run_cli(folder, work / f"{kind}.out", list(models))
+    cli = run_cli(folder, work / f"{kind}.out", list(models), ("--model", "iso"))
     tables = cli.pop("tables")
     if not cli["ok"]:
         raise RuntimeError(f"{kind}: the command line failed: {cli['error_lines']}")
@@ -136,8 +136,9 @@ def markdown(payload: dict) -> str:
         "",
         f"`{payload['command']}`; {payload['machine']['date']}, load {payload['load_before']} → "
         f"{payload['load_after']}, {payload['seconds']:.0f} s. RBF: `python -m abrdf_jax.cli "
-        "reconstruct DIR -o OUT -q` (one folder call per kind; `--model auto` leaves `iso` for "
-        "iso102 captures); bivariate: "
+        "reconstruct DIR -o OUT -q --model iso` (one folder call per kind; until the bivariate "
+        "model became the automatic choice of isotropic materials, `--model auto` chose `iso` for "
+        "these captures); bivariate: "
         "`abrdf_jax.reconstruct_bivariate` on the same samples (iso102 captures, seed 12 + i). "
         "ΔE76 / LogErr against the dense truth, mean (median) over materials.",
     ]

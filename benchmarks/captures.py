@@ -97,11 +97,12 @@ def valid(table) -> str | None:
 # --------------------------------------------------------------------------------------------
 
 
-def run_cli(folder: Path, out: Path, names: list[str]) -> dict:
-    """Reconstruct ``folder`` by one call of the command line; exit code, time, warnings."""
+def run_cli(folder: Path, out: Path, names: list[str], extra: tuple[str, ...] = ()) -> dict:
+    """Reconstruct ``folder`` by one call of the command line (``extra``: more arguments, e.g.
+    a fixed ``--model``); exit code, time, warnings."""
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
-    cmd = [sys.executable, *CLI[1:], str(folder), "-o", str(out), "-q"]
+    cmd = [sys.executable, *CLI[1:], str(folder), "-o", str(out), "-q", *extra]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=folder.parent)
     seconds = time.perf_counter() - t0
@@ -110,7 +111,7 @@ def run_cli(folder: Path, out: Path, names: list[str]) -> dict:
     errs = [x for x in lines if "error:" in x]
     shown = f"{folder.parent.name}/{folder.name}"
     res = {
-        "command": shlex.join([*CLI, shown, "-o", shown + ".out", "-q"]),
+        "command": shlex.join([*CLI, shown, "-o", shown + ".out", "-q", *extra]),
         "exit_code": proc.returncode,
         "seconds": seconds,
         "warnings": len(warns),

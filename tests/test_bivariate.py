@@ -200,6 +200,67 @@ def test_command_line_model_bivariate(tmp_path):
     assert bad.returncode == 2 and "bivariate" in bad.stderr and not (tmp_path / "x").exists()
 
 
+def test_automatic_choice_of_an_isotropic_material():
+    """``select_model``: a material the isotropy test accepts gets the bivariate model on every
+    slice (``aniso204``), a forced ``iso102`` budget on the diagonal slices; the selection's
+    table is the library call's (Samples) and the slice map's (Measurements); an anisotropic
+    material and a prior keep the RBF candidates; explicit candidates are kept."""
+    from abrdf_jax import select
+
+    cfg = aj.Config(budget="aniso204")
+    mat = materials.get_material("ggx-plastic")
+    samples = aj.sample(mat, cfg)
+    meas = aj.sample(mat, cfg, as_measurements=True)
+    sel = select.select_model(samples)
+    assert sel.name == "bivariate" and sel.isotropy.isotropic and sel.config.budget == "aniso204"
+    assert sel.ranks["bivariate"] < min(c.rank for c in select.CANDIDATES.values())
+    assert "isotropic material" in sel.reason
+    table = sel.reconstruct(samples)
+    np.testing.assert_array_equal(table, aj.reconstruct_bivariate(samples))
+    np.testing.assert_allclose(
+        select.select_model(meas).reconstruct(meas), table, rtol=1e-4, atol=1e-6
+    )
+    forced = select.select_model(meas, budget="iso102")
+    assert forced.name == "bivariate" and forced.config.budget == "iso102"
+    iso_samples = aj.sample(mat, aj.Config(budget="iso102"))
+    np.testing.assert_allclose(
+        forced.reconstruct(meas), aj.reconstruct_bivariate(iso_samples), rtol=1e-4, atol=1e-6
+    )
+    assert select.select_model(meas, candidates=("iso",)).name == "iso"
+    metal = select.select_model(
+        aj.sample(materials.get_material("ggx-aniso-metal"), cfg, as_measurements=True)
+    )
+    assert not metal.isotropy.isotropic and metal.name in select.DEFAULT_ANISO
+    from abrdf_jax.select._choice import plan, with_prior
+
+    p = with_prior(plan(meas, 15.0, "auto", None, None, 1e-3, 0.02), fused=True)
+    assert set(p.configs) == {"iso", "prior", "fused"}  # the bivariate model has no held-out error
+
+
+def test_command_line_auto_is_bivariate_for_isotropic_files(tmp_path):
+    """``reconstruct`` (``--model auto``) of an isotropic file: the bivariate model, the same
+    table as ``--model bivariate``, the record says it was chosen and why."""
+    import json
+
+    from abrdf_jax import io
+
+    from tests.cli_runner import run_cli
+
+    s = aj.simulate_capture(materials.get_material("ggx-plastic"), budget="iso102", seed=3)
+    io.write_samples_csv(tmp_path / "m.csv", s)
+    auto = run_cli("reconstruct", "m.csv", "-o", "auto.npz", cwd=tmp_path)
+    assert auto.returncode == 0, auto.stderr
+    fixed = run_cli("reconstruct", "m.csv", "-o", "fixed.npz", "--model", "bivariate", cwd=tmp_path)
+    assert fixed.returncode == 0, fixed.stderr
+    np.testing.assert_array_equal(
+        io.read_table(tmp_path / "auto.npz"), io.read_table(tmp_path / "fixed.npz")
+    )
+    doc = json.loads((tmp_path / "auto.model.json").read_text())
+    assert doc["model"] == "bivariate" and doc["how"] == "auto"
+    assert doc["config"]["budget"] == "iso102" and "isotropic" in doc["reason"]
+    assert doc["candidates"][0]["description"].startswith("a thin-plate spline")
+
+
 def test_benchmark_smoke(tmp_path, data_dir):
     """``python -m benchmarks.bivariate --quick``: the train sweep, both splits and the analytic
     set, each kind's RBF (one CLI folder call) and bivariate figures, the report and the chart

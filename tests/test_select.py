@@ -209,8 +209,9 @@ def test_select_model(plastic, steel, steel_errors):
     )
     assert metal.config.budget == "aniso204" and not metal.isotropy.isotropic
     assert metal.errors["iso"] > (1 + metal.tol) * min(metal.errors.values())  # it matters here
-    iso = select.select_model(plastic)
-    assert iso.name == "iso" and iso.isotropy.isotropic and iso.config.budget == "iso102"
+    iso = select.select_model(plastic)  # isotropic: the bivariate model on all 8 slices
+    assert iso.name == "bivariate" and iso.isotropy.isotropic and iso.config.budget == "aniso204"
+    assert select.select_model(plastic, candidates="kernels").name in select.KERNEL_FAMILY
     forced = select.select_model(plastic, budget="iso102", candidates=("iso",))
     assert forced.isotropy is None and forced.name == "iso"
     with pytest.raises(aj.InputError, match="unknown model"):

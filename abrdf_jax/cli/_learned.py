@@ -91,18 +91,20 @@ def learned_choice(item, source, name: str, budget: str, how: str, reason=None, 
     return prior_choice(item.path, source, budget, item.alpha, how, reason, extra, name)
 
 
-def bivariate_choice(item, budget: str) -> dict:
-    """``--model bivariate``: the bivariate ``(θh, θd)`` model of an isotropic material
+def bivariate_choice(item, budget: str, how: str = "fixed", reason=None, extra=None) -> dict:
+    """The bivariate ``(θh, θd)`` model of an isotropic material, fixed (``--model bivariate``)
+    or chosen (``how="auto"``, ``reason`` and ``extra`` from the selection)
     (:func:`abrdf_jax.reconstruct_bivariate`; ``config`` is its ``BivariateModel``)."""
     from .._bivariate import LOG_EPS, SMOOTHING, BivariateModel
     from .._config import Config, default_values
 
-    reason = (
+    reason = reason or (
         "--model bivariate: a thin-plate spline in (sqrt(theta_h), theta_d) of the log BRDF, "
         "assuming an isotropic material (docs/captures.md)"
     )
-    rec = {"input": str(item.path), "model": "bivariate", "how": "fixed", "reason": reason}
+    rec = {"input": str(item.path), "model": "bivariate", "how": how, "reason": reason}
     rec["config"] = {"budget": budget, "slices": _slices_read(budget), "log_eps": LOG_EPS}
     rec["params"] = {"alpha_deg": float(item.alpha), "smoothing": SMOOTHING}
+    rec |= extra or {}
     params = default_values(Config(budget=budget), item.alpha)  # α for the layout
     return {"name": "bivariate", "config": BivariateModel(budget), "params": params, "record": rec}

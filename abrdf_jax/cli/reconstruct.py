@@ -2,13 +2,12 @@
 
 Each input is read and grouped into slices once (:class:`abrdf_jax.Measurements`); the model
 choice and the reconstruction both take those slices. ``--model auto`` runs
-:func:`abrdf_jax.select.select_model` on every input (the isotropy test on the axial slices, then
-held-out errors with the tolerance rule); ``--model NAME`` fixes a candidate of
-``abrdf_jax.select.CANDIDATES``. The choice, the candidates' held-out errors and the reason are
-printed and saved beside the output (``OUT.model.json``; for an output folder, one
-``OUT.model.json`` beside it holding every input's entry). ``--isotropic``/``--anisotropic`` force
-the budget: ``auto`` then chooses among that budget's candidates only. Several inputs are
-reconstructed in batches.
+:func:`abrdf_jax.select.select_model` on every input (the isotropy test on the axial slices; an
+isotropic material gets the bivariate model, an anisotropic one the candidate that held-out
+errors and the tolerance rule choose); ``--model NAME`` fixes a model. The choice, the
+candidates' held-out errors and the reason are printed and saved beside the output
+(``OUT.model.json``, one for an output folder). ``--isotropic``/``--anisotropic`` force the
+budget. Several inputs are reconstructed in batches.
 """
 
 from __future__ import annotations
@@ -21,8 +20,7 @@ from .._errors import InputError
 from .._names import DIRECT_MODELS, MODEL_TOL, MODELS, PRESETS, TABLE_SUFFIXES
 from . import _common as common
 
-#: Every model ``--model`` can fix: the automatic choice's candidates and learned models, then
-#: the models outside the choice.
+#: Every model ``--model`` can fix: the RBF candidates, the learned and the direct models.
 FIXED_MODELS = (*MODELS, *DIRECT_MODELS)
 #: Threads writing the finished tables while the next batch computes.
 WRITERS = 2
@@ -48,8 +46,9 @@ HELP = {
     "--preset": "fix the model to a " + common.preset_help(None) + ". Without --preset, --model or "
     "--params the model is chosen automatically (--model auto)",
     "--params": "fitted configuration and parameters from 'abrdf-jax fit' (fixes the model)",
-    "--model": "auto (default: isotropy test, then the simplest candidate within --tol of the best "
-    "held-out error) or a fixed model: " + ", ".join(FIXED_MODELS),
+    "--model": "auto (default: isotropy test; an isotropic material gets the bivariate model, an "
+    "anisotropic one the simplest candidate within --tol of the best held-out error) or a fixed "
+    "model: " + ", ".join(FIXED_MODELS),
     "--tol": f"tolerance of the automatic choice, relative (default {MODEL_TOL:g})",
     "--resume": "folder mode: keep the tables of an earlier (interrupted) run that are complete "
     "and named in its model record; reconstruct only the others (the same tables, bit for bit, "
@@ -106,10 +105,7 @@ def check_model_arguments(args) -> None:
         raise InputError(f"{fixing[0]} and {fixing[1]} both fix the model; give one")
     if args.model == "auto" and fixing:
         raise InputError(f"--model auto chooses the model, but {fixing[0]} fixes it; give one")
-    for name, v, what in (
-        ("tol", args.tol, "a fraction"),
-        ("noise", args.noise, "a relative level"),
-    ):
+    for name, v, what in (("tol", args.tol, "a fraction"), ("noise", args.noise, "a level")):
         if v is not None and not (math.isfinite(v) and v >= 0):
             raise InputError(f"--{name} must be {what} >= 0, got {v}")
     common.check_prior_arguments(args)
@@ -235,6 +231,8 @@ def _auto_choice(item, s, prior) -> dict:
     extra |= {**s.evidence(), "seconds": s.seconds}
     if s.name in common.LEARNED_MODELS:
         return common.learned_choice(item, prior, s.name, s.config.budget, "auto", s.reason, extra)
+    if s.name in DIRECT_MODELS:
+        return common.bivariate_choice(item, s.config.budget, "auto", s.reason, extra)
     return common.model_choice(item.path, s.name, s.config, s.params, "auto", s.reason, extra)
 
 

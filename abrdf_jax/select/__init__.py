@@ -8,8 +8,8 @@
     report = select.isotropy_test(samples)            # noise-aware test on the axial slices
     sel = select.select_model(samples)                # isotropy, then held-out error + 5 % rule
     sels = select.select_models(many)                 # the same for many, folds batched
-    print(sel.name, sel.reason, sel.errors)
-    table = aj.reconstruct(samples, sel.config, sel.params)
+    print(sel.name, sel.reason, sel.errors)          # "bivariate" for an isotropic material
+    table = sel.reconstruct(samples)                  # the chosen model's table
 
     curve = select.sample_count_curve(material)       # how few samples per slice suffice?
 

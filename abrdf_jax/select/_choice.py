@@ -14,10 +14,14 @@ import math
 import time
 from typing import NamedTuple
 
+import numpy as np
+
 from .._config import Config, default_values
 from .._errors import InputError
 from .._memo import BoundedMemo
 from ._candidates import (
+    BIVARIATE,
+    BIVARIATE_RANK,
     CANDIDATES,
     DEFAULT_ANISO,
     DEFAULT_ISO,
@@ -113,6 +117,31 @@ class Selection:
             "seconds": self.seconds,
         }
 
+    def reconstruct(self, samples):
+        """The chosen model's ``(81, 81, 3)`` table of ``samples`` (the measurement it was chosen
+        on): :func:`abrdf_jax.reconstruct` with :attr:`config` and :attr:`params` for an RBF
+        model; for the bivariate one :func:`abrdf_jax.reconstruct_bivariate` of
+        :class:`~abrdf_jax.Samples` (every sample at its recorded direction) or, for
+        :class:`~abrdf_jax.Measurements`, the command line's map of the slices of
+        :attr:`config`'s budget at :attr:`params`' α. A learned model needs its prior:
+        :func:`abrdf_jax.prior.reconstruct_prior` or :func:`~abrdf_jax.prior.reconstruct_fused`.
+        """
+        if self.name == BIVARIATE:
+            from .._bivariate import BivariateModel, reconstruct_bivariate
+
+            if not hasattr(samples, "to_measurements") and hasattr(samples, "count"):
+                apply = BivariateModel(self.config.budget).operator(self.params, samples)
+                return apply(np.asarray(samples.y)[None])[0]
+            return reconstruct_bivariate(samples)
+        if self.name in LEARNED:
+            raise InputError(
+                f"Selection.reconstruct: the {self.name} model needs its prior: call "
+                f"abrdf_jax.prior.reconstruct_{self.name} with it"
+            )
+        from .._pipeline import reconstruct
+
+        return reconstruct(samples, self.config, self.params)
+
     def evidence(self) -> dict:
         """The record's ``candidates`` (each with its held-out error, rank and description) and
         ``isotropy`` (the report's dictionary): what :meth:`to_dict` holds beyond the model."""
@@ -122,7 +151,7 @@ class Selection:
                     "name": n,
                     "held_out_log_rms": _finite(self.errors[n]),
                     "rank": self.ranks[n],
-                    "description": description(n) if n in CANDIDATES or n in LEARNED else "",
+                    "description": description(n),
                 }
                 for n in sorted(self.errors, key=lambda n: self.ranks[n])
             ],
@@ -175,10 +204,21 @@ def plan(meas, alpha: float, candidates, budget, noise, level, min_effect, repor
     if budget == "aniso204":
         names = [n for n in names if CANDIDATES[n].settings["budget"] == "aniso204"] or ["aniso"]
     elif budget == "iso102" or not aniso_ok:
+        if candidates == "auto":  # an isotropic material: the bivariate model, every slice read
+            return _bivariate_plan(meas, alpha, budget, report)
         names = [n for n in names if CANDIDATES[n].settings["budget"] == "iso102"] or ["iso"]
     configs = {n: _candidate_config(n, meas.pairs) for n in names}
     ranks = {n: CANDIDATES[n].rank for n in names}
     return Plan(meas, alpha, budget, report, configs, ranks)
+
+
+def _bivariate_plan(meas, alpha: float, budget, report) -> Plan:
+    """The plan of an isotropic material: the bivariate model alone (:data:`BIVARIATE`), on
+    every slice of the measurement unless the budget was forced to ``iso102`` (its
+    configuration only says the budget whose slices it reads)."""
+    b = "aniso204" if budget is None and meas.has_axial else "iso102"
+    config = Config(budget=b, pairs=meas.pairs)
+    return Plan(meas, alpha, budget, report, {BIVARIATE: config}, {BIVARIATE: BIVARIATE_RANK})
 
 
 def _candidate_config(name: str, pairs) -> Config:
@@ -195,7 +235,14 @@ def with_prior(p: Plan, fused: bool = False) -> Plan:
     """The plan with the prior-only model (and with ``fused`` the fused model) among its
     candidates (ranks in :data:`LEARNED`), on the slices of the plan's budget: all of them when
     an anisotropic candidate is left, else the diagonal ones (``iso102``). Their configuration
-    only says that budget."""
+    only says that budget. An isotropic plan's bivariate model, which has no held-out error,
+    gives its place to the RBF's ``iso``: with a prior, the choice compares ``iso``, the prior
+    and the fused model by held-out error."""
+    if BIVARIATE in p.configs:  # not scored by held-out error: the RBF's iso in its place
+        p = p._replace(
+            configs={"iso": _candidate_config("iso", p.meas.pairs)},
+            ranks={"iso": CANDIDATES["iso"].rank},
+        )
     budget = "aniso204" if any(c.budget == "aniso204" for c in p.configs.values()) else "iso102"
     names = [n for n in LEARNED if fused or n == PRIOR]
     configs = {**p.configs, **{n: Config(budget=budget, pairs=p.meas.pairs) for n in names}}
@@ -246,6 +293,8 @@ def finish(
         errors = {names[0]: float("nan")}
         pick = names[0]
         reason = f"{pick}: the only candidate left"
+        if pick == BIVARIATE:
+            reason = f"{pick}: the model of an isotropic material, {description(pick)}"
     else:
         compared, note = fused_gate(errors)
         pick, reason = tolerance_choice(compared, plan.ranks, tol)

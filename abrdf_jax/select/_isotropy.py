@@ -316,7 +316,7 @@ def _report(meas, cnt, sums, used, sigma, source, level, min_effect) -> Isotropy
             effect=float("nan"),
             per_pair=(),
             **common,
-            reason="no axial slice was measured: only the diagonal-only model (eq. 5) is possible",
+            reason="no axial slice was measured: the material is taken as isotropic",
         )
     per_pair = [
         dict(
