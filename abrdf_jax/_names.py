@@ -70,7 +70,7 @@ BTF_BACKENDS = ("auto", "operator", "pipeline")
 DIRECT_MODELS = ("bivariate",)
 #: The models that read a learned prior (``--model NAME``), in rank order.
 LEARNED_MODELS = ("prior", "fused")
-BTF_MODELS = ("fixed", "auto", *LEARNED_MODELS)
+BTF_MODELS = ("fixed", "auto", *LEARNED_MODELS, *DIRECT_MODELS)
 #: dtypes of the values in a chunked BTF store
 STORE_DTYPES = ("float16", "float32")
 #: storage backends of a BTF store (``abrdf_jax.btf.FORMATS``), the default first

@@ -231,10 +231,18 @@ def test_automatic_choice_of_an_isotropic_material():
         aj.sample(materials.get_material("ggx-aniso-metal"), cfg, as_measurements=True)
     )
     assert not metal.isotropy.isotropic and metal.name in select.DEFAULT_ANISO
-    from abrdf_jax.select._choice import plan, with_prior
+    from abrdf_jax.select._choice import finish, plan, with_prior
 
+    # With a prior, iso is scored beside the learned models and stands for the isotropic ones:
+    # where it wins, the bivariate model; where a learned model wins, that one.
     p = with_prior(plan(meas, 15.0, "auto", None, None, 1e-3, 0.02), fused=True)
-    assert set(p.configs) == {"iso", "prior", "fused"}  # the bivariate model has no held-out error
+    assert set(p.configs) == {"iso", "prior", "fused"} and set(p.stand_in) == {"iso"}
+    won = finish(p, {"iso": 0.1, "prior": 0.3, "fused": 0.2}, 0.05, 4, 0.0)
+    assert won.name == "bivariate" and won.config.budget == "aniso204"
+    assert won.errors["iso"] == 0.1 and "stands for the isotropic models" in won.reason
+    assert finish(p, {"iso": 0.3, "prior": 0.3, "fused": 0.1}, 0.05, 4, 0.0).name == "fused"
+    explicit = plan(meas, 15.0, ("iso", "aniso"), "aniso204", None, 1e-3, 0.02)
+    assert not explicit.stand_in  # named candidates are taken as named
 
 
 def test_command_line_auto_is_bivariate_for_isotropic_files(tmp_path):
@@ -258,7 +266,8 @@ def test_command_line_auto_is_bivariate_for_isotropic_files(tmp_path):
     doc = json.loads((tmp_path / "auto.model.json").read_text())
     assert doc["model"] == "bivariate" and doc["how"] == "auto"
     assert doc["config"]["budget"] == "iso102" and "isotropic" in doc["reason"]
-    assert doc["candidates"][0]["description"].startswith("a thin-plate spline")
+    assert [c["name"] for c in doc["candidates"]] == ["iso"]  # scored for the isotropic models
+    assert "stands for the isotropic models" in doc["reason"] and doc["rank"] == -1
 
 
 def test_benchmark_smoke(tmp_path, data_dir):

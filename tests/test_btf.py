@@ -619,7 +619,11 @@ def test_per_texel_model_choice(tmp_path):
         "auto",
     )  # the map reconstruct_btf built (cached)
     assert isinstance(fn, btf.ModelChoiceChunkFunction) and fn.backend == "operator+choice"
+    assert isinstance(fn.iso, btf.BivariateChunkFunction)  # as reconstruct's auto choice
     iso, aniso = np.asarray(fn.iso(jnp.asarray(y))), np.asarray(fn.aniso(jnp.asarray(y)))
+    for k in (0, 2):  # the isotropic texels: the library's bivariate model of their samples
+        lib = aj.reconstruct_bivariate(samples[k]).reshape(-1, 3)
+        np.testing.assert_allclose(iso[k], lib, rtol=2e-4, atol=1e-6 * lib.max())
     expected = np.where(np.asarray(truth)[:, None, None], iso, aniso)
     # rtol: float32 rounding; the kept rows' sparse sum (_kept_rows.kept_product) is fused
     # differently inside the store's jitted blocks than in a direct call (a few ulps after the exp)
@@ -637,6 +641,54 @@ def test_per_texel_model_choice(tmp_path):
         )
     with pytest.raises(InputError, match="model must be"):
         btf.reconstruct_btf(meas, tmp_path / "rec3", chunk=4, progress=False, model="best")
+
+
+def test_bivariate_model_per_texel(tmp_path, capsys):
+    """``model="bivariate"`` (and ``btf reconstruct --model bivariate``): every texel through the
+    bivariate map of the store's geometry (its recorded angles), equal to the library call on
+    that texel's samples; bad arguments are named."""
+    from abrdf_jax.cli import main
+    from abrdf_jax.materials import get_material
+
+    names = ("ggx-plastic", "lambert-clay", "ward-brushed-steel", "ggx-aniso-metal")
+    samples = [aj.simulate_capture(get_material(n), jitter_deg=0.3, seed=1) for n in names]
+    s0 = samples[0]
+    geometry = {k: np.asarray(getattr(s0, k)).tolist() for k in ("theta_i", "phi_i")}
+    geometry |= {k: np.asarray(getattr(s0, k)).tolist() for k in ("theta_v", "phi_v")}
+    geometry |= dict(alpha_deg=15.0, budget="aniso204")
+    meas = btf.ChunkedStore.create(
+        tmp_path / "meas",
+        kind="measurements",
+        texel_shape=(2, 2),
+        item_shape=(len(s0), 3),
+        chunk=4,
+        geometry=geometry,
+    )
+    # every texel at the first texel's angles (one geometry), with its own material's values
+    rows = [aj.Samples(s0.theta_i, s0.phi_i, s0.theta_v, s0.phi_v, s.rgb) for s in samples]
+    meas.write_chunk(0, np.stack([np.asarray(r.rgb, np.float32) for r in rows]))
+    out = btf.reconstruct_btf(
+        meas, tmp_path / "rec", chunk=4, progress=False, dtype="float32", model="bivariate"
+    )
+    got = out.read().reshape(4, 81, 81, 3)
+    for k, r in enumerate(rows):
+        lib = aj.reconstruct_bivariate(r)
+        np.testing.assert_allclose(got[k], lib, rtol=2e-4, atol=1e-6 * lib.max())
+    assert out.attrs["job"]["model"] == "bivariate"
+    cli = ["btf", "reconstruct", str(tmp_path / "meas"), "-o", str(tmp_path / "c")]
+    assert main([*cli, "--model", "bivariate", "-q", "--dtype", "float32"]) == 0
+    # the same map (float32 rounding: the command line pads the chunk to its own batch)
+    np.testing.assert_allclose(btf.ChunkedStore.open(tmp_path / "c").read(), out.read(), rtol=1e-5)
+    capsys.readouterr()
+    bad = ["btf", "reconstruct", str(tmp_path / "meas"), "-o", str(tmp_path / "x")]
+    assert main([*bad, "--model", "bivariate", "--preset", "paper"]) == 2
+    assert "is not an RBF model" in capsys.readouterr().err
+    with pytest.raises(InputError, match="lacks 'phi_i'"):
+        btf.make_bivariate_chunk_fn({"theta_i": [10.0, 20.0]})
+    with pytest.raises(InputError, match="one length >= 3"):
+        btf.make_bivariate_chunk_fn(
+            {k: [10.0, 20.0] for k in ("theta_i", "phi_i", "theta_v", "phi_v")}
+        )
 
 
 def test_learned_models_per_texel_equal_their_numpy_entry(generated, tmp_path, capsys):

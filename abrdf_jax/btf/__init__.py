@@ -24,6 +24,7 @@ from .._lazy import lazy_exports
 # public name -> private module that defines it; loaded on first use
 _EXPORTS = {
     "_batch": ("DEFAULT_CHUNK", "default_config", "isotropy_map", "reconstruct_btf"),
+    "_bivariate": ("BivariateChunkFunction", "make_bivariate_chunk_fn"),
     "_chunkfn": (
         "ChunkFunction",
         "ModelChoiceChunkFunction",

@@ -25,11 +25,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from .._names import BTF_MODELS, LEARNED_MODELS
+from .._names import BTF_MODELS, DIRECT_MODELS, LEARNED_MODELS
 from .._params import Config, Params, preset
 from ..select._isotropy import LEVEL, MIN_EFFECT
 from ._chunkfn import BACKENDS, N_PAIRS, _alpha_deg, grouping, make_chunk_fn
 from ._chunkfn import make_model_choice_fn, texel_isotropy
+from ._bivariate import make_bivariate_chunk_fn
 from ._learned import make_learned_chunk_fn, prior_identity
 from ._devices import DEFAULT_BLOCK, ShardedRunner, resolve_devices
 from ._backend import DEFAULT_FORMAT, open_store, store_class
@@ -71,7 +72,8 @@ _CHUNK_FNS: dict = {}
 
 def _chunk_fn(config, params, geometry, backend, dtype, model="fixed", prior=None):
     """:func:`make_chunk_fn` (``model="auto"``: :func:`make_model_choice_fn`; ``"prior"`` or
-    ``"fused"``: :func:`~abrdf_jax.btf._learned.make_learned_chunk_fn` of ``prior``), remembered
+    ``"fused"``: :func:`~abrdf_jax.btf._learned.make_learned_chunk_fn` of ``prior``;
+    ``"bivariate"``: :func:`~abrdf_jax.btf.make_bivariate_chunk_fn`), remembered
     for the last few settings (building an operator costs a factorisation and a pass of the
     pipeline; a resumed or repeated run reuses it)."""
     key = (repr(config), json.dumps(_params_doc(params)), json.dumps(geometry, sort_keys=True))
@@ -84,6 +86,8 @@ def _chunk_fn(config, params, geometry, backend, dtype, model="fixed", prior=Non
         if model in LEARNED_MODELS:
             template, group = grouping(geometry, config.pairs, _alpha_deg(geometry, params))
             fn = make_learned_chunk_fn(prior, model, template, group, params, config.budget, dtype)
+        elif model in DIRECT_MODELS:
+            fn = make_bivariate_chunk_fn(geometry, dtype)
         else:
             make = make_model_choice_fn if model == "auto" else make_chunk_fn
             fn = make(config, params, geometry, backend=backend, dtype=dtype)
@@ -136,9 +140,10 @@ def reconstruct_btf(
             at the 1e-2 relative level, float64 does not).
         overwrite: replace an output store of a different job.
         model: ``"fixed"`` (``config`` for every texel) or ``"auto"``: per texel, the isotropy
-            test of :mod:`abrdf_jax.select` on its axial slices picks the diagonal-only model
-            (``default_config("iso102")``, default parameters) or ``config`` (which must be
-            ``aniso204``); see :func:`isotropy_map` for the decisions; ``"prior"`` or
+            test of :mod:`abrdf_jax.select` on its axial slices picks the bivariate model (an
+            isotropic texel, every sample: :mod:`abrdf_jax.btf._bivariate`) or ``config`` (which
+            must be ``aniso204``); see :func:`isotropy_map` for the decisions; ``"bivariate"``:
+            every texel with the bivariate model; ``"prior"`` or
             ``"fused"``: every texel with the learned model of ``prior`` (the prior alone, or
             fused with a kernel on its residual at the prior's own hyper-parameters) on the
             slices of ``config``'s budget, one matrix product per chunk
@@ -186,6 +191,8 @@ def reconstruct_btf(
     # The job is what the results depend on; "auto" resolves the same way every time.
     job = dict(input=store_identity(meas), config=repr(config), params=_params_doc(params))
     job.update(backend=backend, compute_dtype=compute_dtype, model=model)
+    if model == "auto":  # the isotropic texels' model (the RBF's iso before 2026-12-06)
+        job.update(isotropic_model="bivariate")
     if prior is not None:
         job.update(prior=prior_identity(prior))
     attrs = dict(job=job, source=meas.attrs)

@@ -30,7 +30,7 @@ from .._grouping import grouping_matrix
 from .._measurements import Measurements
 from .._names import BTF_BACKENDS as BACKENDS
 from .._operator import compile_operator
-from .._params import Config, Params, preset
+from .._params import Config, Params
 from .._pipeline import reconstruct_batch
 from ..select._isotropy import LEVEL, MIN_EFFECT, isotropy_batch
 from ._store import ANGLES
@@ -161,15 +161,16 @@ class ModelChoiceChunkFunction(eqx.Module):
 
     Each texel's axial slices are tested (:func:`abrdf_jax.select._isotropy.isotropy_batch`, the test
     ``abrdf-jax reconstruct --model auto`` runs on one material, noise estimated per texel); an
-    isotropic texel gets the diagonal-only model (eq. 5), the others the anisotropic one. Both are
-    compiled chunk maps; on a chunk both run and each texel keeps its own (two matrix products
-    per chunk with the operator backend; a branch per texel would serialise the batch).
+    isotropic texel gets the bivariate model on every sample (as ``reconstruct --model auto``
+    gives an isotropic file; :mod:`abrdf_jax.btf._bivariate`), the others the anisotropic one.
+    Both are compiled chunk maps; on a chunk both run and each texel keeps its own (two matrix
+    products per chunk with the operator backend; a branch per texel would serialise the batch).
 
     Build with :func:`make_model_choice_fn`.
     """
 
     aniso: ChunkFunction
-    iso: ChunkFunction
+    iso: eqx.Module  # a BivariateChunkFunction, or a ChunkFunction of an iso102 configuration
     t: tuple = eqx.field(static=True)
     count: tuple = eqx.field(static=True)
     level: float = eqx.field(static=True)
@@ -209,8 +210,9 @@ def make_model_choice_fn(
         config, params: the anisotropic model (budget ``aniso204``; the geometry must have axial
             slices).
         geometry, backend, dtype: as :func:`make_chunk_fn`.
-        iso_config, iso_params: the isotropic model; default the BTF default for ``iso102``
-            and its default parameters at the geometry's α.
+        iso_config, iso_params: an RBF model of the isotropic texels (``iso_params`` default:
+            its default parameters at the geometry's α); default the bivariate model
+            (:func:`~abrdf_jax.btf.make_bivariate_chunk_fn`).
         level, min_effect: thresholds of the isotropy test (defaults of :mod:`abrdf_jax.select`).
 
     Raises:
@@ -223,10 +225,15 @@ def make_model_choice_fn(
             f"budget is {config.budget!r} (use model='fixed')"
         )
     aniso = make_chunk_fn(config, params, geometry, backend, dtype)
-    iso_config = preset("operator", "iso102") if iso_config is None else iso_config
-    if iso_params is None:
-        iso_params = Params.default(iso_config, alpha_deg=_alpha_deg(geometry, params), dtype=dtype)
-    iso = make_chunk_fn(iso_config, iso_params, geometry, backend, dtype)
+    if iso_config is None:
+        from ._bivariate import make_bivariate_chunk_fn
+
+        iso = make_bivariate_chunk_fn(geometry, dtype)
+    else:
+        if iso_params is None:
+            alpha_deg = _alpha_deg(geometry, params)
+            iso_params = Params.default(iso_config, alpha_deg=alpha_deg, dtype=dtype)
+        iso = make_chunk_fn(iso_config, iso_params, geometry, backend, dtype)
     t = tuple(tuple(float(v) for v in row) for row in np.asarray(aniso.template.t, np.float64))
     count = tuple(int(c) for c in np.asarray(aniso.template.count))
     return ModelChoiceChunkFunction(aniso, iso, t, count, float(level), float(min_effect))

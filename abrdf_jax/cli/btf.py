@@ -21,7 +21,14 @@ import time
 from pathlib import Path
 
 from .._errors import InputError
-from .._names import AZIMUTHS, BTF_BACKENDS, BTF_MODELS, LEARNED_MODELS, PRESETS
+from .._names import (
+    AZIMUTHS,
+    BTF_BACKENDS,
+    BTF_MODELS,
+    DIRECT_MODELS,
+    LEARNED_MODELS,
+    PRESETS,
+)
 from .._names import STORE_DTYPES, STORE_FORMATS
 from . import _common as common
 
@@ -45,10 +52,11 @@ HELP = {
     "--preset": "a " + common.preset_help(DEFAULT_PRESET) + " (one matrix product per chunk; "
     "recommended and paper run the pipeline)",
     "--params": "fitted configuration and parameters ('abrdf-jax fit'; instead of --preset)",
-    "--model": "auto: per texel, the isotropy test picks the diagonal-only or the anisotropic "
-    "model (two matrix products per chunk); fixed: one model for every texel (default); "
-    "prior / fused: every texel with a learned prior alone / fused with a kernel on its "
-    "residual (one matrix product per chunk; docs/prior.md)",
+    "--model": "auto: per texel, the isotropy test picks the bivariate (isotropic) or the "
+    "anisotropic model (two matrix products per chunk); fixed: one model for every texel "
+    "(default); prior / fused: every texel with a learned prior alone / fused with a kernel on "
+    "its residual (docs/prior.md); bivariate: every texel with the bivariate (theta_h, theta_d) "
+    "model of isotropic materials (one matrix product per chunk)",
     "--prior": "the prior of --model prior|fused: a prior file ('abrdf-jax prior train') or "
     "'default' (the built-in prior, also without the flag)",
     "--devices": "shard over the first N local devices",
@@ -170,9 +178,10 @@ def cmd_reconstruct(args) -> int:
     learned = args.model in LEARNED_MODELS
     if args.prior is not None and not learned:
         raise InputError(f"--prior is read by --model prior|fused, not --model {args.model}")
-    if learned and (args.preset is not None or args.params is not None):
+    if args.model in (*LEARNED_MODELS, *DIRECT_MODELS) and (args.preset or args.params):
         flag = "--preset" if args.preset is not None else "--params"
-        raise InputError(f"{flag} sets an RBF model; --model {args.model} reads a prior")
+        what = "reads a prior" if learned else "is not an RBF model"
+        raise InputError(f"{flag} sets an RBF model; --model {args.model} {what}")
     source = None
     if learned and args.prior not in (None, "default"):
         from .._prior_operator import read_source
@@ -233,7 +242,7 @@ def cmd_reconstruct(args) -> int:
         iso = btf.isotropy_map(meas, chunk=args.chunk)["fraction_isotropic"]
         print(
             f"model per texel (isotropy test of the axial slices): {100 * iso:.1f}% isotropic "
-            f"(diagonal-only model), {100 * (1 - iso):.1f}% anisotropic"
+            f"(bivariate model), {100 * (1 - iso):.1f}% anisotropic"
         )
     if args.exr_dir and jax.process_index() == 0:
         t0 = time.perf_counter()

@@ -172,6 +172,10 @@ class Plan(NamedTuple):
     report: IsotropyReport | None
     configs: dict
     ranks: dict
+    #: ``{"iso": Config}`` in an automatic plan: ``iso`` is scored (an RBF has held-out errors)
+    #: but stands for the isotropic models, and chosen it gives the bivariate model, on the
+    #: slices of the configuration's budget (:func:`finish`).
+    stand_in: dict = {}
 
 
 def check_budget(budget) -> None:
@@ -204,21 +208,14 @@ def plan(meas, alpha: float, candidates, budget, noise, level, min_effect, repor
     if budget == "aniso204":
         names = [n for n in names if CANDIDATES[n].settings["budget"] == "aniso204"] or ["aniso"]
     elif budget == "iso102" or not aniso_ok:
-        if candidates == "auto":  # an isotropic material: the bivariate model, every slice read
-            return _bivariate_plan(meas, alpha, budget, report)
         names = [n for n in names if CANDIDATES[n].settings["budget"] == "iso102"] or ["iso"]
     configs = {n: _candidate_config(n, meas.pairs) for n in names}
     ranks = {n: CANDIDATES[n].rank for n in names}
-    return Plan(meas, alpha, budget, report, configs, ranks)
-
-
-def _bivariate_plan(meas, alpha: float, budget, report) -> Plan:
-    """The plan of an isotropic material: the bivariate model alone (:data:`BIVARIATE`), on
-    every slice of the measurement unless the budget was forced to ``iso102`` (its
-    configuration only says the budget whose slices it reads)."""
-    b = "aniso204" if budget is None and meas.has_axial else "iso102"
-    config = Config(budget=b, pairs=meas.pairs)
-    return Plan(meas, alpha, budget, report, {BIVARIATE: config}, {BIVARIATE: BIVARIATE_RANK})
+    stand_in = {}
+    if candidates == "auto":  # an isotropic choice is the bivariate model, every slice read
+        b = "aniso204" if budget != "iso102" and meas.has_axial else "iso102"
+        stand_in = {"iso": Config(budget=b, pairs=meas.pairs)}
+    return Plan(meas, alpha, budget, report, configs, ranks, stand_in)
 
 
 def _candidate_config(name: str, pairs) -> Config:
@@ -235,14 +232,7 @@ def with_prior(p: Plan, fused: bool = False) -> Plan:
     """The plan with the prior-only model (and with ``fused`` the fused model) among its
     candidates (ranks in :data:`LEARNED`), on the slices of the plan's budget: all of them when
     an anisotropic candidate is left, else the diagonal ones (``iso102``). Their configuration
-    only says that budget. An isotropic plan's bivariate model, which has no held-out error,
-    gives its place to the RBF's ``iso``: with a prior, the choice compares ``iso``, the prior
-    and the fused model by held-out error."""
-    if BIVARIATE in p.configs:  # not scored by held-out error: the RBF's iso in its place
-        p = p._replace(
-            configs={"iso": _candidate_config("iso", p.meas.pairs)},
-            ranks={"iso": CANDIDATES["iso"].rank},
-        )
+    only says that budget."""
     budget = "aniso204" if any(c.budget == "aniso204" for c in p.configs.values()) else "iso102"
     names = [n for n in LEARNED if fused or n == PRIOR]
     configs = {**p.configs, **{n: Config(budget=budget, pairs=p.meas.pairs) for n in names}}
@@ -293,8 +283,6 @@ def finish(
         errors = {names[0]: float("nan")}
         pick = names[0]
         reason = f"{pick}: the only candidate left"
-        if pick == BIVARIATE:
-            reason = f"{pick}: the model of an isotropic material, {description(pick)}"
     else:
         compared, note = fused_gate(errors)
         pick, reason = tolerance_choice(compared, plan.ranks, tol)
@@ -303,9 +291,16 @@ def finish(
         reason = f"{plan.report.reason}. {reason}"
     elif plan.budget is not None:
         reason = f"budget forced to {plan.budget}. {reason}"
-    config = plan.configs[pick]
+    config, ranks = plan.configs[pick], plan.ranks
+    if pick in plan.stand_in:  # an isotropic model wins: the bivariate one
+        config, ranks = plan.stand_in[pick], {**ranks, BIVARIATE: BIVARIATE_RANK}
+        reason += (
+            f". {pick} stands for the isotropic models: {BIVARIATE}, {description(BIVARIATE)} "
+            f"({config.budget})"
+        )
+        pick = BIVARIATE
     params = (make_params or default_values)(config, plan.alpha, plan.meas.y.dtype)
-    return Selection(pick, config, params, errors, plan.ranks, plan.report, reason, tol, k, seconds)
+    return Selection(pick, config, params, errors, ranks, plan.report, reason, tol, k, seconds)
 
 
 def quick_selection(
