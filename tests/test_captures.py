@@ -161,7 +161,7 @@ def test_sample_folds_keep_short_slices_whole():
     from abrdf_jax.select import select_model
 
     sel = select_model(meas)
-    assert sel.name in aj.select.CANDIDATES
+    assert sel.name in (*aj.select.CANDIDATES, aj.select.BIVARIATE)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -218,7 +218,8 @@ def test_anisotropic_jittered_and_dense_captures_auto(tmp_path, capsys):
         write(tmp_path / "in", k, aj.simulate_capture(m, seed=5, **kw))
     assert main(["reconstruct", str(tmp_path / "in"), "-o", str(tmp_path / "out"), "-q"]) == 0
     doc = json.loads((tmp_path / "out.model.json").read_text())
-    assert all(e["model"] in aj.select.CANDIDATES and e["candidates"] for e in doc["inputs"])
+    models = (*aj.select.CANDIDATES, aj.select.BIVARIATE)
+    assert all(e["model"] in models and e["candidates"] for e in doc["inputs"])
     for k in ("jitter", "dense"):
         assert np.isfinite(io.read_table(tmp_path / "out" / f"{k}.npz")).all()
 

@@ -32,6 +32,7 @@ _EXPORTS = {
     ),
     "_chi2": ("chi2_sf",),
     "_candidates": (
+        "BIVARIATE",
         "CANDIDATES",
         "DEFAULT_ANISO",
         "DEFAULT_ISO",
@@ -39,6 +40,7 @@ _EXPORTS = {
         "TOL",
         "Candidate",
         "candidate",
+        "rank_of",
     ),
     "_choice": ("Selection", "group_configs", "quick_selection", "tolerance_choice"),
     "_select": (

@@ -121,6 +121,14 @@ def description(name: str) -> str:
     return LEARNED[name][1] if name in LEARNED else CANDIDATES[name].description
 
 
+def rank_of(name: str) -> int:
+    """The complexity rank of any model of the choice (RBF candidates, the bivariate model, the
+    learned models)."""
+    if name == BIVARIATE:
+        return BIVARIATE_RANK
+    return LEARNED[name][0] if name in LEARNED else candidate(name).rank
+
+
 def candidate(name: str) -> Candidate:
     """A named candidate; :class:`InputError` listing the names otherwise."""
     if name not in CANDIDATES:
