@@ -142,14 +142,14 @@ def dense_errors(meas, ref, names, log=print):
 
 def decide(meas, cv_row, names, tol=select.TOL):
     """The automatic choice from the isotropy test and the held-out errors (as select_model:
-    where an isotropic model wins, the bivariate one)."""
+    an isotropic material gets the bivariate model)."""
     rep = select.isotropy_test(meas)
     if rep.isotropic:
         return rep, BIVARIATE
     cand = [n for n in DEFAULT_ANISO]
     errs = {n: float(cv_row[names.index(n)]) for n in cand}
     pick, _ = select.tolerance_choice(errs, {n: CANDIDATES[n].rank for n in cand}, tol)
-    return rep, BIVARIATE if pick == "iso" else pick  # iso stands for the isotropic models
+    return rep, pick  # among anisotropic candidates iso is the RBF
 
 
 def main(argv=None):

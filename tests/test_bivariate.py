@@ -243,6 +243,9 @@ def test_automatic_choice_of_an_isotropic_material():
     assert finish(p, {"iso": 0.3, "prior": 0.3, "fused": 0.1}, 0.05, 4, 0.0).name == "fused"
     explicit = plan(meas, 15.0, ("iso", "aniso"), "aniso204", None, 1e-3, 0.02)
     assert not explicit.stand_in  # named candidates are taken as named
+    metal_meas = aj.sample(materials.get_material("ggx-aniso-metal"), cfg, as_measurements=True)
+    aniso_plan = plan(metal_meas, 15.0, "auto", None, None, 1e-3, 0.02)
+    assert "iso" in aniso_plan.configs and not aniso_plan.stand_in  # iso is the RBF there
 
 
 def test_command_line_auto_is_bivariate_for_isotropic_files(tmp_path):

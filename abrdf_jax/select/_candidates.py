@@ -97,14 +97,16 @@ LEARNED = {PRIOR: (PRIOR_RANK, PRIOR_DESCRIPTION), FUSED: (FUSED_RANK, FUSED_DES
 
 
 #: The bivariate ``(θh, θd)`` model (:func:`abrdf_jax.reconstruct_bivariate`): what the automatic
-#: choice gives wherever an isotropic model wins. ``iso`` (an RBF, which has held-out errors)
-#: is scored in its place and stands for the isotropic models: an isotropic verdict, or ``iso``
-#: chosen by the tolerance rule among the anisotropic or learned candidates, gives the
-#: bivariate model (on every slice of the budget; :func:`abrdf_jax.select._choice.finish`).
-#: Its own held-out error is not computed: on the MERL train split it was below ``iso``'s for
-#: every material (notes, nineteenth session), and its table is better than ``iso``'s on 49 of
-#: the 54 MERL test materials (``python -m benchmarks.bivariate``). It ranks below every RBF
-#: model: an isotropic material as a function of two angles, where the RBF interpolates four.
+#: choice gives an isotropic material (the isotropy test's verdict, or no axial slices). Where
+#: there is a comparison (beside a prior's models), ``iso`` (an RBF, which has held-out errors)
+#: is scored in its place and stands for the isotropic models; chosen, it gives the bivariate
+#: model (on every slice of the budget; :func:`abrdf_jax.select._choice.finish`). Among the
+#: anisotropic candidates ``iso`` stays the RBF: on the analytic anisotropic captures of
+#: ``python -m benchmarks.captures`` the bivariate model in its place was better on some
+#: materials and worse on others, and made denser slices worse on average. Its own held-out
+#: error is not computed: on the MERL train split it was below ``iso``'s for every material
+#: (notes, nineteenth session), and its table is better than ``iso``'s on 49 of the 54 MERL
+#: test materials (``python -m benchmarks.bivariate``). It ranks below every RBF model.
 BIVARIATE = "bivariate"
 BIVARIATE_RANK = -1
 BIVARIATE_DESCRIPTION = (

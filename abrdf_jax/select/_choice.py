@@ -172,9 +172,12 @@ class Plan(NamedTuple):
     report: IsotropyReport | None
     configs: dict
     ranks: dict
-    #: ``{"iso": Config}`` in an automatic plan: ``iso`` is scored (an RBF has held-out errors)
-    #: but stands for the isotropic models, and chosen it gives the bivariate model, on the
-    #: slices of the configuration's budget (:func:`finish`).
+    #: ``{"iso": Config}`` in the automatic plan of an isotropic material (the test's verdict,
+    #: no axial slices, or a forced ``iso102``): ``iso`` is scored where there is a comparison
+    #: (an RBF has held-out errors; beside a prior's models) but stands for the isotropic
+    #: models, and chosen it gives the bivariate model, on the slices of the configuration's
+    #: budget (:func:`finish`). Not in an anisotropic plan: there ``iso`` is the RBF's
+    #: diagonal-only model, which keeps some of the φ dependence that the bivariate model drops.
     stand_in: dict = {}
 
 
@@ -212,7 +215,7 @@ def plan(meas, alpha: float, candidates, budget, noise, level, min_effect, repor
     configs = {n: _candidate_config(n, meas.pairs) for n in names}
     ranks = {n: CANDIDATES[n].rank for n in names}
     stand_in = {}
-    if candidates == "auto":  # an isotropic choice is the bivariate model, every slice read
+    if candidates == "auto" and not aniso_ok:  # isotropic: the bivariate model, every slice read
         b = "aniso204" if budget != "iso102" and meas.has_axial else "iso102"
         stand_in = {"iso": Config(budget=b, pairs=meas.pairs)}
     return Plan(meas, alpha, budget, report, configs, ranks, stand_in)
