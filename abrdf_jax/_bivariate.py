@@ -97,11 +97,11 @@ def bivariate_matrix(src: np.ndarray, dst: np.ndarray, smoothing: float = SMOOTH
     system[:n, :n] = _kernel(src, src) + smoothing * np.eye(n)
     system[:n, n:] = _poly(src)
     system[n:, :n] = _poly(src).T
-    at = np.concatenate([_kernel(dst, src), _poly(dst)], axis=1)  # (q, n + 3)
-    try:
-        matrix = np.linalg.solve(system, at.T)[:n].T  # the system is symmetric
+    try:  # the system is symmetric: the map is [K_dst, P_dst] · system⁻¹[:, :n]
+        inv = np.linalg.solve(system, np.eye(n + 3))[:, :n]  # one small solve, then a GEMM
     except np.linalg.LinAlgError as e:  # fewer than 3 distinct points in a line, say
         raise InputError(f"the bivariate fit is singular ({e}): too few distinct samples") from e
+    matrix = _kernel(dst, src) @ inv[:n] + _poly(dst) @ inv[n:]  # (q, n)
     return matrix if avg is None else matrix @ avg
 
 

@@ -12,8 +12,11 @@ of its last member, whose tables are dropped).
   loaded from an operator store (``abrdf_jax._cache``) keyed by everything it depends on.
   The operator reproduces :func:`~abrdf_jax.reconstruct` to float32 rounding
   (``tests/test_operator.py``).
-- **Learned models** (the prior-only model, ``abrdf_jax._prior_operator.PriorModel``, passed
-  as ``config``; ``operator_only``): one operator per slice layout, whatever the group's size.
+- **Numpy maps** (the learned models, ``abrdf_jax._prior_operator.PriorModel``, and the
+  bivariate model, ``abrdf_jax._bivariate.BivariateModel``, passed as ``config``;
+  ``operator_only``): one map per slice layout, whatever the group's size, in batches of at
+  most the job's group (they compile nothing: a capture whose layout no other file shares, as
+  every jittered one, is one row, not a padded batch of 256).
 - **Pipeline groups**: everything else (nonlinear rules, the log after interpolation, dense
   captures, whose RBF input is spike-capped) goes through :func:`~abrdf_jax.reconstruct_batch`
   in padded batches; the slices are padded to the group's longest.
@@ -154,6 +157,7 @@ def _plan(meas, config, min_group, done, order, only) -> dict[str, dict]:
         ranks = sorted([*(d.order for d in before), *(order[k] for k in g["members"])])
         place = {o: i for i, o in enumerate(ranks)}
         g["slots"] = [place[order[k]] for k in g["members"]]
+        g["size"] = len(ranks)  # the whole job's group, done before or not
     return plan
 
 
@@ -247,7 +251,10 @@ def reconstruct_many(
         members, slots = g["members"], g["slots"]
         if g["kind"] == "operator":
             op = operator(config, params, meas[members[0]])
-            for chunk, padded, rows in _batches(members, slots, batch or OPERATOR_BATCH):
+            size = batch or OPERATOR_BATCH
+            if only:  # a numpy map compiles nothing: no padding beyond the job's group
+                size = min(size, g["size"])
+            for chunk, padded, rows in _batches(members, slots, size):
                 y = np.stack([np.asarray(meas[k].y) for k in padded])
                 yield chunk, _rows(np.asarray(op(y)), rows), "operator"
         else:

@@ -266,3 +266,43 @@ def test_long_stages_say_so_and_quick_ones_do_not(tmp_path, monkeypatch, capsys)
         assert said in err, err
     assert main([*one, "-q"]) == 0
     assert "abrdf-jax: " not in capsys.readouterr().err.replace("abrdf-jax: replacing", "")
+
+
+class _Shapes:
+    """An ``operator_only`` model (as the bivariate and learned ones) that records the batch
+    shapes its maps are called with."""
+
+    operator_only = True
+
+    def __init__(self):
+        self.seen = []
+
+    def operator(self, params, template):
+        def apply(y):
+            self.seen.append(len(y))
+            return np.zeros((len(y), 81, 81, 3), np.float32)
+
+        return apply
+
+
+def test_numpy_maps_are_not_padded_beyond_the_jobs_group():
+    """A numpy map compiles nothing: a layout that one capture holds (every jittered one) is
+    one row, a layout of three files three rows, not a padded batch of OPERATOR_BATCH; a
+    resumed run (the others done) keeps the shape of the whole job's group (the same bits)."""
+    mat = materials.get_material("ggx-plastic")
+    jittered = [
+        aj.group_slices(aj.simulate_capture(mat, budget="iso102", jitter_deg=0.5, seed=k))[0]
+        for k in range(2)
+    ]
+    same = [aj.sample(mat, aj.Config(budget="iso102"), as_measurements=True)] * 3
+    meas = jittered + same
+    model = _Shapes()
+    out = list(_engine.reconstruct_many(meas, model, None))
+    assert sorted(model.seen) == [1, 1, 3] and sum(len(i) for i, _, _ in out) == 5
+    assert {p for _, _, p in out} == {"operator"}
+    keys = _engine.job_keys(meas, model, min_group=1)
+    done = [_engine.Done(order=k, **keys[k]) for k in (2, 3)]  # two of the three were done
+    resumed = _Shapes()
+    rest = [0, 1, 4]
+    list(_engine.reconstruct_many([meas[k] for k in rest], resumed, None, done=done, order=rest))
+    assert sorted(resumed.seen) == [1, 1, 3]  # the last file's row in a batch of its group's 3
