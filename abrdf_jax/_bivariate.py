@@ -34,7 +34,7 @@ import numpy as np
 
 from ._errors import InputError
 from ._grid import half_diff, to_vector, ubo_grid
-from ._host_eps import sample_eps
+from ._host_eps import EPS_FLOOR
 
 #: Ridge λ on the thin-plate kernel's diagonal (log units squared): the best of 1e-5, 1e-3 and
 #: 1e-1 on the MERL train split (``python -m benchmarks.bivariate``'s sweep; the others 3–9 %
@@ -105,31 +105,46 @@ def bivariate_matrix(src: np.ndarray, dst: np.ndarray, smoothing: float = SMOOTH
     return matrix if avg is None else matrix @ avg
 
 
+def checked_angles(get, where: str) -> tuple[np.ndarray, ...]:
+    """``(θi, φi, θv, φv)`` in radians of the sample angles ``get(name)`` (degrees; ``name`` in
+    ``theta_i, phi_i, theta_v, phi_v``), checked: one shape ``(n,)``, ``n ≥ 3``, finite, ``θi <
+    90°`` (the values divide by ``cos θi``). ``where`` names them in errors."""
+    names = ("theta_i", "phi_i", "theta_v", "phi_v")
+    cols = [np.asarray(get(k), np.float64) for k in names]
+    n = cols[0].shape
+    if len(n) != 1 or n[0] < 3 or any(c.shape != n for c in cols):
+        raise InputError(
+            f"{where}: expected at least 3 samples, angles of one length >= 3, shape (n,); got "
+            f"{[c.shape for c in cols]}"
+        )
+    for name, c in zip(names, cols):
+        if not np.all(np.isfinite(c)):
+            raise InputError(f"{where}.{name} has non-finite values")
+    if np.any(cols[0] >= 90.0):
+        raise InputError(f"{where}.theta_i must be below 90 degrees (the values divide by cos θi)")
+    return tuple(np.deg2rad(cols))
+
+
+def source_coordinates(ti, pi_, tv, pv) -> np.ndarray:
+    """The bivariate coordinates ``(n, 2)`` of sample angles in radians."""
+    return bivariate_coordinates(to_vector(ti, pi_, np), to_vector(tv, pv, np))
+
+
 def _columns(samples) -> tuple[np.ndarray, ...]:
     """``(θi, φi, θv, φv)`` in radians and ``rgb`` of :class:`~abrdf_jax.Samples` (or anything
     with those fields in degrees, e.g. ``io.read_sample_columns``'s), checked."""
     try:
-        cols = [
-            np.asarray(getattr(samples, k), np.float64)
-            for k in ("theta_i", "phi_i", "theta_v", "phi_v")
-        ]
+        angles = checked_angles(lambda k: getattr(samples, k), "samples")
         rgb = np.asarray(samples.rgb, np.float64)
     except AttributeError as e:
         raise InputError(
             f"samples must be Samples (theta_i, phi_i, theta_v, phi_v, rgb): {e}"
         ) from None
-    n = cols[0].shape
-    if len(n) != 1 or n[0] < 3 or any(c.shape != n for c in cols) or rgb.shape != (*n, 3):
-        raise InputError(
-            f"samples: expected at least 3 samples with angles (n,) and rgb (n, 3); got angles "
-            f"{[c.shape for c in cols]} and rgb {rgb.shape}"
-        )
-    for name, c in zip(("theta_i", "phi_i", "theta_v", "phi_v", "rgb"), (*cols, rgb)):
-        if not np.all(np.isfinite(c)):
-            raise InputError(f"samples.{name} has non-finite values")
-    if np.any(cols[0] >= 90.0):
-        raise InputError("samples.theta_i must be below 90 degrees (the values divide by cos θi)")
-    return (*np.deg2rad(cols), rgb)
+    if rgb.shape != (*angles[0].shape, 3):
+        raise InputError(f"samples: expected rgb of shape (n, 3), got {rgb.shape}")
+    if not np.all(np.isfinite(rgb)):
+        raise InputError("samples.rgb has non-finite values")
+    return (*angles, rgb)
 
 
 def _grid_targets() -> tuple[np.ndarray, np.ndarray]:
@@ -146,26 +161,34 @@ def _grid() -> tuple[np.ndarray, np.ndarray]:
     return bivariate_coordinates(wi, wv), wi[:, 2]
 
 
+def log_brdf(x, cos_src, log_eps: float, xp=np):
+    """``(z, ε)``: the log BRDF ``ln(max(x / cos θi, 0) + ε)`` of the ABRDF values ``x``
+    ``(B, n, C)`` at sources with ``cos θi`` ``cos_src`` ``(n,)``, and ``ε`` ``(B, 1, C)``
+    (``log_eps`` times the mean ``|x / cos θi|`` per member and channel, plus the floor of
+    :mod:`abrdf_jax._host_eps`). ``xp``: numpy (here) or ``jax.numpy`` (BTF chunks)."""
+    brdf = x / cos_src[None, :, None]
+    eps = log_eps * xp.mean(xp.abs(brdf), axis=1, keepdims=True) + EPS_FLOOR
+    return xp.log(xp.maximum(brdf, 0.0) + eps), eps
+
+
+def from_log(lin, eps, cos_dst, xp=np):
+    """The ABRDF values ``max((exp(lin) − ε) cos θi, 0)`` of the log BRDF ``lin`` ``(B, q, C)``
+    at targets with ``cos θi`` ``cos_dst`` ``(q,)`` (the inverse of :func:`log_brdf`)."""
+    return xp.maximum((xp.exp(lin) - eps) * xp.maximum(cos_dst, 0.0)[None, :, None], 0.0)
+
+
 def _values(matrix, x, cos_src, cos_dst, log_eps: float) -> np.ndarray:
-    """The model's map on the samples' values ``x`` ``(B, n, C)`` (ABRDF, at sources with
-    ``cos θi`` ``cos_src``): the log BRDF through ``matrix`` ``(q, n)``, back to ABRDF values at
-    targets with ``cos θi`` ``cos_dst``, clamped at 0; float32 ``(B, q, C)``.
+    """The model's map on the samples' values ``x`` ``(B, n, C)``: :func:`log_brdf`, the log
+    BRDF through ``matrix`` ``(q, n)``, :func:`from_log`; float32 ``(B, q, C)``.
 
     The samples' log in float64, the product and what follows in float32 (as the RBF operator:
     a row of the map has an absolute sum of a few units, so its rounding stays near 1e-6 of the
-    log), all B·C columns in one product and in place: half the memory traffic of float64, the
-    cost of a folder's large batches."""
+    log), all B·C columns in one product: the cost of a folder's large batches."""
     b, n, c = x.shape
-    brdf = x / cos_src[None, :, None]
-    eps = sample_eps(brdf, log_eps, axis=1)[:, None, :]  # (B, 1, C)
-    z = np.log(np.maximum(brdf, 0.0) + eps).astype(np.float32)
-    columns = np.ascontiguousarray(z.transpose(1, 0, 2)).reshape(n, b * c)
-    out = (np.asarray(matrix, np.float32) @ columns).reshape(-1, b, c)  # (q, B, C), BLAS
-    np.exp(out, out=out)
-    out -= eps[:, 0, :].astype(np.float32)[None]
-    out *= np.maximum(cos_dst, 0.0).astype(np.float32)[:, None, None]
-    np.maximum(out, 0.0, out=out)
-    return np.ascontiguousarray(out.transpose(1, 0, 2))
+    z, eps = log_brdf(x, cos_src, log_eps)
+    columns = np.ascontiguousarray(z.astype(np.float32).transpose(1, 0, 2)).reshape(n, b * c)
+    lin = (np.asarray(matrix, np.float32) @ columns).reshape(-1, b, c).transpose(1, 0, 2)
+    return from_log(lin, eps.astype(np.float32), cos_dst.astype(np.float32))
 
 
 def reconstruct_bivariate(
@@ -199,7 +222,7 @@ def reconstruct_bivariate(
         if wi_t.ndim != 2 or wi_t.shape[-1] != 3 or wv_t.shape != wi_t.shape:
             raise InputError(f"targets must be two (q, 3) arrays; got {wi_t.shape}, {wv_t.shape}")
         dst, cos_dst = bivariate_coordinates(wi_t, wv_t), wi_t[:, 2]
-    src = bivariate_coordinates(to_vector(ti, pi_, np), to_vector(tv, pv, np))
+    src = source_coordinates(ti, pi_, tv, pv)
     out = _values(bivariate_matrix(src, dst, smoothing), rgb[None], np.cos(ti), cos_dst, log_eps)
     return out[0].reshape(81, 81, 3) if targets is None else out[0]
 

@@ -572,6 +572,24 @@ def test_cli_generate_reconstruct_evaluate(generated, reconstructed, tmp_path, c
 # ------------------------------------------------------------------------- per-texel model choice
 
 
+def _four_texel_store(path, s0, y):
+    """A 2 × 2 measurement store of one chunk: the geometry of the samples ``s0`` (aniso204,
+    α 15°), the values ``y`` ``(4, n, 3)``."""
+    geometry = {k: np.asarray(getattr(s0, k)).tolist() for k in ("theta_i", "phi_i")}
+    geometry |= {k: np.asarray(getattr(s0, k)).tolist() for k in ("theta_v", "phi_v")}
+    geometry |= dict(alpha_deg=15.0, budget="aniso204")
+    meas = btf.ChunkedStore.create(
+        path,
+        kind="measurements",
+        texel_shape=(2, 2),
+        item_shape=(len(s0), 3),
+        chunk=4,
+        geometry=geometry,
+    )
+    meas.write_chunk(0, y)
+    return meas
+
+
 def test_per_texel_model_choice(tmp_path):
     """model='auto': each texel gets the model its own isotropy test picks (the test of
     abrdf_jax.select, batched), and the store holds exactly that texel's reconstruction."""
@@ -582,24 +600,8 @@ def test_per_texel_model_choice(tmp_path):
     names = ("ggx-plastic", "ward-brushed-steel", "lambert-clay", "ggx-aniso-metal")
     samples = [aj.sample(get_material(n), aj.Config(budget="aniso204")) for n in names]
     s0 = samples[0]
-    geometry = dict(
-        theta_i=s0.theta_i.tolist(),
-        phi_i=s0.phi_i.tolist(),
-        theta_v=s0.theta_v.tolist(),
-        phi_v=s0.phi_v.tolist(),
-        alpha_deg=15.0,
-        budget="aniso204",
-    )
-    meas = btf.ChunkedStore.create(
-        tmp_path / "meas",
-        kind="measurements",
-        texel_shape=(2, 2),
-        item_shape=(len(s0), 3),
-        chunk=4,
-        geometry=geometry,
-    )
     y = np.stack([np.asarray(s.rgb, np.float32) for s in samples])
-    meas.write_chunk(0, y)
+    meas = _four_texel_store(tmp_path / "meas", s0, y)
     out = btf.reconstruct_btf(
         meas, tmp_path / "rec", chunk=4, progress=False, dtype="float32", model="auto"
     )
@@ -653,20 +655,11 @@ def test_bivariate_model_per_texel(tmp_path, capsys):
     names = ("ggx-plastic", "lambert-clay", "ward-brushed-steel", "ggx-aniso-metal")
     samples = [aj.simulate_capture(get_material(n), jitter_deg=0.3, seed=1) for n in names]
     s0 = samples[0]
-    geometry = {k: np.asarray(getattr(s0, k)).tolist() for k in ("theta_i", "phi_i")}
-    geometry |= {k: np.asarray(getattr(s0, k)).tolist() for k in ("theta_v", "phi_v")}
-    geometry |= dict(alpha_deg=15.0, budget="aniso204")
-    meas = btf.ChunkedStore.create(
-        tmp_path / "meas",
-        kind="measurements",
-        texel_shape=(2, 2),
-        item_shape=(len(s0), 3),
-        chunk=4,
-        geometry=geometry,
-    )
     # every texel at the first texel's angles (one geometry), with its own material's values
     rows = [aj.Samples(s0.theta_i, s0.phi_i, s0.theta_v, s0.phi_v, s.rgb) for s in samples]
-    meas.write_chunk(0, np.stack([np.asarray(r.rgb, np.float32) for r in rows]))
+    meas = _four_texel_store(
+        tmp_path / "meas", s0, np.stack([np.asarray(r.rgb, np.float32) for r in rows])
+    )
     out = btf.reconstruct_btf(
         meas, tmp_path / "rec", chunk=4, progress=False, dtype="float32", model="bivariate"
     )

@@ -16,10 +16,16 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._bivariate import LOG_EPS, _grid, bivariate_coordinates, bivariate_matrix
+from .._bivariate import (
+    LOG_EPS,
+    _grid,
+    bivariate_matrix,
+    checked_angles,
+    from_log,
+    log_brdf,
+    source_coordinates,
+)
 from .._errors import InputError
-from .._grid import to_vector
-from .._host_eps import EPS_FLOOR
 from ._store import ANGLES
 
 N_PAIRS = 81 * 81
@@ -31,7 +37,7 @@ class BivariateChunkFunction(eqx.Module):
 
     cos_in: Float[Array, " n"]  # cos θi of each flat sample
     matrix: Float[Array, "n 6561"]  # the spline's map (transposed)
-    cos_out: Float[Array, " 6561"]  # cos θi of each grid pair (clamped at 0)
+    cos_out: Float[Array, " 6561"]  # cos θi of each grid pair
     log_eps: float = eqx.field(static=True)
 
     @property
@@ -39,12 +45,8 @@ class BivariateChunkFunction(eqx.Module):
         return "bivariate"
 
     def __call__(self, y: Float[Array, "C n 3"]) -> Float[Array, "C 6561 3"]:
-        brdf = y.astype(self.matrix.dtype) / self.cos_in[None, :, None]
-        # ε per texel and channel, as the library call's (``_host_eps.sample_eps``)
-        eps = self.log_eps * jnp.mean(jnp.abs(brdf), axis=1, keepdims=True) + EPS_FLOOR
-        z = jnp.log(jnp.maximum(brdf, 0) + eps)
-        lin = jnp.einsum("cnk,nq->cqk", z, self.matrix)
-        return jnp.maximum((jnp.exp(lin) - eps) * self.cos_out[None, :, None], 0)
+        z, eps = log_brdf(y.astype(self.matrix.dtype), self.cos_in, self.log_eps, jnp)
+        return from_log(jnp.einsum("cnk,nq->cqk", z, self.matrix), eps, self.cos_out, jnp)
 
 
 def make_bivariate_chunk_fn(geometry: dict, dtype=jnp.float32) -> BivariateChunkFunction:
@@ -52,27 +54,20 @@ def make_bivariate_chunk_fn(geometry: dict, dtype=jnp.float32) -> BivariateChunk
     degrees, ``theta_i`` … ``phi_v``), in ``dtype``.
 
     Raises:
-        InputError: a geometry without the four angles, of unequal lengths, with fewer than 3
-            samples or ``θi ≥ 90°``, or too few distinct samples for the fit.
+        InputError: a geometry without the four angles, or angles that
+            :func:`abrdf_jax._bivariate.checked_angles` refuses, or too few distinct samples
+            for the fit.
     """
-    try:
-        ti, pi_, tv, pv = (np.deg2rad(np.asarray(geometry[k], np.float64)) for k in ANGLES)
-    except KeyError as e:
-        raise InputError(f"measurement geometry lacks {e.args[0]!r}") from None
-    n = len(ti)
-    if n < 3 or any(len(c) != n for c in (pi_, tv, pv)):
-        raise InputError(
-            "measurement geometry: the bivariate model needs theta_i, phi_i, theta_v, phi_v of "
-            f"one length >= 3, got {[len(c) for c in (ti, pi_, tv, pv)]}"
-        )
-    if np.any(ti >= np.pi / 2):
-        raise InputError("measurement geometry: theta_i must be below 90 degrees")
-    src = bivariate_coordinates(to_vector(ti, pi_, np), to_vector(tv, pv, np))
+    missing = [k for k in ANGLES if k not in geometry]
+    if missing:
+        raise InputError(f"measurement geometry lacks {missing[0]!r}")
+    ti, pi_, tv, pv = checked_angles(geometry.__getitem__, "measurement geometry")
+    src = source_coordinates(ti, pi_, tv, pv)
     dst, cos_dst = _grid()
     matrix = bivariate_matrix(src, dst)  # (6561, n), float64
     return BivariateChunkFunction(
         cos_in=jnp.asarray(np.cos(ti), dtype),
         matrix=jnp.asarray(matrix.T, dtype),
-        cos_out=jnp.asarray(np.maximum(cos_dst, 0.0), dtype),
+        cos_out=jnp.asarray(cos_dst, dtype),
         log_eps=LOG_EPS,
     )

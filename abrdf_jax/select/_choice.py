@@ -217,7 +217,8 @@ def plan(meas, alpha: float, candidates, budget, noise, level, min_effect, repor
     stand_in = {}
     if candidates == "auto" and not aniso_ok:  # isotropic: the bivariate model, every slice read
         b = "aniso204" if budget != "iso102" and meas.has_axial else "iso102"
-        stand_in = {"iso": Config(budget=b, pairs=meas.pairs)}
+        key = (BIVARIATE, b, repr(meas.pairs))  # made once per budget and pairs, as below
+        stand_in = {"iso": _CONFIGS.get(key, lambda: Config(budget=b, pairs=meas.pairs))}
     return Plan(meas, alpha, budget, report, configs, ranks, stand_in)
 
 
