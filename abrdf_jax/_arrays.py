@@ -48,7 +48,11 @@ class SliceArrays(NamedTuple):
 
     Attributes:
         t: ``(S, nmax)`` slice parameters (radians), y: ``(S, nmax, 3)`` values, count: ``(S,)``
-        valid samples per slice; pairs, has_axial, centre_azimuths as in ``Measurements``.
+        valid samples per slice; pairs, has_axial, centre_azimuths as in ``Measurements``;
+        directions: ``(S, nmax, 2, 3)`` the recorded unit vectors ``(wi, wv)`` of each slot's
+        samples (their normalised mean where a slot averages several; ``None``: not known),
+        which the slice positions ``t`` only project (a model that reads directions, as the
+        bivariate one, uses them; :class:`~abrdf_jax.Measurements` does not hold them).
     """
 
     t: np.ndarray
@@ -57,6 +61,7 @@ class SliceArrays(NamedTuple):
     pairs: tuple
     has_axial: bool
     centre_azimuths: int | None = None
+    directions: np.ndarray | None = None
 
     @property
     def n_samples(self) -> int:
@@ -71,7 +76,10 @@ class SliceArrays(NamedTuple):
         """Restricted to some elevation pairs (both slices of each)."""
         rows = slice_rows(pair_indices)
         pairs = tuple(self.pairs[p] for p in pair_indices)
-        return self._replace(t=self.t[rows], y=self.y[rows], count=self.count[rows], pairs=pairs)
+        d = None if self.directions is None else self.directions[rows]
+        return self._replace(
+            t=self.t[rows], y=self.y[rows], count=self.count[rows], pairs=pairs, directions=d
+        )
 
     def to_measurements(self):
         """The :class:`abrdf_jax.Measurements` of these slices (imports JAX; same dtypes)."""

@@ -35,6 +35,7 @@ import numpy as np
 from ._errors import InputError
 from ._grid import half_diff, to_vector, ubo_grid
 from ._host_eps import EPS_FLOOR
+from ._memo import BoundedMemo
 
 #: Ridge λ on the thin-plate kernel's diagonal (log units squared): the best of 1e-5, 1e-3 and
 #: 1e-1 on the MERL train split (``python -m benchmarks.bivariate``'s sweep; the others 3–9 %
@@ -236,13 +237,31 @@ def reconstruct_bivariate(
 class BivariateModel:
     """The bivariate model of one budget, what the command line passes to
     :func:`abrdf_jax._engine.reconstruct_many` in place of a :class:`~abrdf_jax.Config`
-    (``operator_only``: one map per slice layout). It reads the grouped slices, as every model
-    of the command line does (off-slice samples at their projection onto the slice); ``iso102``
-    reads the diagonal slices only, ``aniso204`` all of them."""
+    (``operator_only``: one map per slice layout). It reads the grouped slices at the recorded
+    directions of their samples (``SliceArrays.directions``, as the library's
+    :func:`reconstruct_bivariate` reads its samples; slices without them, a
+    :class:`~abrdf_jax.Measurements`, at their projected positions); ``iso102`` reads the
+    diagonal slices only, ``aniso204`` all of them."""
 
     budget: str
     name: ClassVar[str] = "bivariate"
     operator_only: ClassVar[bool] = True
+
+    @staticmethod
+    def layout_key(meas) -> str:
+        """:func:`abrdf_jax._grouping.layout_key` and the slots' recorded directions: what one
+        map serves (two jittered captures whose projections agree are still two layouts)."""
+        import hashlib
+
+        from ._grouping import layout_key
+
+        d = getattr(meas, "directions", None)
+        if d is None:
+            return layout_key(meas)
+        valid = np.arange(d.shape[1])[None, :] < np.asarray(meas.count)[:, None]
+        h = hashlib.sha256(layout_key(meas).encode())
+        h.update(np.where(valid[..., None, None], d, 0.0).astype(np.float32).tobytes())
+        return h.hexdigest()
 
     def operator(self, params, template, store=None, warn=None, before_build=None):
         """The apply function of ``template``'s layout: stacked slice values ``(B, S, nmax, C)``
@@ -250,42 +269,52 @@ class BivariateModel:
         small solve)."""
         from ._prior_operator import slice_counts  # iso102: the axial slices' counts 0
 
-        t = np.asarray(template.t, np.float64)
         count = tuple(int(c) for c in slice_counts(template, self.budget))
-        pairs = tuple(tuple(float(x) for x in p) for p in template.pairs)
         alpha = float(np.asarray(params.alpha))
-        return _layout_apply(self.budget, alpha, pairs, tuple(t.ravel().tolist()), count, t.shape)
+        key = (self.budget, alpha, count, self.layout_key(template))
+        return _APPLIES.get(key, lambda: _layout_apply(template, alpha, np.asarray(count)))
 
 
-@functools.lru_cache(maxsize=16)
-def _layout_apply(budget: str, alpha: float, pairs: tuple, t_flat: tuple, count: tuple, shape):
-    """The map of one slice layout (hashable arguments: a folder's layouts are built once;
-    ``count`` already says which slices are read)."""
-    from ._host_build import sample_index
+#: The maps of the layouts met in this process (a folder's layouts are built once).
+_APPLIES = BoundedMemo(16)
+
+
+def _directions(template, alpha: float, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(wi, wv)`` ``(n, 3)`` of the slots read (``count`` per slice): the recorded ones where
+    the slices carry them, else the slice positions' (:func:`abrdf_jax._slices.slice_vectors`)."""
     from ._slices import slice_vectors
 
-    t = np.asarray(t_flat, np.float64).reshape(shape)
-    flat = sample_index(t, np.asarray(count))
+    d = getattr(template, "directions", None)
+    if d is not None:
+        d = np.asarray(d, np.float64)
+        rows = np.concatenate([d[s, :c] for s, c in enumerate(count)])
+        return rows[:, 0], rows[:, 1]
+    t = np.asarray(template.t, np.float64)
+    pairs = tuple(tuple(float(x) for x in p) for p in template.pairs)
+    parts = [slice_vectors(t[s, :c], s % 2, pairs[s // 2], alpha, np) for s, c in enumerate(count)]
+    return tuple(np.concatenate(v) for v in zip(*parts))
+
+
+def _layout_apply(template, alpha: float, count: np.ndarray):
+    """The map of one slice layout (``count``: the samples read per slice)."""
+    from ._host_build import sample_index
+
+    shape = np.shape(template.t)
+    flat = sample_index(np.asarray(template.t), count)
     if len(flat) < 3:
         raise InputError(
             f"the bivariate model needs at least 3 samples; the layout has {len(flat)}"
         )
-    wi, wv = (
-        np.concatenate(v)
-        for v in zip(
-            *(
-                slice_vectors(t[s, : count[s]], s % 2, pairs[s // 2], alpha, np)
-                for s in range(shape[0])
-            )
-        )
-    )
+    wi, wv = _directions(template, alpha, count)
+    cos_src = wi[:, 2]
+    if not np.all(cos_src > 0):
+        raise InputError("the bivariate model needs samples with theta_i below 90 degrees")
     dst, cos_dst = _grid()
     matrix = bivariate_matrix(bivariate_coordinates(wi, wv), dst).astype(np.float32)
-    cos_src = wi[:, 2]
 
     def apply(y):
         y = np.asarray(y, np.float64)
-        x = y.reshape(len(y), -1, y.shape[-1])[:, flat, :]
+        x = y.reshape(len(y), shape[0] * shape[1], y.shape[-1])[:, flat, :]
         out = _values(matrix, x, cos_src, cos_dst, LOG_EPS)
         return out.reshape(len(y), 81, 81, y.shape[-1])
 

@@ -138,7 +138,8 @@ def _plan(meas, config, min_group, done, order, only) -> dict[str, dict]:
     at least ``min_group`` measurements of it, whichever of them are left to do."""
     done = list(done or ())
     order = list(range(len(meas))) if order is None else list(order)
-    keys = [layout_key(m) if only or operator_applies(config, m) else None for m in meas]
+    key_of = getattr(config, "layout_key", layout_key)  # a model may read more of a layout
+    keys = [key_of(m) if only or operator_applies(config, m) else None for m in meas]
     sizes = Counter(keys)
     sizes.update(Counter(d.layout for d in done if d.layout is not None))
     plan: dict[str, dict] = {}

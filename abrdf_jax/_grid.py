@@ -83,6 +83,14 @@ def to_vector(
     return xp.stack([st * xp.cos(phi), st * xp.sin(phi), xp.cos(theta)], axis=-1)
 
 
+def mean_directions(w: np.ndarray, groups: np.ndarray, size: int) -> np.ndarray:
+    """The normalised mean ``(size, 3)`` of unit vectors ``w`` ``(n, 3)`` in each group
+    (``groups`` ``(n,)``, ints in ``[0, size)``); zeros where a group has none (numpy)."""
+    out = np.stack([np.bincount(groups, w[:, c], size) for c in range(3)], -1)
+    norm = np.linalg.norm(out, axis=-1, keepdims=True)
+    return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
+
+
 def from_vector(
     w: Float[Array, "... 3"], xp=None
 ) -> tuple[Float[Array, "..."], Float[Array, "..."]]:

@@ -21,7 +21,9 @@ averaged), so the BTF path reads the same grouping off as one matrix
    counted and reported, never silently left out.
 4. **True positions**: an on-slice sample enters at the orthogonal projection of its ``(φi, φv)``
    onto the slice (its along-slice coordinate, not snapped to any grid); only its across-slice
-   offset (at most ``tol_deg``) and its elevation's deviation from the pair are neglected.
+   offset (at most ``tol_deg``) and its elevation's deviation from the pair are neglected by
+   the slice models; each slot also keeps its samples' recorded directions
+   (``SliceArrays.directions``), which the bivariate model reads.
 5. **Density**: a slice with more than ``max_knots`` samples (default 360) is reduced to the
    means (position and value) of ``max_knots`` equal bins of its parameter (1° of φ, 2° of
    ``φi ∓ φv``): the RBF centres read a slice every 7.5°, so nothing they can use is lost, the
@@ -46,6 +48,7 @@ import numpy as np
 
 from ._arrays import SampleColumns, SliceArrays
 from ._errors import InputError
+from ._grid import mean_directions, to_vector
 from ._memo import BoundedMemo
 from ._protocol import PROTOCOL_PAIRS, UBO_THETAS_DEG
 
@@ -282,6 +285,7 @@ def group_arrays(
         layout.pairs,
         layout.has_axial,
         layout.centre_azimuths,
+        np.asarray(layout.directions, dtype),
     )
     report = {k: list(v) if isinstance(v, list) else v for k, v in layout.report.items()}
     return meas, report
@@ -333,6 +337,7 @@ class _Layout(NamedTuple):
     dst: np.ndarray
     src: np.ndarray
     per_slot: np.ndarray  # samples averaged into each slot (0: padding)
+    directions: np.ndarray  # (S, nmax, 2, 3) each slot's recorded (wi, wv) (_slot_directions)
 
     def values(self, rgb: np.ndarray) -> np.ndarray:
         """``(S, nmax, 3)`` slice values (float64) of the samples' ``rgb``."""
@@ -422,16 +427,18 @@ def _layout(angles, alpha_deg, pairs, tol_deg, nmax, min_axial, max_knots, centr
         dropped_pairs=[p for p in expected if p not in pairs],
     )
     has_axial = any(c > 0 for c in counts[0::2])
-    return _Layout(
-        t,
-        pairs,
-        has_axial,
-        centre_azimuths,
-        report,
-        np.concatenate(dst),
-        np.concatenate(src),
-        per_slot,
-    )
+    dst, src = np.concatenate(dst), np.concatenate(src)
+    directions = _slot_directions(angles, dst, src, t.shape)
+    return _Layout(t, pairs, has_axial, centre_azimuths, report, dst, src, per_slot, directions)
+
+
+def _slot_directions(angles, dst, src, shape) -> np.ndarray:
+    """``(S, nmax, 2, 3)``: the recorded ``(wi, wv)`` of each slot's samples (their normalised
+    mean where a slot averages several; zeros: padding)."""
+    ti, pi_, tv, pv = (np.deg2rad(a)[src] for a in angles)
+    size = shape[0] * shape[1]
+    w = [mean_directions(to_vector(a, b, np), dst, size) for a, b in ((ti, pi_), (tv, pv))]
+    return np.stack(w, 1).reshape(*shape, 2, 3)
 
 
 _SAMPLE_FIELDS = ("theta_i", "phi_i", "theta_v", "phi_v", "rgb", "to_numpy")

@@ -164,8 +164,9 @@ def test_bad_input_is_a_clear_error(call, match):
 
 def test_command_line_model_bivariate(tmp_path):
     """``reconstruct --model bivariate``: one file and a folder (one map per layout, the same
-    tables), equal to the library call on the same samples (exact slice samples: the grouped
-    positions are the recorded ones); the model record says what ran; unknown models list it."""
+    tables), equal to the library call on the same samples: jittered angles (0.5°), which the
+    slices read at their recorded directions, not at their projections onto the slice; the
+    model record says what ran; unknown models list it."""
     from abrdf_jax import io
 
     from tests.cli_runner import run_cli
@@ -175,7 +176,9 @@ def test_command_line_model_bivariate(tmp_path):
     folder.mkdir()
     expected = {}
     for k, name in enumerate(names):
-        s = aj.simulate_capture(materials.get_material(name), budget="iso102", seed=k)
+        s = aj.simulate_capture(
+            materials.get_material(name), budget="iso102", jitter_deg=0.5, seed=k
+        )
         io.write_samples_csv(folder / f"{name}.csv", s)
         expected[name] = aj.reconstruct_bivariate(io.read_samples_csv(folder / f"{name}.csv"))
     one = run_cli(
@@ -183,12 +186,13 @@ def test_command_line_model_bivariate(tmp_path):
     )
     assert one.returncode == 0, one.stderr
     assert "model: bivariate (fixed)" in one.stdout
+    assert "left out" not in one.stderr  # every sample read: the library's input
     np.testing.assert_allclose(
         io.read_table(tmp_path / "one.npz"), expected["ggx-plastic"], rtol=1e-4, atol=1e-6
     )
     many = run_cli("reconstruct", "in", "-o", "out", "--model", "bivariate", "-q", cwd=tmp_path)
     assert many.returncode == 0, many.stderr
-    assert "models bivariate x3" in many.stdout
+    assert "models bivariate x3" in many.stdout and "left out" not in many.stderr
     for name in names:
         table = io.read_table(tmp_path / "out" / f"{name}.npz")
         np.testing.assert_allclose(table, expected[name], rtol=1e-4, atol=1e-6)

@@ -52,6 +52,58 @@ def test_jittered_samples_are_used_at_their_true_positions():
     assert np.allclose(d_true, d_proj, atol=1e-3)
 
 
+def test_slices_keep_the_recorded_directions_of_their_samples():
+    """``SliceArrays.directions``: each slot's recorded ``(wi, wv)``; an exact capture's are the
+    slice positions' own directions, a jittered one's its samples' (one sample per slot, the
+    set of slots equal to the set of samples on the pair's diagonal slice), and a slot that
+    averages repeated samples holds their normalised mean."""
+    from abrdf_jax._grouping import group_arrays
+    from abrdf_jax._grid import to_vector
+    from abrdf_jax._slices import slice_vectors
+
+    m = materials.get_material(ISO)
+    exact, _ = group_arrays(aj.simulate_capture(m, budget="iso102").to_numpy(), dtype=np.float64)
+    for s in range(exact.t.shape[0]):
+        c = int(exact.count[s])
+        wi, wv = slice_vectors(exact.t[s, :c], s % 2, exact.pairs[s // 2], np.deg2rad(15.0), np)
+        np.testing.assert_allclose(exact.directions[s, :c, 0], wi, atol=1e-9)
+        np.testing.assert_allclose(exact.directions[s, :c, 1], wv, atol=1e-9)
+        assert not exact.directions[s, c:].any()  # padding
+    jit = aj.simulate_capture(m, budget="iso102", jitter_deg=0.5, seed=3).to_numpy()
+    grouped, rep = group_arrays(jit, dtype=np.float64)
+    assert rep["n_used"] == len(jit)
+    rad = [np.deg2rad(np.asarray(a)) for a in (jit.theta_i, jit.phi_i, jit.theta_v, jit.phi_v)]
+    recorded = np.concatenate([to_vector(rad[0], rad[1], np), to_vector(rad[2], rad[3], np)], 1)
+    c = int(grouped.count[1])  # the diagonal slice of (30, 30)
+    slots = grouped.directions[1, :c].reshape(c, 6)
+    near = np.abs(recorded[None, :, :] - slots[:, None, :]).max(-1).min(-1)
+    assert near.max() < 1e-12  # every slot is one recorded sample, not its projection
+    # a second copy moved across the diagonal slices (φi + φv by 0.2°, the same projections):
+    # each slot averages a sample and its copy, and holds their directions' normalised mean
+    from abrdf_jax._arrays import SampleColumns
+
+    one = aj.simulate_capture(m, budget="iso102").to_numpy()
+    cols = [np.asarray(a, np.float64) for a in (one.theta_i, one.phi_i, one.theta_v, one.phi_v)]
+    moved = [cols[0], cols[1] + 0.1, cols[2], cols[3] + 0.1]
+    both, _ = group_arrays(
+        SampleColumns(*(np.r_[a, b] for a, b in zip(cols, moved)), np.ones((2 * len(one), 3))),
+        alpha_deg=15.0,
+        tol_deg=1.0,
+        dtype=np.float64,
+    )
+    assert np.array_equal(both.count, exact.count)  # the copies share their samples' slots
+    means = []
+    for th, ph in ((0, 1), (2, 3)):
+        w = [to_vector(np.deg2rad(c[th]), np.deg2rad(c[ph]), np) for c in (cols, moved)]
+        mean = (w[0] + w[1]) / 2
+        means.append(mean / np.linalg.norm(mean, axis=-1, keepdims=True))
+    means = np.concatenate(means, 1)  # (n, 6): each sample's and its copy's mean
+    for s in np.nonzero(both.count)[0]:  # iso102: the diagonal slices
+        slots = both.directions[s, : int(both.count[s])].reshape(-1, 6)
+        near = np.abs(means[None, :, :] - slots[:, None, :]).max(-1).min(-1)
+        assert near.max() < 1e-12
+
+
 def test_far_off_slice_samples_are_counted_not_used():
     m = materials.get_material(ISO)
     s = aj.simulate_capture(m, budget="iso102")
