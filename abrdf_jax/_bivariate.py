@@ -36,6 +36,7 @@ from ._errors import InputError
 from ._grid import half_diff, to_vector, ubo_grid
 from ._host_eps import EPS_FLOOR
 from ._memo import BoundedMemo
+from ._pair_residual import PAIR_WIDTH_DEG, pair_residual_matrix, target_angles
 
 #: Ridge λ on the thin-plate kernel's diagonal (log units squared): the best of 1e-5, 1e-3 and
 #: 1e-1 on the MERL train split (``python -m benchmarks.bivariate``'s sweep; the others 3–9 %
@@ -85,25 +86,58 @@ def _binned(src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return avg @ src, avg
 
 
+def _fit(src: np.ndarray, smoothing: float) -> tuple[np.ndarray, np.ndarray]:
+    """The spline's centres ``(m, 2)`` and its coefficients as a map ``(m + 3, n)`` of the
+    values at the points ``src`` ``(n, 2)`` (binned past :data:`MAX_POINTS`: ``m ≤ n``)."""
+    src = np.asarray(src, np.float64)
+    centres, avg = _binned(src) if len(src) > MAX_POINTS else (src, None)
+    n = len(centres)
+    system = np.zeros((n + 3, n + 3))
+    system[:n, :n] = _kernel(centres, centres) + smoothing * np.eye(n)
+    system[:n, n:] = _poly(centres)
+    system[n:, :n] = _poly(centres).T
+    try:  # one small solve of the symmetric system; the maps are GEMMs with its inverse
+        inv = np.linalg.solve(system, np.eye(n + 3))[:, :n]
+    except np.linalg.LinAlgError as e:  # fewer than 3 distinct points in a line, say
+        raise InputError(f"the bivariate fit is singular ({e}): too few distinct samples") from e
+    return centres, inv if avg is None else inv @ avg
+
+
+def _basis(x: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """``(len(x), m + 3)``: the kernel at the centres and the degree-1 polynomial at ``x``."""
+    x = np.asarray(x, np.float64)
+    return np.concatenate([_kernel(x, centres), _poly(x)], axis=1)
+
+
 def bivariate_matrix(src: np.ndarray, dst: np.ndarray, smoothing: float = SMOOTHING) -> np.ndarray:
     """The map ``(q, n)`` from values at the points ``src`` ``(n, 2)`` to the thin-plate spline's
     values at ``dst`` ``(q, 2)`` (float64; module docstring). A degree-1 polynomial is
     reproduced exactly: each row sums to 1."""
-    src, dst = np.asarray(src, np.float64), np.asarray(dst, np.float64)
-    avg = None
-    if len(src) > MAX_POINTS:
-        src, avg = _binned(src)
-    n = len(src)
-    system = np.zeros((n + 3, n + 3))
-    system[:n, :n] = _kernel(src, src) + smoothing * np.eye(n)
-    system[:n, n:] = _poly(src)
-    system[n:, :n] = _poly(src).T
-    try:  # the system is symmetric: the map is [K_dst, P_dst] · system⁻¹[:, :n]
-        inv = np.linalg.solve(system, np.eye(n + 3))[:, :n]  # one small solve, then a GEMM
-    except np.linalg.LinAlgError as e:  # fewer than 3 distinct points in a line, say
-        raise InputError(f"the bivariate fit is singular ({e}): too few distinct samples") from e
-    matrix = _kernel(dst, src) @ inv[:n] + _poly(dst) @ inv[n:]  # (q, n)
-    return matrix if avg is None else matrix @ avg
+    centres, coef = _fit(src, smoothing)
+    return _basis(dst, centres) @ coef
+
+
+def bivariate_map(
+    src_wi, src_wv, dst_wi, dst_wv, smoothing: float = SMOOTHING, pair_width: float = PAIR_WIDTH_DEG
+) -> np.ndarray:
+    """The model's map ``(q, n)`` of the log BRDF from sources to targets (unit vectors
+    ``(n, 3)`` / ``(q, 3)``): the spline of :func:`bivariate_matrix` plus the measured pairs'
+    residual curves (:func:`abrdf_jax._pair_residual.pair_residual_matrix`, width
+    ``pair_width`` degrees; 0: the spline alone), ``(B_dst − C B_src) coef + C``."""
+    src = bivariate_coordinates(src_wi, src_wv)
+    centres, coef = _fit(src, smoothing)
+    grid = _grid()  # the UBO grid's target coordinates once
+    if dst_wi is grid[0] and dst_wv is grid[1]:
+        dst, angles = _grid_targets()
+    else:
+        dst, angles = bivariate_coordinates(dst_wi, dst_wv), target_angles(dst_wi, dst_wv)
+    fit = _basis(dst, centres) @ coef
+    if not pair_width > 0:
+        return fit
+    corr = pair_residual_matrix(src_wi, src_wv, angles, pair_width)
+    if len(src) <= MAX_POINTS:  # the spline at its own points, (n, n): one product fewer
+        return fit + corr - corr @ (_basis(src, centres) @ coef)
+    return fit + corr - (corr @ _basis(src, centres)) @ coef
 
 
 def checked_angles(get, where: str) -> tuple[np.ndarray, ...]:
@@ -126,9 +160,9 @@ def checked_angles(get, where: str) -> tuple[np.ndarray, ...]:
     return tuple(np.deg2rad(cols))
 
 
-def source_coordinates(ti, pi_, tv, pv) -> np.ndarray:
-    """The bivariate coordinates ``(n, 2)`` of sample angles in radians."""
-    return bivariate_coordinates(to_vector(ti, pi_, np), to_vector(tv, pv, np))
+def source_vectors(ti, pi_, tv, pv) -> tuple[np.ndarray, np.ndarray]:
+    """The unit vectors ``(wi, wv)``, each ``(n, 3)``, of sample angles in radians."""
+    return to_vector(ti, pi_, np), to_vector(tv, pv, np)
 
 
 def _columns(samples) -> tuple[np.ndarray, ...]:
@@ -148,18 +182,21 @@ def _columns(samples) -> tuple[np.ndarray, ...]:
     return (*angles, rgb)
 
 
-def _grid_targets() -> tuple[np.ndarray, np.ndarray]:
+@functools.lru_cache(maxsize=1)
+def _grid() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The UBO grid's ``(wi, wv)`` ``(6561, 3)`` and ``cos θi`` ``(6561,)``, once."""
     theta, phi = (np.deg2rad(np.asarray(a, np.float64)) for a in ubo_grid())
     ti, tv = np.meshgrid(theta, theta, indexing="ij")
     pi_, pv = np.meshgrid(phi, phi, indexing="ij")
-    return to_vector(ti, pi_, np).reshape(-1, 3), to_vector(tv, pv, np).reshape(-1, 3)
+    wi, wv = to_vector(ti, pi_, np).reshape(-1, 3), to_vector(tv, pv, np).reshape(-1, 3)
+    return wi, wv, wi[:, 2]
 
 
 @functools.lru_cache(maxsize=1)
-def _grid() -> tuple[np.ndarray, np.ndarray]:
-    """The UBO grid's bivariate coordinates ``(6561, 2)`` and ``cos θi`` ``(6561,)``, once."""
-    wi, wv = _grid_targets()
-    return bivariate_coordinates(wi, wv), wi[:, 2]
+def _grid_targets() -> tuple[np.ndarray, np.ndarray]:
+    """The UBO grid's bivariate coordinates ``(6561, 2)`` and target angles ``(6561, 3)``."""
+    wi, wv, _ = _grid()
+    return bivariate_coordinates(wi, wv), target_angles(wi, wv)
 
 
 def log_brdf(x, cos_src, log_eps: float, xp=np):
@@ -193,7 +230,12 @@ def _values(matrix, x, cos_src, cos_dst, log_eps: float) -> np.ndarray:
 
 
 def reconstruct_bivariate(
-    samples, *, targets=None, smoothing: float = SMOOTHING, log_eps: float = LOG_EPS
+    samples,
+    *,
+    targets=None,
+    smoothing: float = SMOOTHING,
+    log_eps: float = LOG_EPS,
+    pair_width: float = PAIR_WIDTH_DEG,
 ) -> np.ndarray:
     """Reconstruct an isotropic material as a function of ``(θh, θd)`` (module docstring).
 
@@ -203,28 +245,33 @@ def reconstruct_bivariate(
         targets: ``(wi, wv)`` unit vectors ``(q, 3)`` to evaluate at; default the UBO grid.
         smoothing: the ridge λ of the thin-plate fit (:data:`SMOOTHING`).
         log_eps: ``ε`` of the log, relative to the mean value (:data:`LOG_EPS`).
+        pair_width: the width (degrees) that carries the measured pairs' residual curves
+            (:mod:`abrdf_jax._pair_residual`, :data:`PAIR_WIDTH_DEG`); 0: the spline alone.
 
     Returns:
         float32 ``(81, 81, 3)`` ABRDF table (``(q, 3)`` for ``targets``), ``≥ 0``.
 
     Raises:
         InputError: fewer than 3 samples, non-finite values, ``θi ≥ 90°``, a bad ``targets``,
-            ``smoothing < 0`` or ``log_eps ≤ 0``, or too few distinct samples for the fit.
+            ``smoothing < 0``, ``log_eps ≤ 0`` or ``pair_width < 0``, or too few distinct
+            samples for the fit.
     """
     if not (np.isfinite(smoothing) and smoothing >= 0):
         raise InputError(f"smoothing must be a finite number >= 0, got {smoothing!r}")
     if not (np.isfinite(log_eps) and log_eps > 0):
         raise InputError(f"log_eps must be a finite number > 0, got {log_eps!r}")
+    if not (np.isfinite(pair_width) and pair_width >= 0):
+        raise InputError(f"pair_width must be a finite number >= 0, got {pair_width!r}")
     ti, pi_, tv, pv, rgb = _columns(samples)
     if targets is None:
-        dst, cos_dst = _grid()
+        wi_t, wv_t, cos_dst = _grid()
     else:
         wi_t, wv_t = (np.asarray(t, np.float64) for t in targets)
         if wi_t.ndim != 2 or wi_t.shape[-1] != 3 or wv_t.shape != wi_t.shape:
             raise InputError(f"targets must be two (q, 3) arrays; got {wi_t.shape}, {wv_t.shape}")
-        dst, cos_dst = bivariate_coordinates(wi_t, wv_t), wi_t[:, 2]
-    src = source_coordinates(ti, pi_, tv, pv)
-    out = _values(bivariate_matrix(src, dst, smoothing), rgb[None], np.cos(ti), cos_dst, log_eps)
+        cos_dst = wi_t[:, 2]
+    matrix = bivariate_map(*source_vectors(ti, pi_, tv, pv), wi_t, wv_t, smoothing, pair_width)
+    out = _values(matrix, rgb[None], np.cos(ti), cos_dst, log_eps)
     return out[0].reshape(81, 81, 3) if targets is None else out[0]
 
 
@@ -309,8 +356,8 @@ def _layout_apply(template, alpha: float, count: np.ndarray):
     cos_src = wi[:, 2]
     if not np.all(cos_src > 0):
         raise InputError("the bivariate model needs samples with theta_i below 90 degrees")
-    dst, cos_dst = _grid()
-    matrix = bivariate_matrix(bivariate_coordinates(wi, wv), dst).astype(np.float32)
+    dst_wi, dst_wv, cos_dst = _grid()
+    matrix = bivariate_map(wi, wv, dst_wi, dst_wv).astype(np.float32)
 
     def apply(y):
         y = np.asarray(y, np.float64)

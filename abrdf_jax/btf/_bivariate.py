@@ -19,11 +19,11 @@ from jaxtyping import Array, Float
 from .._bivariate import (
     LOG_EPS,
     _grid,
-    bivariate_matrix,
+    bivariate_map,
     checked_angles,
     from_log,
     log_brdf,
-    source_coordinates,
+    source_vectors,
 )
 from .._errors import InputError
 from ._store import ANGLES
@@ -62,9 +62,8 @@ def make_bivariate_chunk_fn(geometry: dict, dtype=jnp.float32) -> BivariateChunk
     if missing:
         raise InputError(f"measurement geometry lacks {missing[0]!r}")
     ti, pi_, tv, pv = checked_angles(geometry.__getitem__, "measurement geometry")
-    src = source_coordinates(ti, pi_, tv, pv)
-    dst, cos_dst = _grid()
-    matrix = bivariate_matrix(src, dst)  # (6561, n), float64
+    matrix = bivariate_map(*source_vectors(ti, pi_, tv, pv), *_grid()[:2])  # (6561, n), float64
+    cos_dst = _grid()[2]
     return BivariateChunkFunction(
         cos_in=jnp.asarray(np.cos(ti), dtype),
         matrix=jnp.asarray(matrix.T, dtype),

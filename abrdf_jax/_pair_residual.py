@@ -1,0 +1,94 @@
+"""The measured pairs' residual curves: what the bivariate model misses where it was measured.
+
+The bivariate model (:mod:`abrdf_jax._bivariate`) reads a material as a function of ``(θh, θd)``
+alone; a real one also varies with ``φd``, so at an elevation pair that was measured its fit
+leaves a residual along the slices (in the log of the BRDF), which a dense capture resolves
+and the thin-plate spline, pooling the pairs in one plane, smooths away. At the pair's own
+elevations an isotropic material is a function of the relative azimuth ``Δφ = φi − φv`` only,
+which the pair's diagonal slice covers whole: the residual of the pair's samples, interpolated
+over ``Δφ`` (linear, periodic; samples at one ``Δφ`` averaged), is the correction at every
+target of that pair. Elsewhere each pair's curve is weighted by a Gaussian in ``(θi, θv)`` of
+width :data:`PAIR_WIDTH_DEG` around it, the weights divided by their sum where it exceeds 1: so
+a target between measured pairs takes a blend of their curves and one far from all of them
+(``θ = 0``, say) little of any. Linear in the residuals, so the whole model stays one matrix.
+
+The width is the best of 5°, 10°, 15°, 20° and 30° on the MERL train split (protocol and
+100-sample captures: 15°; docs/captures.md). Numpy only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._grid import from_vector
+from ._grouping import infer_pairs
+
+#: Width (degrees) of the Gaussian in ``(θi, θv)`` that carries a measured pair's residual curve
+#: to the targets around it (module docstring); ``0`` turns the correction off.
+PAIR_WIDTH_DEG = 15.0
+
+
+def _periodic_weights(knots: np.ndarray, x: np.ndarray, period: float) -> np.ndarray:
+    """``(len(x), len(knots))``: linear interpolation weights of sorted distinct ``knots`` at
+    ``x``, periodic (one knot: constant)."""
+    m = len(knots)
+    w = np.zeros((len(x), m))
+    if m == 1:
+        w[:, 0] = 1.0
+        return w
+    hi = np.searchsorted(knots, x, side="right") % m  # the next knot (wrapping past the last)
+    lo = (hi - 1) % m
+    gap = (knots[hi] - knots[lo]) % period
+    gap = np.where(gap > 0, gap, period)
+    frac = ((x - knots[lo]) % period) / gap
+    rows = np.arange(len(x))
+    w[rows, lo] += 1.0 - frac
+    w[rows, hi] += frac
+    return w
+
+
+def _azimuth_curve(dphi_src: np.ndarray, dphi_dst: np.ndarray) -> np.ndarray:
+    """``(q, n)``: the periodic linear interpolation over ``Δφ`` (degrees) of values at the
+    sources (those at one ``Δφ``, to 1e-6°, averaged), at the targets."""
+    key = np.round(dphi_src / 1e-6).astype(np.int64)
+    uniq, which = np.unique(key, return_inverse=True)
+    count = np.bincount(which, minlength=len(uniq)).astype(float)
+    knots = np.bincount(which, dphi_src, len(uniq)) / count
+    w = _periodic_weights(knots, dphi_dst, 360.0)  # (q, knots)
+    return w[:, which] / count[which][None, :]
+
+
+def target_angles(wi, wv) -> np.ndarray:
+    """``(q, 3)``: ``θi``, ``θv`` and ``Δφ = φi − φv`` (degrees, ``Δφ`` in ``[0, 360)``) of
+    direction pairs ``(q, 3)``: what :func:`pair_residual_matrix` reads of its targets."""
+    ti, pi_ = from_vector(np.asarray(wi, np.float64), np)
+    tv, pv = from_vector(np.asarray(wv, np.float64), np)
+    return np.stack([np.rad2deg(ti), np.rad2deg(tv), np.rad2deg(pi_ - pv) % 360.0], -1)
+
+
+def pair_residual_matrix(src_wi, src_wv, dst: np.ndarray, width_deg: float = PAIR_WIDTH_DEG):
+    """The correction at the targets as a map ``(q, n)`` of the residuals at the sources
+    (module docstring): ``Σ_k g_k ρ_k(Δφ) / max(1, Σ_k g_k)``, ``ρ_k`` the residual curve of
+    measured pair ``k`` (:func:`abrdf_jax._grouping.infer_pairs` on the sources' elevations;
+    stray sources take no part), ``g_k`` its Gaussian at the target.
+
+    Args:
+        src_wi, src_wv: the sources' unit vectors ``(n, 3)``.
+        dst: the targets' :func:`target_angles` ``(q, 3)``.
+        width_deg: :data:`PAIR_WIDTH_DEG`; ``0`` gives the zero map.
+    """
+    src = target_angles(src_wi, src_wv)
+    out = np.zeros((len(dst), len(src)))
+    if not width_deg > 0:
+        return out
+    pairs, index = infer_pairs(src[:, 0], src[:, 1])
+    if not pairs:
+        return out
+    p = np.asarray(pairs, np.float64)
+    d2 = (dst[:, 0:1] - p[None, :, 0]) ** 2 + (dst[:, 1:2] - p[None, :, 1]) ** 2
+    g = np.exp(-d2 / (2.0 * width_deg**2))  # (q, P)
+    g /= np.maximum(g.sum(axis=1, keepdims=True), 1.0)
+    for k in range(len(pairs)):
+        idx = np.nonzero(index == k)[0]
+        out[:, idx] = g[:, k : k + 1] * _azimuth_curve(src[idx, 2], dst[:, 2])
+    return out
