@@ -14,13 +14,17 @@ diagonal) of ``ln(max(y / cos θi, 0) + ε)`` (the BRDF: the protocol's values c
 ``cos θi``) at the coordinates ``(√(θh / (π/2)), θd / (π/2))`` (the square-root warp of θh
 that MERL's tables use, which spreads the specular peak), evaluated at the targets, then
 ``exp``, minus ``ε``, times ``cos θi`` of the target, clamped at 0. ``ε`` is
-``log_eps · mean |y / cos θi|`` per channel (as ``Config.log_eps``). It is linear in the log
-samples: one matrix per sample layout (:func:`bivariate_matrix`). The samples are used at
-their recorded directions, whatever the slices, pairs, gaps or offsets; more than
-:data:`MAX_POINTS` are averaged in :data:`BINS` × :data:`BINS` cells of the plane first.
+``log_eps · mean |y / cos θi|`` per channel (as ``Config.log_eps``). What the plane cannot hold
+is kept where it was measured: the spline's residual along each measured pair's slices,
+interpolated over ``Δφ``, corrects that pair's targets and, through a Gaussian in ``(θi, θv)``,
+those around it (:mod:`abrdf_jax._pair_residual`). It is linear in the log samples: one matrix
+per sample layout (:func:`bivariate_map`). The samples are used at their recorded directions,
+whatever the slices, pairs, gaps or offsets; more than :data:`MAX_POINTS` are averaged in
+:data:`BINS` × :data:`BINS` cells of the plane first (for the spline; the residual curves read
+every sample).
 
-It assumes isotropy (an anisotropic material's ``φ`` dependence is lost) and reciprocity; it is
-numpy only (no JAX). Measured by ``python -m benchmarks.bivariate`` (docs/captures.md).
+It assumes isotropy (an anisotropic material's ``φ`` dependence is lost away from the measured
+pairs) and reciprocity; it is numpy only (no JAX). Measured by ``python -m benchmarks.bivariate`` (docs/captures.md).
 """
 
 from __future__ import annotations

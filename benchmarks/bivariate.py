@@ -7,8 +7,10 @@ What is measured (:func:`abrdf_jax.reconstruct_bivariate`; Romeiro et al. 2008, 
 reflectometry": isotropic BRDFs are nearly functions of ``(θh, θd)``):
 
 - **settings, on the MERL train split only**: ``log_eps`` × ``smoothing`` on every third train
-  material, protocol captures (iso102): the mean ΔE76 of each; the module's defaults should be
-  (near) the best cell.
+  material, protocol captures (iso102): the mean ΔE76 of each; and ``pair_width`` (the measured
+  pairs' residual curves, :mod:`abrdf_jax._pair_residual`; 0: the spline alone) on the same
+  materials, protocol and 100-sample captures; the module's defaults should be (near) the best
+  cells.
 - **against the RBF**: the MERL train and test splits (merl-nbrdf fits) captured as iso102 by
   :func:`abrdf_jax.simulate_capture` (seed ``12 + i`` per material, as ``benchmarks.captures``)
   in several kinds (the protocol capture, 100 samples a slice, 0.5° jitter, two extra pairs,
@@ -43,6 +45,8 @@ from .captures import _file, _load, errors, run_cli, summary
 KIND_NAMES = ("protocol", "dense-100", "jitter-0.5", "extra-pairs", "off-ubo")
 QUICK_KINDS = ("protocol", "dense-100")
 SWEEP = {"log_eps": (1e-2, 1e-3, 1e-4), "smoothing": (1e-5, 1e-3, 1e-1)}
+WIDTHS = (0.0, 5.0, 10.0, 15.0, 20.0, 30.0)  # pair_width, degrees
+WIDTH_KINDS = ("protocol", "dense-100")
 SEED = 12
 
 
@@ -66,6 +70,21 @@ def sweep(models: dict, refs: dict, log) -> list[dict]:
             ]
             rows.append({"log_eps": eps, "smoothing": lam, "de76": float(np.mean(de))})
             log(f"  sweep log_eps {eps:g} smoothing {lam:g}: mean ΔE76 {np.mean(de):.3f}")
+    return rows
+
+
+def width_sweep(models: dict, refs: dict, log) -> list[dict]:
+    """Mean ΔE76 of every ``pair_width`` on the given (train) materials, per capture kind."""
+    rows = []
+    for kind in WIDTH_KINDS:
+        samples = _captures(models, kind)
+        for width in WIDTHS:
+            de = [
+                errors(aj.reconstruct_bivariate(s, pair_width=width), refs[n])["de76"]
+                for n, s in samples.items()
+            ]
+            rows.append({"kind": kind, "pair_width": width, "de76": float(np.mean(de))})
+            log(f"  sweep {kind} pair_width {width:g}: mean ΔE76 {np.mean(de):.3f}")
     return rows
 
 
@@ -121,6 +140,7 @@ def run(quick: bool, log) -> dict:
             if set_name == "merl-train":
                 sub = dict(list(models.items())[::3])
                 block["sweep"] = sweep(sub, {n: refs[n] for n in sub}, log)
+                block["width_sweep"] = width_sweep(sub, {n: refs[n] for n in sub}, log)
             kinds = (
                 ("protocol",) if set_name == "analytic" else QUICK_KINDS if quick else KIND_NAMES
             )
@@ -182,6 +202,18 @@ def markdown(payload: dict) -> str:
                     if r["log_eps"] == eps and r["smoothing"] in lams
                 ]
                 lines.append(f"| {eps:g} | " + " | ".join(cells) + " |")
+        if "width_sweep" in block:
+            kinds = list(dict.fromkeys(r["kind"] for r in block["width_sweep"]))
+            lines += [
+                "",
+                "Pair width (degrees; 0: the spline alone; the same materials; mean ΔE76):",
+                "",
+                "| capture \\ pair_width | " + " | ".join(f"{w:g}" for w in WIDTHS) + " |",
+                "|---" * (len(WIDTHS) + 1) + "|",
+            ]
+            for kind in kinds:
+                cells = [f"{r['de76']:.3f}" for r in block["width_sweep"] if r["kind"] == kind]
+                lines.append(f"| {kind} | " + " | ".join(cells) + " |")
     if payload["mode"] == "quick":
         lines += ["", "Quick run: a smoke test of the harness, not figures to quote."]
     return "\n".join(lines) + "\n"
@@ -222,8 +254,10 @@ def main(argv=None, log=None) -> dict:
         "command": " ".join(["python -m benchmarks.bivariate", *(argv or sys.argv[1:])]),
         "machine": machine(),
         "load_before": _load(),
-        "defaults": {"log_eps": aj.reconstruct_bivariate.__kwdefaults__["log_eps"]}
-        | {"smoothing": aj.reconstruct_bivariate.__kwdefaults__["smoothing"]},
+        "defaults": {
+            k: aj.reconstruct_bivariate.__kwdefaults__[k]
+            for k in ("log_eps", "smoothing", "pair_width")
+        },
     }
     t0 = time.perf_counter()
     payload |= run(args.quick, log)
