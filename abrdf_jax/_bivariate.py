@@ -135,13 +135,16 @@ def bivariate_map(
         dst, angles = _grid_targets()
     else:
         dst, angles = bivariate_coordinates(dst_wi, dst_wv), target_angles(dst_wi, dst_wv)
-    fit = _basis(dst, centres) @ coef
+    out = _basis(dst, centres) @ coef
     if not pair_width > 0:
-        return fit
+        return out
     corr = pair_residual_matrix(src_wi, src_wv, angles, pair_width)
     if len(src) <= MAX_POINTS:  # the spline at its own points, (n, n): one product fewer
-        return fit + corr - corr @ (_basis(src, centres) @ coef)
-    return fit + corr - (corr @ _basis(src, centres)) @ coef
+        out -= corr @ (_basis(src, centres) @ coef)
+    else:  # binned: no (n, n) matrix; in place, so that a large capture holds three (q, n)
+        out -= (corr @ _basis(src, centres)) @ coef
+    out += corr
+    return out
 
 
 def checked_angles(get, where: str) -> tuple[np.ndarray, ...]:

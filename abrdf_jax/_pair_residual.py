@@ -90,5 +90,7 @@ def pair_residual_matrix(src_wi, src_wv, dst: np.ndarray, width_deg: float = PAI
     g /= np.maximum(g.sum(axis=1, keepdims=True), 1.0)
     for k in range(len(pairs)):
         idx = np.nonzero(index == k)[0]
-        out[:, idx] = g[:, k : k + 1] * _azimuth_curve(src[idx, 2], dst[:, 2])
+        curve = _azimuth_curve(src[idx, 2], dst[:, 2])
+        curve *= g[:, k : k + 1]
+        out[:, idx] = curve
     return out
