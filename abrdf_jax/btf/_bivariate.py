@@ -3,9 +3,9 @@
 ``btf reconstruct --model bivariate`` reconstructs each texel as
 :func:`abrdf_jax.reconstruct_bivariate` reconstructs one measurement: a thin-plate spline of the
 log BRDF in ``(√(θh/90°), θd/90°)`` through every sample at its recorded direction (the
-geometry's angles; no slice grouping), evaluated on the UBO grid. The spline's map from the
-samples to the grid depends on the geometry only (:func:`abrdf_jax.bivariate_matrix`, float64
-numpy, built once), so a chunk is the log of its samples, one matrix product, the exp: the
+geometry's angles; no slice grouping), with the measured pairs' residual curves, evaluated on
+the UBO grid. The model's map from the samples to the grid depends on the geometry only
+(:func:`abrdf_jax._bivariate.bivariate_map`, float64 numpy, built once), so a chunk is the log of its samples, one matrix product, the exp: the
 shape of the RBF operator's chunk, sharded over devices the same way. It is also the isotropic
 texels' model of ``--model auto`` (:class:`~abrdf_jax.btf.ModelChoiceChunkFunction`), as it is
 ``abrdf-jax reconstruct``'s choice for an isotropic file.
