@@ -259,6 +259,25 @@ def test_command_line_model_bivariate(tmp_path):
     assert bad.returncode == 2 and "bivariate" in bad.stderr and not (tmp_path / "x").exists()
 
 
+def test_a_layouts_map_key_holds_its_recorded_directions():
+    """``BivariateModel.layout_key``: slices with the same projections but other recorded
+    directions are another layout (another map); without directions it is the RBF's key; and
+    the map of the same layout is built once."""
+    from abrdf_jax._grouping import group_arrays, layout_key
+
+    capture = aj.simulate_capture(materials.get_material("lambert-clay"), jitter_deg=0.5, seed=4)
+    sa, _ = group_arrays(capture.to_numpy())
+    moved = sa._replace(directions=sa.directions.copy())
+    moved.directions[1, 0, 0] = _bivariate.to_vector(0.6, 0.1, np)  # one slot elsewhere
+    model = _bivariate.BivariateModel("aniso204")
+    assert model.layout_key(sa) == model.layout_key(sa._replace(y=sa.y * 2))  # values: no
+    assert model.layout_key(sa) != model.layout_key(moved)
+    assert model.layout_key(sa._replace(directions=None)) == layout_key(sa)
+    params = SimpleNamespace(alpha=np.deg2rad(15.0))
+    assert model.operator(params, sa) is model.operator(params, sa._replace(y=sa.y * 2))
+    assert model.operator(params, sa) is not model.operator(params, moved)
+
+
 def test_automatic_choice_of_an_isotropic_material():
     """``select_model``: a material the isotropy test accepts gets the bivariate model on every
     slice (``aniso204``), a forced ``iso102`` budget on the diagonal slices; the selection's
