@@ -122,23 +122,29 @@ def bivariate_matrix(src: np.ndarray, dst: np.ndarray, smoothing: float = SMOOTH
 
 
 def bivariate_map(
-    src_wi, src_wv, dst_wi, dst_wv, smoothing: float = SMOOTHING, pair_width: float = PAIR_WIDTH_DEG
+    src_wi,
+    src_wv,
+    targets=None,
+    smoothing: float = SMOOTHING,
+    pair_width: float = PAIR_WIDTH_DEG,
+    pairs=None,
 ) -> np.ndarray:
-    """The model's map ``(q, n)`` of the log BRDF from sources to targets (unit vectors
-    ``(n, 3)`` / ``(q, 3)``): the spline of :func:`bivariate_matrix` plus the measured pairs'
-    residual curves (:func:`abrdf_jax._pair_residual.pair_residual_matrix`, width
-    ``pair_width`` degrees; 0: the spline alone), ``(B_dst − C B_src) coef + C``."""
+    """The model's map ``(q, n)`` of the log BRDF from sources (unit vectors ``(n, 3)``) to
+    ``targets`` (``(wi, wv)``, each ``(q, 3)``; ``None``: the UBO grid, whose coordinates are
+    made once): the spline of :func:`bivariate_matrix` plus the measured pairs' residual curves
+    (:func:`abrdf_jax._pair_residual.pair_residual_matrix`, width ``pair_width`` degrees; 0:
+    the spline alone; ``pairs``: the sources' elevation pairs where a grouping knows them),
+    ``(B_dst − C B_src) coef + C``."""
     src = bivariate_coordinates(src_wi, src_wv)
     centres, coef = _fit(src, smoothing)
-    grid = _grid()  # the UBO grid's target coordinates once
-    if dst_wi is grid[0] and dst_wv is grid[1]:
+    if targets is None:
         dst, angles = _grid_targets()
     else:
-        dst, angles = bivariate_coordinates(dst_wi, dst_wv), target_angles(dst_wi, dst_wv)
+        dst, angles = bivariate_coordinates(*targets), target_angles(*targets)
     out = _basis(dst, centres) @ coef
     if not pair_width > 0:
         return out
-    corr = pair_residual_matrix(src_wi, src_wv, angles, pair_width)
+    corr = pair_residual_matrix(src_wi, src_wv, angles, pair_width, pairs)
     if len(src) <= MAX_POINTS:  # the spline at its own points, (n, n): one product fewer
         out -= corr @ (_basis(src, centres) @ coef)
     else:  # binned: no (n, n) matrix; in place, so that a large capture holds three (q, n)
@@ -271,13 +277,14 @@ def reconstruct_bivariate(
         raise InputError(f"pair_width must be a finite number >= 0, got {pair_width!r}")
     ti, pi_, tv, pv, rgb = _columns(samples)
     if targets is None:
-        wi_t, wv_t, cos_dst = _grid()
+        cos_dst = _grid()[2]
     else:
-        wi_t, wv_t = (np.asarray(t, np.float64) for t in targets)
+        targets = tuple(np.asarray(t, np.float64) for t in targets)
+        wi_t, wv_t = targets
         if wi_t.ndim != 2 or wi_t.shape[-1] != 3 or wv_t.shape != wi_t.shape:
             raise InputError(f"targets must be two (q, 3) arrays; got {wi_t.shape}, {wv_t.shape}")
         cos_dst = wi_t[:, 2]
-    matrix = bivariate_map(*source_vectors(ti, pi_, tv, pv), wi_t, wv_t, smoothing, pair_width)
+    matrix = bivariate_map(*source_vectors(ti, pi_, tv, pv), targets, smoothing, pair_width)
     out = _values(matrix, rgb[None], np.cos(ti), cos_dst, log_eps)
     return out[0].reshape(81, 81, 3) if targets is None else out[0]
 
@@ -333,18 +340,16 @@ class BivariateModel:
 _APPLIES = BoundedMemo(16)
 
 
-def _directions(template, alpha: float, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _directions(template, pairs, alpha: float, count) -> tuple[np.ndarray, np.ndarray]:
     """``(wi, wv)`` ``(n, 3)`` of the slots read (``count`` per slice): the recorded ones where
     the slices carry them, else the slice positions' (:func:`abrdf_jax._slices.slice_vectors`)."""
     from ._slices import slice_vectors
 
     d = getattr(template, "directions", None)
     if d is not None:
-        d = np.asarray(d, np.float64)
-        rows = np.concatenate([d[s, :c] for s, c in enumerate(count)])
+        rows = np.concatenate([np.asarray(d[s, :c], np.float64) for s, c in enumerate(count)])
         return rows[:, 0], rows[:, 1]
     t = np.asarray(template.t, np.float64)
-    pairs = tuple(tuple(float(x) for x in p) for p in template.pairs)
     parts = [slice_vectors(t[s, :c], s % 2, pairs[s // 2], alpha, np) for s, c in enumerate(count)]
     return tuple(np.concatenate(v) for v in zip(*parts))
 
@@ -359,12 +364,15 @@ def _layout_apply(template, alpha: float, count: np.ndarray):
         raise InputError(
             f"the bivariate model needs at least 3 samples; the layout has {len(flat)}"
         )
-    wi, wv = _directions(template, alpha, count)
+    pairs = tuple(tuple(float(x) for x in p) for p in template.pairs)
+    wi, wv = _directions(template, pairs, alpha, count)
     cos_src = wi[:, 2]
     if not np.all(cos_src > 0):
         raise InputError("the bivariate model needs samples with theta_i below 90 degrees")
-    dst_wi, dst_wv, cos_dst = _grid()
-    matrix = bivariate_map(wi, wv, dst_wi, dst_wv).astype(np.float32)
+    # the residual curves' pairs are the grouping's (slice s of pair s // 2), not inferred again
+    of_pair = np.repeat(np.arange(len(count)) // 2, count)
+    matrix = bivariate_map(wi, wv, pairs=(pairs, of_pair)).astype(np.float32)
+    cos_dst = _grid()[2]
 
     def apply(y):
         y = np.asarray(y, np.float64)

@@ -66,22 +66,27 @@ def target_angles(wi, wv) -> np.ndarray:
     return np.stack([np.rad2deg(ti), np.rad2deg(tv), np.rad2deg(pi_ - pv) % 360.0], -1)
 
 
-def pair_residual_matrix(src_wi, src_wv, dst: np.ndarray, width_deg: float = PAIR_WIDTH_DEG):
+def pair_residual_matrix(
+    src_wi, src_wv, dst: np.ndarray, width_deg: float = PAIR_WIDTH_DEG, pairs=None
+):
     """The correction at the targets as a map ``(q, n)`` of the residuals at the sources
     (module docstring): ``Σ_k g_k ρ_k(Δφ) / max(1, Σ_k g_k)``, ``ρ_k`` the residual curve of
-    measured pair ``k`` (:func:`abrdf_jax._grouping.infer_pairs` on the sources' elevations;
-    stray sources take no part), ``g_k`` its Gaussian at the target.
+    measured pair ``k``, ``g_k`` its Gaussian at the target.
 
     Args:
         src_wi, src_wv: the sources' unit vectors ``(n, 3)``.
         dst: the targets' :func:`target_angles` ``(q, 3)``.
         width_deg: :data:`PAIR_WIDTH_DEG`; ``0`` gives the zero map.
+        pairs: ``(pairs, index)``: the elevation pairs ``(θi, θv)`` (degrees) and each source's
+            pair (``-1``: none), where a grouping knows them (the command line's slices);
+            ``None``: :func:`abrdf_jax._grouping.infer_pairs` on the sources' elevations (stray
+            sources take no part).
     """
     src = target_angles(src_wi, src_wv)
     out = np.zeros((len(dst), len(src)))
     if not width_deg > 0:
         return out
-    pairs, index = infer_pairs(src[:, 0], src[:, 1])
+    pairs, index = infer_pairs(src[:, 0], src[:, 1]) if pairs is None else pairs
     if not pairs:
         return out
     p = np.asarray(pairs, np.float64)

@@ -62,7 +62,7 @@ def make_bivariate_chunk_fn(geometry: dict, dtype=jnp.float32) -> BivariateChunk
     if missing:
         raise InputError(f"measurement geometry lacks {missing[0]!r}")
     ti, pi_, tv, pv = checked_angles(geometry.__getitem__, "measurement geometry")
-    matrix = bivariate_map(*source_vectors(ti, pi_, tv, pv), *_grid()[:2])  # (6561, n), float64
+    matrix = bivariate_map(*source_vectors(ti, pi_, tv, pv))  # (6561, n), float64
     cos_dst = _grid()[2]
     return BivariateChunkFunction(
         cos_in=jnp.asarray(np.cos(ti), dtype),
