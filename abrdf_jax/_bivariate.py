@@ -18,10 +18,13 @@ that MERL's tables use, which spreads the specular peak), evaluated at the targe
 is kept where it was measured: the spline's residual along each measured pair's slices,
 interpolated over ``Δφ``, corrects that pair's targets and, through a Gaussian in ``(θi, θv)``,
 those around it (:mod:`abrdf_jax._pair_residual`). It is linear in the log samples: one matrix
-per sample layout (:func:`bivariate_map`). The samples are used at their recorded directions,
-whatever the slices, pairs, gaps or offsets; more than :data:`MAX_POINTS` are averaged in
-:data:`BINS` × :data:`BINS` cells of the plane first (for the spline; the residual curves read
-every sample).
+per sample layout (:func:`bivariate_map`, what the command line and BTF chunks apply to many
+measurements), or, for one measurement (:func:`reconstruct_bivariate`), the same map applied
+in factors (:func:`bivariate_values`: no matrix with a row per target and a column per sample,
+so memory and time grow linearly with a continuous capture's samples). The samples are used at
+their recorded directions, whatever the slices, pairs, gaps or offsets; more than
+:data:`MAX_POINTS` are averaged in :data:`BINS` × :data:`BINS` cells of the plane first (for
+the spline; the residual curves read every sample).
 
 It assumes isotropy (an anisotropic material's ``φ`` dependence is lost away from the measured
 pairs) and reciprocity; it is numpy only (no JAX). Measured by ``python -m benchmarks.bivariate`` (docs/captures.md).
@@ -32,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
@@ -40,7 +43,12 @@ from ._errors import InputError
 from ._grid import half_diff, to_vector, ubo_grid
 from ._host_eps import EPS_FLOOR
 from ._memo import BoundedMemo
-from ._pair_residual import PAIR_WIDTH_DEG, pair_residual_matrix, target_angles
+from ._pair_residual import (
+    PAIR_WIDTH_DEG,
+    pair_residual_matrix,
+    pair_residual_values,
+    target_angles,
+)
 
 #: Ridge λ on the thin-plate kernel's diagonal (log units squared): the best of 1e-5, 1e-3 and
 #: 1e-1 on the MERL train split (``python -m benchmarks.bivariate``'s sweep; the others 3–9 %
@@ -74,9 +82,9 @@ def _poly(x: np.ndarray) -> np.ndarray:
     return np.concatenate([np.ones((len(x), 1)), x], axis=1)
 
 
-def _binned(src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cell centres ``(m, 2)`` (the mean of their points) and the averaging matrix ``(m, n)``,
-    ``m ≤ MAX_POINTS``."""
+def _binned(src: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(centres, which, count)``: cell centres ``(m, 2)`` (the mean of their points), each
+    point's cell ``(n,)`` and each cell's number of points ``(m,)``, ``m ≤ MAX_POINTS``."""
     bins = BINS
     while True:
         cell = np.clip((src * bins).astype(np.int64), 0, bins - 1)
@@ -84,27 +92,61 @@ def _binned(src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if which.max() < MAX_POINTS or bins == 1:
             break
         bins //= 2
-    avg = np.zeros((which.max() + 1, len(src)))
-    avg[which, np.arange(len(src))] = 1.0
-    avg /= avg.sum(axis=1, keepdims=True)
-    return avg @ src, avg
+    which = which.reshape(-1)
+    count = np.bincount(which).astype(np.float64)
+    return _cell_means(src, which, count), which, count
 
 
-def _fit(src: np.ndarray, smoothing: float) -> tuple[np.ndarray, np.ndarray]:
-    """The spline's centres ``(m, 2)`` and its coefficients as a map ``(m + 3, n)`` of the
-    values at the points ``src`` ``(n, 2)`` (binned past :data:`MAX_POINTS`: ``m ≤ n``)."""
+def _cell_means(x: np.ndarray, which: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """The mean of the rows of ``x`` ``(n, K)`` in each cell: ``(m, K)``."""
+    return np.stack([np.bincount(which, c, len(count)) for c in x.T], -1) / count[:, None]
+
+
+class _Fit(NamedTuple):
+    """A thin-plate fit at the points ``src`` ``(n, 2)``: its centres ``(m, 2)``, the system
+    ``(m + 3, m + 3)`` of kernel, ridge and degree-1 polynomial, and the binning (``which``,
+    ``count``; ``None`` when the centres are the points themselves)."""
+
+    centres: np.ndarray
+    system: np.ndarray
+    which: np.ndarray | None
+    count: np.ndarray | None
+
+    def _solve(self, rhs: np.ndarray) -> np.ndarray:
+        """The coefficients ``(m + 3, K)`` of values ``rhs`` ``(m, K)`` at the centres."""
+        full = np.zeros((len(self.system), rhs.shape[1]))
+        full[: len(rhs)] = rhs
+        try:
+            return np.linalg.solve(self.system, full)
+        except np.linalg.LinAlgError as e:  # fewer than 3 distinct points in a line, say
+            raise InputError(
+                f"the bivariate fit is singular ({e}): too few distinct samples"
+            ) from e
+
+    def coef(self) -> np.ndarray:
+        """The coefficients as a map ``(m + 3, n)`` of the values at the points (the maps are
+        GEMMs with the system's inverse)."""
+        inv = self._solve(np.eye(len(self.centres)))
+        if self.which is None:
+            return inv
+        return inv[:, self.which] / self.count[self.which][None, :]
+
+    def coef_of(self, z: np.ndarray) -> np.ndarray:
+        """The coefficients ``(m + 3, K)`` of values ``z`` ``(n, K)`` at the points: one solve
+        with ``K`` right-hand sides, no inverse."""
+        return self._solve(z if self.which is None else _cell_means(z, self.which, self.count))
+
+
+def _fit(src: np.ndarray, smoothing: float) -> _Fit:
+    """The spline's fit at the points ``src`` ``(n, 2)`` (binned past :data:`MAX_POINTS`)."""
     src = np.asarray(src, np.float64)
-    centres, avg = _binned(src) if len(src) > MAX_POINTS else (src, None)
+    centres, which, count = _binned(src) if len(src) > MAX_POINTS else (src, None, None)
     n = len(centres)
     system = np.zeros((n + 3, n + 3))
     system[:n, :n] = _kernel(centres, centres) + smoothing * np.eye(n)
     system[:n, n:] = _poly(centres)
     system[n:, :n] = _poly(centres).T
-    try:  # one small solve of the symmetric system; the maps are GEMMs with its inverse
-        inv = np.linalg.solve(system, np.eye(n + 3))[:, :n]
-    except np.linalg.LinAlgError as e:  # fewer than 3 distinct points in a line, say
-        raise InputError(f"the bivariate fit is singular ({e}): too few distinct samples") from e
-    return centres, inv if avg is None else inv @ avg
+    return _Fit(centres, system, which, count)
 
 
 def _basis(x: np.ndarray, centres: np.ndarray) -> np.ndarray:
@@ -113,12 +155,23 @@ def _basis(x: np.ndarray, centres: np.ndarray) -> np.ndarray:
     return np.concatenate([_kernel(x, centres), _poly(x)], axis=1)
 
 
+#: Rows of the basis evaluated at once by :func:`bivariate_values` (its memory: this many rows
+#: of ``m + 3`` float64 values, ``m ≤`` :data:`MAX_POINTS`: about 34 MB).
+ROWS = 2048
+
+
+def _basis_times(x: np.ndarray, centres: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """``_basis(x, centres) @ coef`` ``(len(x), K)``, :data:`ROWS` rows at a time."""
+    parts = [_basis(x[k : k + ROWS], centres) @ coef for k in range(0, len(x), ROWS)]
+    return np.concatenate(parts) if parts else np.zeros((0, coef.shape[1]))
+
+
 def bivariate_matrix(src: np.ndarray, dst: np.ndarray, smoothing: float = SMOOTHING) -> np.ndarray:
     """The map ``(q, n)`` from values at the points ``src`` ``(n, 2)`` to the thin-plate spline's
     values at ``dst`` ``(q, 2)`` (float64; module docstring). A degree-1 polynomial is
     reproduced exactly: each row sums to 1."""
-    centres, coef = _fit(src, smoothing)
-    return _basis(dst, centres) @ coef
+    fit = _fit(src, smoothing)
+    return _basis(dst, fit.centres) @ fit.coef()
 
 
 def bivariate_map(
@@ -136,21 +189,54 @@ def bivariate_map(
     the spline alone; ``pairs``: the sources' elevation pairs where a grouping knows them),
     ``(B_dst − C B_src) coef + C``."""
     src = bivariate_coordinates(src_wi, src_wv)
-    centres, coef = _fit(src, smoothing)
-    if targets is None:
-        dst, angles = _grid_targets()
-    else:
-        dst, angles = bivariate_coordinates(*targets), target_angles(*targets)
-    out = _basis(dst, centres) @ coef
+    fit = _fit(src, smoothing)
+    coef = fit.coef()
+    dst, angles = _target_points(targets)
+    out = _basis(dst, fit.centres) @ coef
     if not pair_width > 0:
         return out
     corr = pair_residual_matrix(src_wi, src_wv, angles, pair_width, pairs)
     if len(src) <= MAX_POINTS:  # the spline at its own points, (n, n): one product fewer
-        out -= corr @ (_basis(src, centres) @ coef)
+        out -= corr @ (_basis(src, fit.centres) @ coef)
     else:  # binned: no (n, n) matrix; in place, so that a large capture holds three (q, n)
-        out -= (corr @ _basis(src, centres)) @ coef
+        out -= (corr @ _basis(src, fit.centres)) @ coef
     out += corr
     return out
+
+
+def bivariate_values(
+    src_wi,
+    src_wv,
+    z: np.ndarray,
+    targets=None,
+    smoothing: float = SMOOTHING,
+    pair_width: float = PAIR_WIDTH_DEG,
+    pairs=None,
+) -> np.ndarray:
+    """``bivariate_map(src_wi, src_wv, targets, smoothing, pair_width, pairs) @ z`` ``(q, K)``
+    for values ``z`` ``(n, K)`` at the sources, float64, without any ``(q, n)`` or ``(n, n)``
+    matrix: the spline's coefficients of ``z``, its values at the targets and its residual at
+    the sources (:data:`ROWS` rows of the basis at a time), the residual curves' values
+    (:func:`abrdf_jax._pair_residual.pair_residual_values`). Memory ``O((q + n) K)`` beside the
+    fit's ``O(m²)``: one measurement of any size (:func:`reconstruct_bivariate`)."""
+    z = np.asarray(z, np.float64)
+    src = bivariate_coordinates(src_wi, src_wv)
+    fit = _fit(src, smoothing)
+    a = fit.coef_of(z)
+    dst, angles = _target_points(targets)
+    out = _basis_times(dst, fit.centres, a)
+    if pair_width > 0:
+        residual = z - _basis_times(src, fit.centres, a)
+        out += pair_residual_values(src_wi, src_wv, residual, angles, pair_width, pairs)
+    return out
+
+
+def _target_points(targets) -> tuple[np.ndarray, np.ndarray]:
+    """The targets' bivariate coordinates ``(q, 2)`` and :func:`target_angles` ``(q, 3)``
+    (``None``: the UBO grid's, made once)."""
+    if targets is None:
+        return _grid_targets()
+    return bivariate_coordinates(*targets), target_angles(*targets)
 
 
 def checked_angles(get, where: str) -> tuple[np.ndarray, ...]:
@@ -284,9 +370,11 @@ def reconstruct_bivariate(
         if wi_t.ndim != 2 or wi_t.shape[-1] != 3 or wv_t.shape != wi_t.shape:
             raise InputError(f"targets must be two (q, 3) arrays; got {wi_t.shape}, {wv_t.shape}")
         cos_dst = wi_t[:, 2]
-    matrix = bivariate_map(*source_vectors(ti, pi_, tv, pv), targets, smoothing, pair_width)
-    out = _values(matrix, rgb[None], np.cos(ti), cos_dst, log_eps)
-    return out[0].reshape(81, 81, 3) if targets is None else out[0]
+    z, eps = log_brdf(rgb[None], np.cos(ti), log_eps)
+    wi, wv = source_vectors(ti, pi_, tv, pv)
+    lin = bivariate_values(wi, wv, z[0], targets, smoothing, pair_width)
+    out = from_log(lin[None], eps, cos_dst)[0].astype(np.float32)
+    return out.reshape(81, 81, 3) if targets is None else out
 
 
 # --------------------------------------------------------------------------------------------

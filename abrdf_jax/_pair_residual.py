@@ -28,34 +28,48 @@ from ._grouping import infer_pairs
 PAIR_WIDTH_DEG = 15.0
 
 
-def _periodic_weights(knots: np.ndarray, x: np.ndarray, period: float) -> np.ndarray:
-    """``(len(x), len(knots))``: linear interpolation weights of sorted distinct ``knots`` at
-    ``x``, periodic (one knot: constant)."""
+def _periodic_index(knots: np.ndarray, x: np.ndarray, period: float):
+    """``(lo, hi, frac)``, each ``(len(x),)``: the periodic linear interpolation of sorted
+    distinct ``knots`` at ``x`` is ``(1 − frac) v[lo] + frac v[hi]`` (one knot: constant)."""
     m = len(knots)
-    w = np.zeros((len(x), m))
     if m == 1:
-        w[:, 0] = 1.0
-        return w
+        zero = np.zeros(len(x), np.int64)
+        return zero, zero, np.zeros(len(x))
     hi = np.searchsorted(knots, x, side="right") % m  # the next knot (wrapping past the last)
     lo = (hi - 1) % m
     gap = (knots[hi] - knots[lo]) % period
     gap = np.where(gap > 0, gap, period)
-    frac = ((x - knots[lo]) % period) / gap
-    rows = np.arange(len(x))
-    w[rows, lo] += 1.0 - frac
-    w[rows, hi] += frac
-    return w
+    return lo, hi, ((x - knots[lo]) % period) / gap
+
+
+def _azimuth_knots(dphi_src: np.ndarray):
+    """``(knots, which, count)``: the distinct ``Δφ`` of the sources (to 1e-6°, sorted; each the
+    mean of its sources), each source's knot and each knot's number of sources."""
+    key = np.round(dphi_src / 1e-6).astype(np.int64)
+    uniq, which = np.unique(key, return_inverse=True)
+    count = np.bincount(which, minlength=len(uniq)).astype(float)
+    return np.bincount(which, dphi_src, len(uniq)) / count, which, count
 
 
 def _azimuth_curve(dphi_src: np.ndarray, dphi_dst: np.ndarray) -> np.ndarray:
     """``(q, n)``: the periodic linear interpolation over ``Δφ`` (degrees) of values at the
     sources (those at one ``Δφ``, to 1e-6°, averaged), at the targets."""
-    key = np.round(dphi_src / 1e-6).astype(np.int64)
-    uniq, which = np.unique(key, return_inverse=True)
-    count = np.bincount(which, minlength=len(uniq)).astype(float)
-    knots = np.bincount(which, dphi_src, len(uniq)) / count
-    w = _periodic_weights(knots, dphi_dst, 360.0)  # (q, knots)
+    knots, which, count = _azimuth_knots(dphi_src)
+    lo, hi, frac = _periodic_index(knots, dphi_dst, 360.0)
+    w = np.zeros((len(dphi_dst), len(knots)))
+    rows = np.arange(len(dphi_dst))
+    w[rows, lo] += 1.0 - frac
+    w[rows, hi] += frac
     return w[:, which] / count[which][None, :]
+
+
+def _azimuth_values(dphi_src: np.ndarray, values: np.ndarray, dphi_dst: np.ndarray) -> np.ndarray:
+    """``(q, C)``: :func:`_azimuth_curve` applied to ``values`` ``(n, C)`` without its
+    ``(q, n)`` matrix (memory ``O(q + n)``: any number of sources)."""
+    knots, which, count = _azimuth_knots(dphi_src)
+    at = np.stack([np.bincount(which, v, len(knots)) for v in values.T], -1) / count[:, None]
+    lo, hi, frac = _periodic_index(knots, dphi_dst, 360.0)
+    return (1.0 - frac)[:, None] * at[lo] + frac[:, None] * at[hi]
 
 
 def target_angles(wi, wv) -> np.ndarray:
@@ -64,6 +78,22 @@ def target_angles(wi, wv) -> np.ndarray:
     ti, pi_ = from_vector(np.asarray(wi, np.float64), np)
     tv, pv = from_vector(np.asarray(wv, np.float64), np)
     return np.stack([np.rad2deg(ti), np.rad2deg(tv), np.rad2deg(pi_ - pv) % 360.0], -1)
+
+
+def _pair_weights(src: np.ndarray, dst: np.ndarray, width_deg: float, pairs):
+    """``(index, g)``: each source's measured pair (``-1``: none) and each pair's Gaussian at
+    the targets ``(q, P)``, the weights divided by their sum where it exceeds 1; ``None`` when
+    there is no correction (``width_deg`` 0, no pair)."""
+    if not width_deg > 0:
+        return None
+    pairs, index = infer_pairs(src[:, 0], src[:, 1]) if pairs is None else pairs
+    if not pairs:
+        return None
+    p = np.asarray(pairs, np.float64)
+    d2 = (dst[:, 0:1] - p[None, :, 0]) ** 2 + (dst[:, 1:2] - p[None, :, 1]) ** 2
+    g = np.exp(-d2 / (2.0 * width_deg**2))  # (q, P)
+    g /= np.maximum(g.sum(axis=1, keepdims=True), 1.0)
+    return np.asarray(index), g
 
 
 def pair_residual_matrix(
@@ -84,18 +114,35 @@ def pair_residual_matrix(
     """
     src = target_angles(src_wi, src_wv)
     out = np.zeros((len(dst), len(src)))
-    if not width_deg > 0:
+    found = _pair_weights(src, dst, width_deg, pairs)
+    if found is None:
         return out
-    pairs, index = infer_pairs(src[:, 0], src[:, 1]) if pairs is None else pairs
-    if not pairs:
-        return out
-    p = np.asarray(pairs, np.float64)
-    d2 = (dst[:, 0:1] - p[None, :, 0]) ** 2 + (dst[:, 1:2] - p[None, :, 1]) ** 2
-    g = np.exp(-d2 / (2.0 * width_deg**2))  # (q, P)
-    g /= np.maximum(g.sum(axis=1, keepdims=True), 1.0)
-    for k in range(len(pairs)):
+    index, g = found
+    for k in range(g.shape[1]):
         idx = np.nonzero(index == k)[0]
+        if not len(idx):
+            continue
         curve = _azimuth_curve(src[idx, 2], dst[:, 2])
         curve *= g[:, k : k + 1]
         out[:, idx] = curve
+    return out
+
+
+def pair_residual_values(
+    src_wi, src_wv, residual: np.ndarray, dst: np.ndarray, width_deg=PAIR_WIDTH_DEG, pairs=None
+) -> np.ndarray:
+    """``pair_residual_matrix(src_wi, src_wv, dst, width_deg, pairs) @ residual`` ``(q, C)``
+    for residuals ``(n, C)`` at the sources, without the ``(q, n)`` matrix: what one
+    measurement of any size needs (:func:`abrdf_jax.reconstruct_bivariate`)."""
+    src = target_angles(src_wi, src_wv)
+    out = np.zeros((len(dst), residual.shape[1]))
+    found = _pair_weights(src, dst, width_deg, pairs)
+    if found is None:
+        return out
+    index, g = found
+    for k in range(g.shape[1]):
+        idx = np.nonzero(index == k)[0]
+        if not len(idx):
+            continue
+        out += g[:, k : k + 1] * _azimuth_values(src[idx, 2], residual[idx], dst[:, 2])
     return out

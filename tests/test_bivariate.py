@@ -46,10 +46,10 @@ def test_binning_bounds_the_solve(monkeypatch):
     """However spread the samples, the solve holds at most MAX_POINTS cells (coarser bins)."""
     monkeypatch.setattr(_bivariate, "MAX_POINTS", 40)
     src = _points(3000)  # spread over the whole plane: 128 x 128 cells would keep ~3000
-    centres, avg = _bivariate._binned(src)
-    assert len(centres) <= 40 and avg.shape == (len(centres), 3000)
-    np.testing.assert_allclose(avg.sum(axis=1), 1.0)
-    np.testing.assert_allclose(avg @ src, centres)
+    centres, which, count = _bivariate._binned(src)
+    assert len(centres) <= 40 and which.shape == (3000,) and count.sum() == 3000
+    for k in (0, len(centres) // 2, len(centres) - 1):  # each centre: the mean of its cell
+        np.testing.assert_allclose(src[which == k].mean(axis=0), centres[k])
 
 
 def _table_of(fn):
@@ -152,6 +152,55 @@ def test_pair_residual_matrix_interpolates_each_pairs_curve():
     g = c[cells][:, on].sum(1)  # the pair's share at its cells: 1 / (1 + the others' g)
     np.testing.assert_allclose(c[cells] @ r, g * np.interp(q, d, v, period=360), atol=1e-12)
     assert 0.95 < g.min() and g.max() < 1
+
+
+def test_one_measurement_applies_the_map_in_factors(monkeypatch):
+    """``bivariate_values`` (what ``reconstruct_bivariate`` runs) equals the layout map
+    ``bivariate_map`` applied to the same values, on the grid and at targets, with and without
+    the residual curves and the plane binned; the table is the map's within float32 rounding."""
+    capture = aj.simulate_capture(
+        materials.get_material("ggx-plastic"), budget="iso102", jitter_deg=0.5, seed=3
+    )
+    ti, pi_, tv, pv, rgb = _bivariate._columns(capture)
+    wi, wv = _bivariate.source_vectors(ti, pi_, tv, pv)
+    z = _bivariate.log_brdf(rgb[None], np.cos(ti), _bivariate.LOG_EPS)[0][0]
+    targets = (wi[::7], wv[::3][: len(wi[::7])])
+    monkeypatch.setattr(_bivariate, "ROWS", 50)  # the basis in several row blocks
+    for max_points in (4096, 40):  # the samples as centres; binned into at most 40 cells
+        monkeypatch.setattr(_bivariate, "MAX_POINTS", max_points)
+        for width in (0.0, _pair_residual.PAIR_WIDTH_DEG):
+            for tg in (None, targets):
+                m = _bivariate.bivariate_map(wi, wv, tg, pair_width=width)
+                got = _bivariate.bivariate_values(wi, wv, z, tg, pair_width=width)
+                np.testing.assert_allclose(got, m @ z, rtol=0, atol=1e-9)
+    monkeypatch.setattr(_bivariate, "MAX_POINTS", 4096)
+    m = _bivariate.bivariate_map(wi, wv)
+    table = _bivariate._values(m, rgb[None], np.cos(ti), _bivariate._grid()[2], _bivariate.LOG_EPS)
+    np.testing.assert_allclose(
+        aj.reconstruct_bivariate(capture), table[0].reshape(81, 81, 3), rtol=1e-5, atol=1e-7
+    )
+
+
+def test_a_continuous_capture_in_bounded_memory():
+    """20,000 samples (5,000 a diagonal slice): no matrix with a row per target and a column per
+    sample (6561 x 20000 float64 would be 1 GB; numpy's allocations peak far below), and the
+    dense capture restores the material at least as well as the protocol's 102 samples."""
+    import tracemalloc
+
+    mat = materials.get_material("ggx-plastic")
+    dense = aj.simulate_capture(mat, budget="iso102", per_slice=5000, jitter_deg=0.3, seed=2)
+    assert len(dense) == 20000
+    tracemalloc.start()
+    try:
+        table = aj.reconstruct_bivariate(dense)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 200 * 2**20, peak / 2**20
+    ref = materials.dense_table(mat)
+    sparse = aj.reconstruct_bivariate(aj.simulate_capture(mat, budget="iso102"))
+    de = [float(metrics.evaluate(t, ref)["de76"]) for t in (table, sparse)]
+    assert np.isfinite(table).all() and de[0] <= de[1], de
 
 
 def test_targets_evaluate_anywhere():
