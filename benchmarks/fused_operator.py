@@ -8,7 +8,11 @@ and ``.md``.
    whole split, exact slice samples, PROTOCOL.md) of the default prior alone, of the fused model
    at the default prior's fixed hyper-parameters (chosen on MERL train only,
    ``benchmarks.fused_defaults``), and of the RBF (``preset("operator")``, what
-   ``--preset operator`` runs). iso102 and aniso204 (``--quick``: iso102 only).
+   ``--preset operator`` runs). iso102 and aniso204 (``--quick``: iso102 only). **Where the mean
+   lies**: the test materials whose reference table is exactly 0 over more than 1 % of its values
+   (the neural fits' final clamp, ../shared/data/merl-nbrdf/SOURCE.md "Trust"), each model's
+   ΔE76 on them and its mean over the others, and its mean with the reference's zeros imposed
+   on its table (an oracle, not a model: what knowing the clamped regions would be worth).
 2. **The automatic choice on the built-in analytic materials** (anisotropic and non-reciprocal
    among them; ``--quick``: 3 of them), exact aniso204 samples: ``select_model`` without a prior
    (the RBF pick), and with the default prior (the prior and the fused model join); the full-table
@@ -52,8 +56,13 @@ def _de76(rec, ref) -> np.ndarray:
 
 def merl_accuracy(prior, budgets) -> dict:
     """Mean ΔE76 and LogErr of the three numpy operators on the MERL test split."""
-    _, models, ref, _ = merl_split("test")
-    out = {}
+    names, models, ref, _ = merl_split("test")
+    ref_np = np.asarray(ref)
+    zeros = (ref_np == 0).mean(axis=(1, 2, 3))  # the fits' exact-zero regions (SOURCE.md)
+    out = {
+        "materials": names,
+        "zero_fraction": [float(z) for z in zeros],
+    }
     for budget in budgets:
         cfg = aj.Config(budget=budget)
         meas = sample_batch(models, cfg)
@@ -71,9 +80,13 @@ def merl_accuracy(prior, budgets) -> dict:
         y = np.asarray(meas.y, np.float32)
         rows = {}
         for name, op in ops.items():
-            per = metrics_of(op.apply(y), ref)
+            rec = np.asarray(op.apply(y))
+            per = metrics_of(rec, ref)
             rows[name] = {k: float(np.mean(v)) for k, v in per.items()}
             rows[name]["de76_per_material"] = [float(v) for v in per["de76"]]
+            # an oracle, not a model: the reference's exact zeros imposed on the reconstruction
+            oracle = metrics_of(np.where(ref_np == 0, 0.0, rec), ref)["de76"]
+            rows[name]["de76_zeros_imposed"] = float(np.mean(oracle))
             _log(f"MERL test {budget} {name:32s} dE76 {rows[name]['de76']:.3f}")
         out[budget] = rows
     return out
@@ -98,7 +111,7 @@ def analytic_choice(prior, names) -> list[dict]:
         sel = select.select_model(meas, prior=prior)
         budget = "aniso204" if rbf_sel.config.budget == "aniso204" else "iso102"
         rec = {
-            "rbf": aj.reconstruct(meas, rbf_sel.config, rbf_sel.params),
+            "rbf": rbf_sel.reconstruct(meas),  # its model (the bivariate one, an RBF config)
             "prior": aj.compile_numpy_operator(prior, meas, budget=budget).apply(meas.y),
             "fused": aj.compile_numpy_operator(prior, meas, budget=budget, fused=True).apply(
                 meas.y
@@ -124,6 +137,47 @@ def analytic_choice(prior, names) -> list[dict]:
     return rows
 
 
+def _held(errors: dict, name: str) -> str:
+    """A held-out error, or "–" for a model that has none (the bivariate one)."""
+    return f"{errors[name]:.3f}" if name in errors else "–"
+
+
+def _budgets(merl: dict) -> list[str]:
+    """The budgets of the MERL section (its keys beside the materials and their zeros)."""
+    return [k for k in merl if k not in ("materials", "zero_fraction")]
+
+
+def _zero_lines(merl: dict) -> list[str]:
+    """Where the MERL test mean lies: the materials whose reference is exactly 0 over large
+    regions (../shared/data/merl-nbrdf/SOURCE.md, "Trust": the networks' final clamp; real MERL
+    values there are small but positive), the mean without them, and with the reference's zeros
+    imposed (an oracle)."""
+    if "zero_fraction" not in merl:
+        return []
+    names, zeros = merl["materials"], np.asarray(merl["zero_fraction"])
+    clamped = zeros > 0.01
+    lines = [
+        "",
+        "Where the mean lies: the reference tables of "
+        + ", ".join(f"{n} ({z:.0%})" for n, z in zip(names, zeros) if z > 0.01)
+        + " are exactly 0 over that fraction of their values (the fits' final clamp, "
+        "../shared/data/merl-nbrdf/SOURCE.md: real MERL values there are small but positive).",
+        "",
+        f"| budget | model | ΔE76 of those {int(clamped.sum())} | mean of the other "
+        f"{int((~clamped).sum())} | all, the reference's zeros imposed (oracle) |",
+        "|---|---|---|---|---|",
+    ]
+    for budget in _budgets(merl):
+        for name, r in merl[budget].items():
+            per = np.asarray(r["de76_per_material"])
+            lines.append(
+                f"| {budget} | {name} | "
+                + ", ".join(f"{v:.2f}" for v in per[clamped])
+                + f" | {per[~clamped].mean():.2f} | {r['de76_zeros_imposed']:.2f} |"
+            )
+    return lines
+
+
 def _markdown(out) -> str:
     q = " --quick" if out["quick"] else ""
     lines = [
@@ -137,9 +191,11 @@ def _markdown(out) -> str:
         "| budget | model | ΔE76 | LogErr | ΔE2000 | PSNR |",
         "|---|---|---|---|---|---|",
     ]
-    for budget, rows in out["merl_test"].items():
-        for name, r in rows.items():
+    merl = out["merl_test"]
+    for budget in _budgets(merl):
+        for name, r in merl[budget].items():
             lines.append(f"| {budget} | {name} | {metric_cells(r)} |")
+    lines += _zero_lines(merl)
     lines += [
         "",
         "## The automatic choice, built-in analytic materials (aniso204, exact samples)",
@@ -152,7 +208,7 @@ def _markdown(out) -> str:
         h = r["held_out"]
         lines.append(
             f"| {r['material']} | {r['rbf_pick']} | {r['pick']} | "
-            f"{h.get(r['rbf_pick'], float('nan')):.3f} / {h['prior']:.3f} / {h['fused']:.3f} | "
+            f"{_held(h, r['rbf_pick'])} / {h['prior']:.3f} / {h['fused']:.3f} | "
             f"{r['de76']['rbf']:.2f} | {r['de76']['prior']:.2f} | {r['de76']['fused']:.2f} | "
             f"{'yes' if r['database_pick_worse_than_kernel'] else 'no'} |"
         )
