@@ -81,7 +81,10 @@ class Selection:
 
     Attributes:
         name: the chosen candidate's name (see :data:`CANDIDATES`).
-        config: its :class:`Config`; params: its :class:`Params` (α of the measurement).
+        config: its :class:`Config`; params: its :class:`Params` (α of the measurement). For
+            the bivariate model (not an RBF) ``config`` carries only the budget, the slices it
+            reads: reconstruct with :meth:`reconstruct`, not ``abrdf_jax.reconstruct(...,
+            config, params)``, which would run the RBF of that config.
         errors: ``{name: held-out RMS log error}`` of the candidates tried.
         ranks: ``{name: complexity rank}`` of those candidates.
         isotropy: the :class:`IsotropyReport` (``None`` if the budget was forced).
