@@ -370,11 +370,18 @@ def reconstruct_bivariate(
         if wi_t.ndim != 2 or wi_t.shape[-1] != 3 or wv_t.shape != wi_t.shape:
             raise InputError(f"targets must be two (q, 3) arrays; got {wi_t.shape}, {wv_t.shape}")
         cos_dst = wi_t[:, 2]
-    z, eps = log_brdf(rgb[None], np.cos(ti), log_eps)
     wi, wv = source_vectors(ti, pi_, tv, pv)
-    lin = bivariate_values(wi, wv, z[0], targets, smoothing, pair_width)
-    out = from_log(lin[None], eps, cos_dst)[0].astype(np.float32)
+    out = _one(wi, wv, rgb, cos_dst, targets, smoothing, log_eps, pair_width=pair_width)
     return out.reshape(81, 81, 3) if targets is None else out
+
+
+def _one(wi, wv, x, cos_dst, targets=None, smoothing=SMOOTHING, log_eps=LOG_EPS, **kw):
+    """The model's table ``(q, C)`` float32 of one measurement's ABRDF values ``x`` ``(n, C)`` at
+    the sources ``(wi, wv)``: :func:`log_brdf`, :func:`bivariate_values` (the map in factors,
+    float64), :func:`from_log`. ``kw``: ``pair_width``, ``pairs``."""
+    z, eps = log_brdf(np.asarray(x, np.float64)[None], wi[:, 2], log_eps)
+    lin = bivariate_values(wi, wv, z[0], targets, smoothing, **kw)
+    return from_log(lin[None], eps, cos_dst)[0].astype(np.float32)
 
 
 # --------------------------------------------------------------------------------------------
@@ -414,8 +421,8 @@ class BivariateModel:
 
     def operator(self, params, template, store=None, warn=None, before_build=None):
         """The apply function of ``template``'s layout: stacked slice values ``(B, S, nmax, C)``
-        → ``(B, 81, 81, C)`` float32 (store arguments accepted and unused: a build is one
-        small solve)."""
+        → ``(B, 81, 81, C)`` float32 (:func:`_layout_apply`; store arguments accepted and
+        unused: a build is one small solve)."""
         from ._prior_operator import slice_counts  # iso102: the axial slices' counts 0
 
         count = tuple(int(c) for c in slice_counts(template, self.budget))
@@ -443,7 +450,13 @@ def _directions(template, pairs, alpha: float, count) -> tuple[np.ndarray, np.nd
 
 
 def _layout_apply(template, alpha: float, count: np.ndarray):
-    """The map of one slice layout (``count``: the samples read per slice)."""
+    """The apply function of one slice layout (``count``: the samples read per slice). A batch
+    of one measurement (a layout no other file of the job shares: every jittered capture) takes
+    the map in factors (:func:`bivariate_values`, float64: no matrix is built); a larger batch
+    the layout's matrix (:func:`bivariate_map`, built once, its product in float32). The two
+    agree within float32 rounding (tests/test_bivariate.py); which one a file takes depends only
+    on the batch's size (on the command line: on its layout's group in the whole job), so a
+    rerun or a resumed run gives the same bits."""
     from ._host_build import sample_index
 
     shape = np.shape(template.t)
@@ -458,14 +471,19 @@ def _layout_apply(template, alpha: float, count: np.ndarray):
     if not np.all(cos_src > 0):
         raise InputError("the bivariate model needs samples with theta_i below 90 degrees")
     # the residual curves' pairs are the grouping's (slice s of pair s // 2), not inferred again
-    of_pair = np.repeat(np.arange(len(count)) // 2, count)
-    matrix = bivariate_map(wi, wv, pairs=(pairs, of_pair)).astype(np.float32)
+    pairing = (pairs, np.repeat(np.arange(len(count)) // 2, count))
     cos_dst = _grid()[2]
+    matrix = []  # the layout's map, built by its first batch of two or more
 
     def apply(y):
         y = np.asarray(y, np.float64)
         x = y.reshape(len(y), shape[0] * shape[1], y.shape[-1])[:, flat, :]
-        out = _values(matrix, x, cos_src, cos_dst, LOG_EPS)
+        if len(x) == 1:  # a layout of one measurement (a jittered capture): the map in factors
+            out = _one(wi, wv, x[0], cos_dst, pairs=pairing)[None]
+        else:
+            if not matrix:
+                matrix.append(bivariate_map(wi, wv, pairs=pairing).astype(np.float32))
+            out = _values(matrix[0], x, cos_src, cos_dst, LOG_EPS)
         return out.reshape(len(y), 81, 81, y.shape[-1])
 
     return apply

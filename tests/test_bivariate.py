@@ -327,6 +327,33 @@ def test_a_layouts_map_key_holds_its_recorded_directions():
     assert model.operator(params, sa) is not model.operator(params, moved)
 
 
+def test_a_layout_of_one_measurement_builds_no_matrix(monkeypatch):
+    """The command line's apply of one layout: a batch of one (a jittered capture, alone in its
+    layout) is the map in factors and builds no matrix; a batch of two builds the layout's matrix
+    once; both give the same tables within float32 rounding."""
+    from abrdf_jax._grouping import group_arrays
+
+    capture = aj.simulate_capture(materials.get_material("ggx-plastic"), jitter_deg=0.5, seed=8)
+    sa, _ = group_arrays(capture.to_numpy())
+    built = []
+    real = _bivariate.bivariate_map
+    monkeypatch.setattr(
+        _bivariate, "bivariate_map", lambda *a, **k: built.append(1) or real(*a, **k)
+    )
+    apply = _bivariate.BivariateModel("aniso204").operator(
+        SimpleNamespace(alpha=np.deg2rad(15.0)), sa
+    )
+    y = np.asarray(sa.y)[None]
+    one = apply(y)
+    assert one.shape == (1, 81, 81, 3) and one.dtype == np.float32 and not built
+    two = apply(np.concatenate([y, 0.5 * y]))
+    assert len(built) == 1
+    np.testing.assert_allclose(two[0], one[0], rtol=1e-5, atol=1e-7 * one.max())
+    np.testing.assert_allclose(two[1], apply(0.5 * y)[0], rtol=1e-5, atol=1e-7 * one.max())
+    apply(np.concatenate([y, y]))
+    assert len(built) == 1  # built once per layout
+
+
 def test_automatic_choice_of_an_isotropic_material():
     """``select_model``: a material the isotropy test accepts gets the bivariate model on every
     slice (``aniso204``), a forced ``iso102`` budget on the diagonal slices; the selection's
