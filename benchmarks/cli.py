@@ -14,7 +14,9 @@ command forked straight from this process would inherit this process's RSS as it
   aniso204 file with ``--model auto``, with ``--model aniso`` and with ``--model auto --prior
   default`` (the learned models join the choice), one iso102 file with the last (cold and warm
   each), and folders
-  ``reconstruct DIR -o OUT -q`` of 100 and 1000 iso102 files and 1000 aniso204 files, each with a
+  ``reconstruct DIR -o OUT -q`` of 100 and 1000 iso102 files, 1000 aniso204 files and 200 iso102
+  files with 0.5° of encoder jitter (:data:`JITTER_DEG`: each file's angles its own, as a real
+  capture's, so each is a slice layout of its own: no map is shared), each with a
   fresh cache (so compile is included, as the issue's targets say), then once more with the
   cache that run filled (warm: what a repeat run on the machine costs);
 - the peer: :mod:`benchmarks.scipy_cli` (numpy/scipy only, the paper's setting) on the same
@@ -60,9 +62,12 @@ NOISE = 0.01
 ISO_MATERIAL, ANISO_MATERIAL = "ggx-plastic", "ggx-aniso-metal"
 #: Folder sizes of each mode: ``iso_small``/``iso_large`` iso102 files, ``aniso_large`` aniso204.
 SIZES = {
-    "full": {"iso_small": 100, "iso_large": 1000, "aniso_large": 1000},
-    "quick": {"iso_small": 20, "iso_large": 50, "aniso_large": 50},
+    "full": {"iso_small": 100, "iso_large": 1000, "aniso_large": 1000, "iso_jitter": 200},
+    "quick": {"iso_small": 20, "iso_large": 50, "aniso_large": 50, "iso_jitter": 10},
 }
+#: Encoder jitter (degrees) of the ``iso_jitter`` folder: each file's angles are its own (a real
+#: capture's), so each is a slice layout of its own.
+JITTER_DEG = 0.5
 #: Default ``--peer-limit`` and ``--repeats`` of each mode.
 PEER_LIMIT = {"full": 100, "quick": 10}
 REPEATS = {"full": 3, "quick": 1}
@@ -207,14 +212,22 @@ def _exists(path: Path):
 
 
 def write_inputs(
-    folder: Path, budget: str, n: int, models: dict, names: list[str] | None = None
+    folder: Path,
+    budget: str,
+    n: int,
+    models: dict,
+    names: list[str] | None = None,
+    jitter_deg: float = 0.0,
 ) -> Path:
-    """``n`` measurement CSV files in ``folder``: file ``i`` captures ``names[i % len(names)]``."""
+    """``n`` measurement CSV files in ``folder``: file ``i`` captures ``names[i % len(names)]``
+    (angles with ``jitter_deg`` of encoder error)."""
     names = names or list(models)
     folder.mkdir(parents=True)
     for i in range(n):
         name = names[i % len(names)]
-        s = aj.simulate_capture(models[name], budget=budget, noise=NOISE, seed=SEED + i)
+        s = aj.simulate_capture(
+            models[name], budget=budget, noise=NOISE, seed=SEED + i, jitter_deg=jitter_deg
+        )
         io.write_samples_csv(folder / f"{i:04d}-{name}.csv", s)
     return folder
 
@@ -289,6 +302,9 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int) -> dict:
         "iso_small": write_inputs(work / "iso_small", "iso102", sizes["iso_small"], models),
         "iso_large": write_inputs(work / "iso_large", "iso102", sizes["iso_large"], models),
         "aniso_large": write_inputs(work / "aniso_large", "aniso204", sizes["aniso_large"], models),
+        "iso_jitter": write_inputs(
+            work / "iso_jitter", "iso102", sizes["iso_jitter"], models, jitter_deg=JITTER_DEG
+        ),
     }
     bad = write_bad_csv(work / "bad" / "bad.csv")
     log(f"  {time.perf_counter() - t0:.1f} s")
@@ -357,7 +373,9 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int) -> dict:
         log(f"folder {key}: {n} files")
         budget = "aniso204" if key.startswith("aniso") else "iso102"
         res = folder_runs(r, key, folder, n, peer_limit, startup)
-        what = f"a folder of {n} {budget} files"
+        what = f"a folder of {n} {budget} files" + (
+            f" with {JITTER_DEG:g} deg jitter (a layout each)" if key == "iso_jitter" else ""
+        )
         runs[key] = {"what": f"{what}, cold cache", "files": n, "package": res["package"]}
         runs[key]["peer"] = res["peer"]
         runs[f"{key}_warm"] = {"what": f"{what}, warm cache", "files": n, "package": res["warm"]}

@@ -91,7 +91,12 @@ def test_peer_cli_imports_no_jax():
 def test_parse_args_modes():
     full = cli.parse_args([])
     assert full.mode == "full" and full.sizes == cli.SIZES["full"]
-    assert full.sizes == {"iso_small": 100, "iso_large": 1000, "aniso_large": 1000}
+    assert full.sizes == {
+        "iso_small": 100,
+        "iso_large": 1000,
+        "aniso_large": 1000,
+        "iso_jitter": 200,
+    }
     assert (full.peer_limit, full.repeats) == (cli.PEER_LIMIT["full"], cli.REPEATS["full"])
     quick = cli.parse_args(["--quick", "--peer-limit", "5", "--repeats", "2"])
     assert quick.mode == "quick" and quick.sizes == cli.SIZES["quick"]
