@@ -23,7 +23,7 @@ import warnings
 
 from .._errors import InputError
 from . import btf, cache, demo, evaluate, fit, materials, prior, reconstruct, reference, render
-from . import sample, suggest
+from . import _malloc, sample, suggest
 from ._common import PROG, say, verbose_parent, version, warn
 
 #: The subcommands, in ``--help`` order.
@@ -102,6 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with warnings.catch_warnings():  # restores the hook: main() may run inside a test
             warnings.showwarning = _show_warning
+            _malloc.keep_freed_blocks()  # large temporaries reuse freed memory (glibc)
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         say("interrupted")
