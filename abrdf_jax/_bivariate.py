@@ -23,8 +23,8 @@ measurements), or, for one measurement (:func:`reconstruct_bivariate`), the same
 in factors (:func:`bivariate_values`: no matrix with a row per target and a column per sample,
 so memory and time grow linearly with a continuous capture's samples). The samples are used at
 their recorded directions, whatever the slices, pairs, gaps or offsets; more than
-:data:`MAX_POINTS` are averaged in :data:`BINS` × :data:`BINS` cells of the plane first (for
-the spline; the residual curves read every sample).
+:data:`abrdf_jax._tps.MAX_POINTS` are averaged in cells of the plane first (for the spline,
+:mod:`abrdf_jax._tps`; the residual curves read every sample).
 
 It assumes isotropy (an anisotropic material's ``φ`` dependence is lost away from the measured
 pairs) and reciprocity; it is numpy only (no JAX). Measured by ``python -m benchmarks.bivariate`` (docs/captures.md).
@@ -35,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import ClassVar, NamedTuple
+from typing import ClassVar
 
 import numpy as np
 
@@ -43,6 +43,7 @@ from ._errors import InputError
 from ._grid import half_diff, to_vector, ubo_grid
 from ._host_eps import EPS_FLOOR
 from ._memo import BoundedMemo
+from . import _tps
 from ._pair_residual import (
     PAIR_WIDTH_DEG,
     pair_residual_matrix,
@@ -57,10 +58,6 @@ SMOOTHING = 1e-3
 #: ``ε = LOG_EPS · mean |y / cos θi|`` per channel: the floor of the log (as ``Config.log_eps``,
 #: whose 1e-2 is 5 % worse here on the same sweep; 1e-4 is level with 1e-3).
 LOG_EPS = 1e-3
-#: Above this many samples the plane is binned before the solve, which costs ``O(n³)``: cells
-#: of 1/:data:`BINS` per axis, coarser (halved) until at most this many are occupied.
-MAX_POINTS = 2048
-BINS = 128
 
 
 def bivariate_coordinates(wi: np.ndarray, wv: np.ndarray) -> np.ndarray:
@@ -71,107 +68,12 @@ def bivariate_coordinates(wi: np.ndarray, wv: np.ndarray) -> np.ndarray:
     )
 
 
-def _kernel(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The thin-plate kernel ``r² ln r`` between the points ``a`` ``(m, 2)`` and ``b`` ``(n, 2)``."""
-    r2 = np.subtract.outer(a[:, 0], b[:, 0]) ** 2  # per axis: no (m, n, 2) temporary
-    r2 += np.subtract.outer(a[:, 1], b[:, 1]) ** 2
-    return 0.5 * r2 * np.log(np.where(r2 > 0.0, r2, 1.0))
-
-
-def _poly(x: np.ndarray) -> np.ndarray:
-    return np.concatenate([np.ones((len(x), 1)), x], axis=1)
-
-
-def _binned(src: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(centres, which, count)``: cell centres ``(m, 2)`` (the mean of their points), each
-    point's cell ``(n,)`` and each cell's number of points ``(m,)``, ``m ≤ MAX_POINTS``."""
-    bins = BINS
-    while True:
-        cell = np.clip((src * bins).astype(np.int64), 0, bins - 1)
-        _, which = np.unique(cell[:, 0] * bins + cell[:, 1], return_inverse=True)
-        if which.max() < MAX_POINTS or bins == 1:
-            break
-        bins //= 2
-    which = which.reshape(-1)
-    count = np.bincount(which).astype(np.float64)
-    return _cell_means(src, which, count), which, count
-
-
-def _cell_means(x: np.ndarray, which: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """The mean of the rows of ``x`` ``(n, K)`` in each cell: ``(m, K)``."""
-    return np.stack([np.bincount(which, c, len(count)) for c in x.T], -1) / count[:, None]
-
-
-class _Fit(NamedTuple):
-    """A thin-plate fit at the points ``src`` ``(n, 2)``: its centres ``(m, 2)``, the system
-    ``(m + 3, m + 3)`` of kernel, ridge and degree-1 polynomial, and the binning (``which``,
-    ``count``; ``None`` when the centres are the points themselves)."""
-
-    centres: np.ndarray
-    system: np.ndarray
-    which: np.ndarray | None
-    count: np.ndarray | None
-
-    def _solve(self, rhs: np.ndarray) -> np.ndarray:
-        """The coefficients ``(m + 3, K)`` of values ``rhs`` ``(m, K)`` at the centres."""
-        full = np.zeros((len(self.system), rhs.shape[1]))
-        full[: len(rhs)] = rhs
-        try:
-            return np.linalg.solve(self.system, full)
-        except np.linalg.LinAlgError as e:  # fewer than 3 distinct points in a line, say
-            raise InputError(
-                f"the bivariate fit is singular ({e}): too few distinct samples"
-            ) from e
-
-    def coef(self) -> np.ndarray:
-        """The coefficients as a map ``(m + 3, n)`` of the values at the points (the maps are
-        GEMMs with the system's inverse)."""
-        inv = self._solve(np.eye(len(self.centres)))
-        if self.which is None:
-            return inv
-        return inv[:, self.which] / self.count[self.which][None, :]
-
-    def coef_of(self, z: np.ndarray) -> np.ndarray:
-        """The coefficients ``(m + 3, K)`` of values ``z`` ``(n, K)`` at the points: one solve
-        with ``K`` right-hand sides, no inverse."""
-        return self._solve(z if self.which is None else _cell_means(z, self.which, self.count))
-
-
-def _fit(src: np.ndarray, smoothing: float) -> _Fit:
-    """The spline's fit at the points ``src`` ``(n, 2)`` (binned past :data:`MAX_POINTS`)."""
-    src = np.asarray(src, np.float64)
-    centres, which, count = _binned(src) if len(src) > MAX_POINTS else (src, None, None)
-    n = len(centres)
-    system = np.zeros((n + 3, n + 3))
-    system[:n, :n] = _kernel(centres, centres) + smoothing * np.eye(n)
-    system[:n, n:] = _poly(centres)
-    system[n:, :n] = _poly(centres).T
-    return _Fit(centres, system, which, count)
-
-
-def _basis(x: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """``(len(x), m + 3)``: the kernel at the centres and the degree-1 polynomial at ``x``."""
-    x = np.asarray(x, np.float64)
-    return np.concatenate([_kernel(x, centres), _poly(x)], axis=1)
-
-
-#: Rows of the basis evaluated at once by :func:`bivariate_values` (its memory: this many rows
-#: of ``m + 3`` float64 values, ``m ≤`` :data:`MAX_POINTS`: about 34 MB).
-ROWS = 2048
-
-
-def _basis_times(x: np.ndarray, centres: np.ndarray, coef: np.ndarray) -> np.ndarray:
-    """``_basis(x, centres) @ coef`` ``(len(x), K)``, :data:`ROWS` rows at a time."""
-    parts = [_basis(x[k : k + ROWS], centres) @ coef for k in range(0, len(x), ROWS)]
-    return np.concatenate(parts) if parts else np.zeros((0, coef.shape[1]))
-
-
 def bivariate_matrix(src: np.ndarray, dst: np.ndarray, smoothing: float = SMOOTHING) -> np.ndarray:
     """The map ``(q, n)`` from values at the points ``src`` ``(n, 2)`` to the thin-plate spline's
     values at ``dst`` ``(q, 2)`` (float64; module docstring). A degree-1 polynomial is
     reproduced exactly: each row sums to 1."""
-    fit = _fit(src, smoothing)
-    return _basis(dst, fit.centres) @ fit.coef()
+    fit = _tps.fit(src, smoothing)
+    return _tps.basis(dst, fit.centres) @ fit.coef()
 
 
 def bivariate_map(
@@ -189,17 +91,17 @@ def bivariate_map(
     the spline alone; ``pairs``: the sources' elevation pairs where a grouping knows them),
     ``(B_dst − C B_src) coef + C``."""
     src = bivariate_coordinates(src_wi, src_wv)
-    fit = _fit(src, smoothing)
+    fit = _tps.fit(src, smoothing)
     coef = fit.coef()
-    dst, angles = _target_points(targets)
-    out = _basis(dst, fit.centres) @ coef
+    dst, at, angles = _target_points(targets)
+    out = (_tps.basis(dst, fit.centres) @ coef)[at]
     if not pair_width > 0:
         return out
     corr = pair_residual_matrix(src_wi, src_wv, angles, pair_width, pairs)
-    if len(src) <= MAX_POINTS:  # the spline at its own points, (n, n): one product fewer
-        out -= corr @ (_basis(src, fit.centres) @ coef)
+    if len(src) <= _tps.MAX_POINTS:  # the spline at its own points, (n, n): one product fewer
+        out -= corr @ (_tps.basis(src, fit.centres) @ coef)
     else:  # binned: no (n, n) matrix; in place, so that a large capture holds three (q, n)
-        out -= (corr @ _basis(src, fit.centres)) @ coef
+        out -= (corr @ _tps.basis(src, fit.centres)) @ coef
     out += corr
     return out
 
@@ -216,27 +118,41 @@ def bivariate_values(
     """``bivariate_map(src_wi, src_wv, targets, smoothing, pair_width, pairs) @ z`` ``(q, K)``
     for values ``z`` ``(n, K)`` at the sources, float64, without any ``(q, n)`` or ``(n, n)``
     matrix: the spline's coefficients of ``z``, its values at the targets and its residual at
-    the sources (:data:`ROWS` rows of the basis at a time), the residual curves' values
-    (:func:`abrdf_jax._pair_residual.pair_residual_values`). Memory ``O((q + n) K)`` beside the
+    the sources (:data:`abrdf_jax._tps.ROWS` rows of the basis at a time), the residual
+    curves' values (:func:`abrdf_jax._pair_residual.pair_residual_values`). Memory ``O((q + n) K)`` beside the
     fit's ``O(m²)``: one measurement of any size (:func:`reconstruct_bivariate`)."""
     z = np.asarray(z, np.float64)
     src = bivariate_coordinates(src_wi, src_wv)
-    fit = _fit(src, smoothing)
+    fit = _tps.fit(src, smoothing)
     a = fit.coef_of(z)
-    dst, angles = _target_points(targets)
-    out = _basis_times(dst, fit.centres, a)
+    dst, at, angles = _target_points(targets)
+    out = _tps.basis_times(dst, fit.centres, a)[at]
     if pair_width > 0:
-        residual = z - _basis_times(src, fit.centres, a)
+        residual = z - _tps.basis_times(src, fit.centres, a)
         out += pair_residual_values(src_wi, src_wv, residual, angles, pair_width, pairs)
     return out
 
 
-def _target_points(targets) -> tuple[np.ndarray, np.ndarray]:
-    """The targets' bivariate coordinates ``(q, 2)`` and :func:`target_angles` ``(q, 3)``
-    (``None``: the UBO grid's, made once)."""
+def _target_points(targets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(points, at, angles)``: the targets' distinct bivariate coordinates ``(u, 2)``, each
+    target's point ``(q,)`` and the targets' :func:`target_angles` ``(q, 3)`` (``None``: the UBO
+    grid's, made once). The spline depends on the coordinates alone, and many direction pairs
+    share them (the grid's 6561 pairs have 384 ``(θh, θd)``): it is evaluated once a point."""
     if targets is None:
         return _grid_targets()
-    return bivariate_coordinates(*targets), target_angles(*targets)
+    return (*_distinct(bivariate_coordinates(*targets)), target_angles(*targets))
+
+
+#: Coordinates closer than this (per axis, in ``[0, 1]``) are one point of the spline.
+POINT_TOL = 1e-9
+
+
+def _distinct(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of ``points`` ``(q, 2)`` (to :data:`POINT_TOL`; each the first of its
+    kind) and each row's index among them."""
+    key = np.round(points / POINT_TOL).astype(np.int64)
+    _, first, at = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    return points[first], at.reshape(-1)
 
 
 def checked_angles(get, where: str) -> tuple[np.ndarray, ...]:
@@ -292,10 +208,11 @@ def _grid() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 @functools.lru_cache(maxsize=1)
-def _grid_targets() -> tuple[np.ndarray, np.ndarray]:
-    """The UBO grid's bivariate coordinates ``(6561, 2)`` and target angles ``(6561, 3)``."""
+def _grid_targets() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The UBO grid's :func:`_target_points`: its distinct bivariate coordinates, each pair's
+    index among them ``(6561,)`` and its target angles ``(6561, 3)``."""
     wi, wv, _ = _grid()
-    return bivariate_coordinates(wi, wv), target_angles(wi, wv)
+    return (*_distinct(bivariate_coordinates(wi, wv)), target_angles(wi, wv))
 
 
 def log_brdf(x, cos_src, log_eps: float, xp=np):

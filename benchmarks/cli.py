@@ -46,11 +46,11 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
 import abrdf_jax as aj
 from abrdf_jax import io, materials
 
+from ._cli_floors import floors
 from ._cli_report import check_targets, derive, markdown, pass_fail_lines
 from ._common import RESULTS, machine, write_json
 
@@ -412,40 +412,6 @@ def parse_args(argv=None) -> argparse.Namespace:
     if args.peer_limit < 2 or args.repeats < 1:
         ap.error("--peer-limit must be at least 2 and --repeats at least 1")
     return args
-
-
-def floors(work: Path, n: int, log) -> dict:
-    """What this machine's disk and one core cost a folder run, measured in this process after
-    the runs (the folder ``iso_large`` exists): ``n`` tables written by
-    ``abrdf_jax.io.write_tables`` (one thread, fresh folder, after a ``sync``), and the ``n``
-    iso102 CSV files parsed by ``abrdf_jax.io.read_sample_columns`` (one core, warm page cache).
-    A folder run cannot be faster than the larger of the two by more than its parallelism."""
-    rng = np.random.default_rng(0)
-    tables = rng.random((n, 81, 81, 3), dtype=np.float32)
-    out = work / "floor-writes"
-    out.mkdir()
-    if hasattr(os, "sync"):
-        os.sync()
-    t0 = time.perf_counter()
-    io.write_tables([out / f"{k:04d}.npz" for k in range(n)], tables)
-    write_s = time.perf_counter() - t0
-    shutil.rmtree(out)
-    files = sorted((work / "iso_large").glob("*.csv"))[:n]
-    t0 = time.perf_counter()
-    for f in files:
-        io.read_sample_columns(f)
-    parse_s = time.perf_counter() - t0
-    log(
-        f"floors: {n} tables written in {write_s:.2f} s, {len(files)} CSV files parsed in {parse_s:.2f} s"
-    )
-    return {
-        "what": f"{n} tables (79 kB .npz each) written by abrdf_jax.io.write_tables in one thread "
-        f"(fresh folder, after sync), and {len(files)} iso102 CSV files parsed by "
-        "abrdf_jax.io.read_sample_columns on one core, in the benchmark's process after the runs",
-        "write_tables_s": write_s,
-        "parse_csv_s": parse_s,
-        "files": len(files),
-    }
 
 
 def main(argv=None, log=None) -> dict:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import abrdf_jax as aj
-from abrdf_jax import _bivariate, _pair_residual, materials, metrics
+from abrdf_jax import _bivariate, _pair_residual, _tps, materials, metrics
 
 
 def _points(n, seed=0):
@@ -33,8 +33,8 @@ def test_matrix_interpolates_without_smoothing():
 def test_binned_fit_still_reproduces_linear_functions(monkeypatch):
     """Above MAX_POINTS samples the plane is binned (cell means of coordinates and values): a
     linear function stays exact, and the map still has one column per sample."""
-    monkeypatch.setattr(_bivariate, "MAX_POINTS", 50)
-    monkeypatch.setattr(_bivariate, "BINS", 8)
+    monkeypatch.setattr(_tps, "MAX_POINTS", 50)
+    monkeypatch.setattr(_tps, "BINS", 8)
     src, dst = _points(400), _points(30, seed=2)
     m = _bivariate.bivariate_matrix(src, dst)
     assert m.shape == (30, 400)
@@ -44,9 +44,9 @@ def test_binned_fit_still_reproduces_linear_functions(monkeypatch):
 
 def test_binning_bounds_the_solve(monkeypatch):
     """However spread the samples, the solve holds at most MAX_POINTS cells (coarser bins)."""
-    monkeypatch.setattr(_bivariate, "MAX_POINTS", 40)
+    monkeypatch.setattr(_tps, "MAX_POINTS", 40)
     src = _points(3000)  # spread over the whole plane: 128 x 128 cells would keep ~3000
-    centres, which, count = _bivariate._binned(src)
+    centres, which, count = _tps.binned(src)
     assert len(centres) <= 40 and which.shape == (3000,) and count.sum() == 3000
     for k in (0, len(centres) // 2, len(centres) - 1):  # each centre: the mean of its cell
         np.testing.assert_allclose(src[which == k].mean(axis=0), centres[k])
@@ -165,15 +165,15 @@ def test_one_measurement_applies_the_map_in_factors(monkeypatch):
     wi, wv = _bivariate.source_vectors(ti, pi_, tv, pv)
     z = _bivariate.log_brdf(rgb[None], np.cos(ti), _bivariate.LOG_EPS)[0][0]
     targets = (wi[::7], wv[::3][: len(wi[::7])])
-    monkeypatch.setattr(_bivariate, "ROWS", 50)  # the basis in several row blocks
+    monkeypatch.setattr(_tps, "ROWS", 50)  # the basis in several row blocks
     for max_points in (4096, 40):  # the samples as centres; binned into at most 40 cells
-        monkeypatch.setattr(_bivariate, "MAX_POINTS", max_points)
+        monkeypatch.setattr(_tps, "MAX_POINTS", max_points)
         for width in (0.0, _pair_residual.PAIR_WIDTH_DEG):
             for tg in (None, targets):
                 m = _bivariate.bivariate_map(wi, wv, tg, pair_width=width)
                 got = _bivariate.bivariate_values(wi, wv, z, tg, pair_width=width)
                 np.testing.assert_allclose(got, m @ z, rtol=0, atol=1e-9)
-    monkeypatch.setattr(_bivariate, "MAX_POINTS", 4096)
+    monkeypatch.setattr(_tps, "MAX_POINTS", 4096)
     m = _bivariate.bivariate_map(wi, wv)
     table = _bivariate._values(m, rgb[None], np.cos(ti), _bivariate._grid()[2], _bivariate.LOG_EPS)
     np.testing.assert_allclose(
