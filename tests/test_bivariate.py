@@ -154,6 +154,19 @@ def test_pair_residual_matrix_interpolates_each_pairs_curve():
     assert 0.95 < g.min() and g.max() < 1
 
 
+def test_the_spline_is_evaluated_once_per_distinct_point():
+    """The grid's 6561 direction pairs have 384 distinct (θh, θd) coordinates; each pair's
+    point is its own coordinates (to POINT_TOL), so the gathered evaluation is the direct one."""
+    points, at, angles = _bivariate._grid_targets()
+    wi, wv, _ = _bivariate._grid()
+    direct = _bivariate.bivariate_coordinates(wi, wv)
+    assert points.shape == (384, 2) and at.shape == (6561,) and angles.shape == (6561, 3)
+    np.testing.assert_allclose(points[at], direct, rtol=0, atol=_bivariate.POINT_TOL)
+    src = _points(30)
+    m = _tps.basis(points, src)[at]
+    np.testing.assert_allclose(m, _tps.basis(direct, src), rtol=0, atol=1e-8)
+
+
 def test_one_measurement_applies_the_map_in_factors(monkeypatch):
     """``bivariate_values`` (what ``reconstruct_bivariate`` runs) equals the layout map
     ``bivariate_map`` applied to the same values, on the grid and at targets, with and without

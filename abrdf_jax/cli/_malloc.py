@@ -8,10 +8,10 @@ that allocates and frees a few megabytes of numpy temporaries can fault every pa
 every pass (a fresh interpreter, two arrays of 1.6 MiB a pass: 784 minor page faults a pass; 2.6
 with the thresholds below; tests/test_cli_malloc.py). Whether it does depends on the heap's
 history: a folder read by forked reader processes (:mod:`abrdf_jax.cli._readers`) left the
-command's process in that state for the whole run. Measured on a folder of 200 jittered iso102
-files (each its own layout, one small model per file; ``/usr/bin/time``, warm caches): 1.24
-million minor page faults and 4.9 s, against 24 thousand and 3.0 s with the thresholds set
-(docs/notes.md).
+command's process in that state for the whole run. A scratch measurement on a folder of 200
+jittered iso102 files (each its own layout, one small model per file; ``/usr/bin/time``, warm
+caches): 1.24 million minor page faults and 4.9 s, against 24 thousand and 3.0 s with the
+thresholds set (docs/notes.md).
 
 :func:`keep_freed_blocks` sets both thresholds to the values glibc's own rule would reach at its
 maximum (``mallopt``), once per command, unless the user set them (``MALLOC_MMAP_THRESHOLD_``,
