@@ -96,6 +96,19 @@ def _pair_weights(src: np.ndarray, dst: np.ndarray, width_deg: float, pairs):
     return np.asarray(index), g
 
 
+def _pair_parts(src_wi, src_wv, dst: np.ndarray, width_deg: float, pairs):
+    """The sources' :func:`target_angles` ``(n, 3)`` and, for each measured pair with sources,
+    ``(idx, weight)``: its sources' indices and its Gaussian weight at the targets ``(q, 1)``
+    (none where there is no correction)."""
+    src = target_angles(src_wi, src_wv)
+    found = _pair_weights(src, dst, width_deg, pairs)
+    if found is None:
+        return src, []
+    index, g = found
+    parts = [(np.nonzero(index == k)[0], g[:, k : k + 1]) for k in range(g.shape[1])]
+    return src, [(idx, w) for idx, w in parts if len(idx)]
+
+
 def pair_residual_matrix(
     src_wi, src_wv, dst: np.ndarray, width_deg: float = PAIR_WIDTH_DEG, pairs=None
 ):
@@ -112,18 +125,11 @@ def pair_residual_matrix(
             ``None``: :func:`abrdf_jax._grouping.infer_pairs` on the sources' elevations (stray
             sources take no part).
     """
-    src = target_angles(src_wi, src_wv)
+    src, parts = _pair_parts(src_wi, src_wv, dst, width_deg, pairs)
     out = np.zeros((len(dst), len(src)))
-    found = _pair_weights(src, dst, width_deg, pairs)
-    if found is None:
-        return out
-    index, g = found
-    for k in range(g.shape[1]):
-        idx = np.nonzero(index == k)[0]
-        if not len(idx):
-            continue
+    for idx, weight in parts:
         curve = _azimuth_curve(src[idx, 2], dst[:, 2])
-        curve *= g[:, k : k + 1]
+        curve *= weight
         out[:, idx] = curve
     return out
 
@@ -134,15 +140,8 @@ def pair_residual_values(
     """``pair_residual_matrix(src_wi, src_wv, dst, width_deg, pairs) @ residual`` ``(q, C)``
     for residuals ``(n, C)`` at the sources, without the ``(q, n)`` matrix: what one
     measurement of any size needs (:func:`abrdf_jax.reconstruct_bivariate`)."""
-    src = target_angles(src_wi, src_wv)
+    src, parts = _pair_parts(src_wi, src_wv, dst, width_deg, pairs)
     out = np.zeros((len(dst), residual.shape[1]))
-    found = _pair_weights(src, dst, width_deg, pairs)
-    if found is None:
-        return out
-    index, g = found
-    for k in range(g.shape[1]):
-        idx = np.nonzero(index == k)[0]
-        if not len(idx):
-            continue
-        out += g[:, k : k + 1] * _azimuth_values(src[idx, 2], residual[idx], dst[:, 2])
+    for idx, weight in parts:
+        out += weight * _azimuth_values(src[idx, 2], residual[idx], dst[:, 2])
     return out
