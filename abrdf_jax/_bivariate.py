@@ -390,7 +390,8 @@ def _layout_apply(template, alpha: float, count: np.ndarray):
     # the residual curves' pairs are the grouping's (slice s of pair s // 2), not inferred again
     pairing = (pairs, np.repeat(np.arange(len(count)) // 2, count))
     cos_dst = _grid()[2]
-    matrix = []  # the layout's map, built by its first batch of two or more
+    # the layout's map, built by its first batch of two or more
+    matrix = functools.cache(lambda: bivariate_map(wi, wv, pairs=pairing).astype(np.float32))
 
     def apply(y):
         y = np.asarray(y, np.float64)
@@ -398,9 +399,7 @@ def _layout_apply(template, alpha: float, count: np.ndarray):
         if len(x) == 1:  # a layout of one measurement (a jittered capture): the map in factors
             out = _one(wi, wv, x[0], cos_dst, pairs=pairing)[None]
         else:
-            if not matrix:
-                matrix.append(bivariate_map(wi, wv, pairs=pairing).astype(np.float32))
-            out = _values(matrix[0], x, cos_src, cos_dst, LOG_EPS)
+            out = _values(matrix(), x, cos_src, cos_dst, LOG_EPS)
         return out.reshape(len(y), 81, 81, y.shape[-1])
 
     return apply

@@ -22,6 +22,7 @@ import numpy as np
 
 from ._grid import from_vector
 from ._grouping import infer_pairs
+from ._tps import cell_means
 
 #: Width (degrees) of the Gaussian in ``(θi, θv)`` that carries a measured pair's residual curve
 #: to the targets around it (module docstring); ``0`` turns the correction off.
@@ -47,8 +48,9 @@ def _azimuth_knots(dphi_src: np.ndarray):
     mean of its sources), each source's knot and each knot's number of sources."""
     key = np.round(dphi_src / 1e-6).astype(np.int64)
     uniq, which = np.unique(key, return_inverse=True)
+    which = which.reshape(-1)
     count = np.bincount(which, minlength=len(uniq)).astype(float)
-    return np.bincount(which, dphi_src, len(uniq)) / count, which, count
+    return cell_means(dphi_src[:, None], which, count)[:, 0], which, count
 
 
 def _azimuth_curve(dphi_src: np.ndarray, dphi_dst: np.ndarray) -> np.ndarray:
@@ -67,7 +69,7 @@ def _azimuth_values(dphi_src: np.ndarray, values: np.ndarray, dphi_dst: np.ndarr
     """``(q, C)``: :func:`_azimuth_curve` applied to ``values`` ``(n, C)`` without its
     ``(q, n)`` matrix (memory ``O(q + n)``: any number of sources)."""
     knots, which, count = _azimuth_knots(dphi_src)
-    at = np.stack([np.bincount(which, v, len(knots)) for v in values.T], -1) / count[:, None]
+    at = cell_means(values, which, count)
     lo, hi, frac = _periodic_index(knots, dphi_dst, 360.0)
     return (1.0 - frac)[:, None] * at[lo] + frac[:, None] * at[hi]
 

@@ -58,19 +58,29 @@ def _captures(models: dict, kind: str) -> dict:
     }
 
 
+def _cell(samples: dict, refs: dict, log, **setting) -> dict:
+    """One cell of a sweep: ``setting`` (keyword arguments of ``reconstruct_bivariate``) and the
+    mean ΔE76 of its tables of ``samples``."""
+    de = float(
+        np.mean(
+            [
+                errors(aj.reconstruct_bivariate(s, **setting), refs[n])["de76"]
+                for n, s in samples.items()
+            ]
+        )
+    )
+    log("  sweep " + " ".join(f"{k} {v:g}" for k, v in setting.items()) + f": mean ΔE76 {de:.3f}")
+    return {**setting, "de76": de}
+
+
 def sweep(models: dict, refs: dict, log) -> list[dict]:
     """Mean ΔE76 of every (log_eps, smoothing) cell on the given (train) materials."""
     samples = _captures(models, "protocol")
-    rows = []
-    for eps in SWEEP["log_eps"]:
-        for lam in SWEEP["smoothing"]:
-            de = [
-                errors(aj.reconstruct_bivariate(s, log_eps=eps, smoothing=lam), refs[n])["de76"]
-                for n, s in samples.items()
-            ]
-            rows.append({"log_eps": eps, "smoothing": lam, "de76": float(np.mean(de))})
-            log(f"  sweep log_eps {eps:g} smoothing {lam:g}: mean ΔE76 {np.mean(de):.3f}")
-    return rows
+    return [
+        _cell(samples, refs, log, log_eps=eps, smoothing=lam)
+        for eps in SWEEP["log_eps"]
+        for lam in SWEEP["smoothing"]
+    ]
 
 
 def width_sweep(models: dict, refs: dict, log) -> list[dict]:
@@ -78,13 +88,8 @@ def width_sweep(models: dict, refs: dict, log) -> list[dict]:
     rows = []
     for kind in WIDTH_KINDS:
         samples = _captures(models, kind)
-        for width in WIDTHS:
-            de = [
-                errors(aj.reconstruct_bivariate(s, pair_width=width), refs[n])["de76"]
-                for n, s in samples.items()
-            ]
-            rows.append({"kind": kind, "pair_width": width, "de76": float(np.mean(de))})
-            log(f"  sweep {kind} pair_width {width:g}: mean ΔE76 {np.mean(de):.3f}")
+        log(f"  {kind}:")
+        rows += [{"kind": kind, **_cell(samples, refs, log, pair_width=w)} for w in WIDTHS]
     return rows
 
 

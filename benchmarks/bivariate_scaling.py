@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import resource
 import subprocess
 import sys
@@ -31,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import RESULTS, write_json
+from ._common import RESULTS, machine, write_json
+from .captures import _load
 
 MATERIAL = "ggx-plastic"
 PER_SLICE = (None, 250, 2500, 10000, 25000)  # None: the protocol's 25/25/26/26
@@ -111,7 +111,8 @@ def markdown(payload: dict) -> str:
         f"# The bivariate model on one measurement: time and memory against samples "
         f"({payload['mode']} run)",
         "",
-        f"`{payload['command']}`; {payload['date']}, {payload['cpus']} CPUs, load "
+        f"`{payload['command']}`; {payload['machine']['date']}, "
+        f"{payload['machine']['cpu_count']} CPUs, load "
         f"{payload['load_before']} → {payload['load_after']}, {payload['seconds']:.0f} s. "
         f"{MATERIAL}, iso102 captures (jitter 0.3° beyond the protocol's), each row a process "
         "of its own; seconds: median of 3 after a warm-up call; peak: numpy's allocations "
@@ -170,14 +171,13 @@ def main(argv=None, log=None) -> dict:
     payload = {
         "mode": "quick" if args.quick else "full",
         "command": " ".join(["python -m benchmarks.bivariate_scaling", *(argv or sys.argv[1:])]),
-        "date": time.strftime("%Y-%m-%d %H:%M:%S"),
-        "cpus": os.cpu_count(),
-        "load_before": [round(x, 2) for x in os.getloadavg()],
+        "machine": machine(),
+        "load_before": _load(),
     }
     t0 = time.perf_counter()
     payload["rows"] = run(args.quick, log)
     payload["seconds"] = time.perf_counter() - t0
-    payload["load_after"] = [round(x, 2) for x in os.getloadavg()]
+    payload["load_after"] = _load()
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / f"bivariate_scaling{suffix}.json", payload)
     md = markdown(payload)

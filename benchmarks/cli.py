@@ -46,7 +46,6 @@ import tempfile
 import time
 from pathlib import Path
 
-
 import abrdf_jax as aj
 from abrdf_jax import io, materials
 
@@ -60,7 +59,7 @@ SEED = 13
 #: Relative value noise of every capture (so that the files of a folder differ).
 NOISE = 0.01
 ISO_MATERIAL, ANISO_MATERIAL = "ggx-plastic", "ggx-aniso-metal"
-#: Folder sizes of each mode: ``iso_small``/``iso_large`` iso102 files, ``aniso_large`` aniso204.
+#: Folder sizes of each mode (each folder's budget and jitter: :data:`FOLDERS`).
 SIZES = {
     "full": {"iso_small": 100, "iso_large": 1000, "aniso_large": 1000, "iso_jitter": 200},
     "quick": {"iso_small": 20, "iso_large": 50, "aniso_large": 50, "iso_jitter": 10},
@@ -68,6 +67,13 @@ SIZES = {
 #: Encoder jitter (degrees) of the ``iso_jitter`` folder: each file's angles are its own (a real
 #: capture's), so each is a slice layout of its own.
 JITTER_DEG = 0.5
+#: Each folder's budget and encoder jitter (degrees).
+FOLDERS = {
+    "iso_small": ("iso102", 0.0),
+    "iso_large": ("iso102", 0.0),
+    "aniso_large": ("aniso204", 0.0),
+    "iso_jitter": ("iso102", JITTER_DEG),
+}
 #: Default ``--peer-limit`` and ``--repeats`` of each mode.
 PEER_LIMIT = {"full": 100, "quick": 10}
 REPEATS = {"full": 3, "quick": 1}
@@ -299,12 +305,8 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int) -> dict:
     one_iso = write_inputs(work / "one-iso102", "iso102", 1, models, [ISO_MATERIAL])
     one_aniso = write_inputs(work / "one-aniso204", "aniso204", 1, models, [ANISO_MATERIAL])
     folders = {
-        "iso_small": write_inputs(work / "iso_small", "iso102", sizes["iso_small"], models),
-        "iso_large": write_inputs(work / "iso_large", "iso102", sizes["iso_large"], models),
-        "aniso_large": write_inputs(work / "aniso_large", "aniso204", sizes["aniso_large"], models),
-        "iso_jitter": write_inputs(
-            work / "iso_jitter", "iso102", sizes["iso_jitter"], models, jitter_deg=JITTER_DEG
-        ),
+        key: write_inputs(work / key, budget, sizes[key], models, jitter_deg=jitter)
+        for key, (budget, jitter) in FOLDERS.items()
     }
     bad = write_bad_csv(work / "bad" / "bad.csv")
     log(f"  {time.perf_counter() - t0:.1f} s")
@@ -371,10 +373,10 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int) -> dict:
     for key, folder in folders.items():
         n = sizes[key]
         log(f"folder {key}: {n} files")
-        budget = "aniso204" if key.startswith("aniso") else "iso102"
+        budget, jitter = FOLDERS[key]
         res = folder_runs(r, key, folder, n, peer_limit, startup)
         what = f"a folder of {n} {budget} files" + (
-            f" with {JITTER_DEG:g} deg jitter (a layout each)" if key == "iso_jitter" else ""
+            f" with {jitter:g} deg jitter (a layout each)" if jitter else ""
         )
         runs[key] = {"what": f"{what}, cold cache", "files": n, "package": res["package"]}
         runs[key]["peer"] = res["peer"]

@@ -54,15 +54,13 @@ def _de76(rec, ref) -> np.ndarray:
     return np.asarray(metrics_of(np.asarray(rec), np.asarray(ref))["de76"])
 
 
-def merl_accuracy(prior, budgets) -> dict:
-    """Mean ΔE76 and LogErr of the three numpy operators on the MERL test split."""
+def merl_accuracy(prior, budgets) -> tuple[dict, dict]:
+    """Mean ΔE76 and LogErr of the three numpy operators on the MERL test split, per budget, and
+    each material's fraction of exact zeros in its reference table."""
     names, models, ref, _ = merl_split("test")
     ref_np = np.asarray(ref)
     zeros = (ref_np == 0).mean(axis=(1, 2, 3))  # the fits' exact-zero regions (SOURCE.md)
-    out = {
-        "materials": names,
-        "zero_fraction": [float(z) for z in zeros],
-    }
+    out = {}
     for budget in budgets:
         cfg = aj.Config(budget=budget)
         meas = sample_batch(models, cfg)
@@ -89,7 +87,7 @@ def merl_accuracy(prior, budgets) -> dict:
             rows[name]["de76_zeros_imposed"] = float(np.mean(oracle))
             _log(f"MERL test {budget} {name:32s} dE76 {rows[name]['de76']:.3f}")
         out[budget] = rows
-    return out
+    return out, {"materials": names, "zero_fraction": [float(z) for z in zeros]}
 
 
 def _first(meas):
@@ -142,19 +140,14 @@ def _held(errors: dict, name: str) -> str:
     return f"{errors[name]:.3f}" if name in errors else "–"
 
 
-def _budgets(merl: dict) -> list[str]:
-    """The budgets of the MERL section (its keys beside the materials and their zeros)."""
-    return [k for k in merl if k not in ("materials", "zero_fraction")]
-
-
-def _zero_lines(merl: dict) -> list[str]:
+def _zero_lines(merl: dict, zero: dict | None) -> list[str]:
     """Where the MERL test mean lies: the materials whose reference is exactly 0 over large
     regions (../shared/data/merl-nbrdf/SOURCE.md, "Trust": the networks' final clamp; real MERL
     values there are small but positive), the mean without them, and with the reference's zeros
     imposed (an oracle)."""
-    if "zero_fraction" not in merl:
+    if not zero:
         return []
-    names, zeros = merl["materials"], np.asarray(merl["zero_fraction"])
+    names, zeros = zero["materials"], np.asarray(zero["zero_fraction"])
     clamped = zeros > 0.01
     lines = [
         "",
@@ -167,8 +160,8 @@ def _zero_lines(merl: dict) -> list[str]:
         f"{int((~clamped).sum())} | all, the reference's zeros imposed (oracle) |",
         "|---|---|---|---|---|",
     ]
-    for budget in _budgets(merl):
-        for name, r in merl[budget].items():
+    for budget, rows in merl.items():
+        for name, r in rows.items():
             per = np.asarray(r["de76_per_material"])
             lines.append(
                 f"| {budget} | {name} | "
@@ -191,11 +184,10 @@ def _markdown(out) -> str:
         "| budget | model | ΔE76 | LogErr | ΔE2000 | PSNR |",
         "|---|---|---|---|---|---|",
     ]
-    merl = out["merl_test"]
-    for budget in _budgets(merl):
-        for name, r in merl[budget].items():
+    for budget, rows in out["merl_test"].items():
+        for name, r in rows.items():
             lines.append(f"| {budget} | {name} | {metric_cells(r)} |")
-    lines += _zero_lines(merl)
+    lines += _zero_lines(out["merl_test"], out.get("merl_test_zeros"))
     lines += [
         "",
         "## The automatic choice, built-in analytic materials (aniso204, exact samples)",
@@ -238,9 +230,9 @@ def main(argv=None) -> int:
         fused_settings={
             k: v for k, v in prior.metadata.get("fused", {}).items() if k != "chosen_on"
         },
-        merl_test={} if args.skip_merl else merl_accuracy(prior, budgets),
-        analytic=analytic_choice(prior, names),
     )
+    merl, zeros = ({}, None) if args.skip_merl else merl_accuracy(prior, budgets)
+    out |= dict(merl_test=merl, merl_test_zeros=zeros, analytic=analytic_choice(prior, names))
     out |= dict(load_average=[round(x, 2) for x in os.getloadavg()], seconds=time.time() - t0)
     stem = "fused_operator_quick" if args.quick else "fused_operator"
     write_json(f"{stem}.json", out)
