@@ -147,7 +147,8 @@ def _compilation_cache_back_on():
 def _release_compiled_programs():
     """Each module's compiled programs are released after it (``jax.clear_caches``). Every XLA
     executable holds a few memory mappings of its own: one process running the whole suite
-    (``pytest`` without ``-n``) passed 24,000 mappings and 5.5 GB at a third of the suite, on
+    (``pytest`` without ``-n``) passed 24,000 mappings and 5.5 GB at a third of the suite (a
+    scratch monitor of ``/proc/PID/maps``), on
     course for the kernel's limit (``vm.max_map_count``, 65,530 here), and crashed inside XLA's
     compiler at 89 % (docs/notes.md). A program a later module needs again is loaded from the
     session's compilation cache, not compiled."""

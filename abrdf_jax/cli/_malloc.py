@@ -5,8 +5,8 @@ glibc's ``malloc`` serves a block of at least ``M_MMAP_THRESHOLD`` (128 KiB at s
 by its own rule up to 32 MiB as such blocks are freed) with its own ``mmap``, and gives memory at
 the top of the main heap back to the system above ``M_TRIM_THRESHOLD``: in the main thread a loop
 that allocates and frees a few megabytes of numpy temporaries can fault every page in again on
-every pass (a fresh interpreter, two arrays of 1.6 MiB a pass: 784 minor page faults a pass; 2.6
-with the thresholds below; tests/test_cli_malloc.py). Whether it does depends on the heap's
+every pass (tests/test_cli_malloc.py's loop, two arrays of 1.6 MiB a pass in a fresh
+interpreter, run by hand: 784 minor page faults a pass; 2.6 with the thresholds below). Whether it does depends on the heap's
 history: a folder read by forked reader processes (:mod:`abrdf_jax.cli._readers`) left the
 command's process in that state for the whole run. A scratch measurement on a folder of 200
 jittered iso102 files (each its own layout, one small model per file; ``/usr/bin/time``, warm
