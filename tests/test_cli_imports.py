@@ -120,10 +120,10 @@ def test_materials_listing_imports_no_jax(tmp_path):
 def test_subcommands_import_only_the_shared_module():
     """Arrows point into cli/_common only (which holds cli/_record, the model record,
     cli/_outputs, the output checks and overwrite policy, cli/_caches, --cache-dir,
-    cli/_learned, the prior-only model, cli/_progress, the progress bars and lines, and
-    cli/_resume, what --resume keeps, and cli/_readers, the reader processes): no
-    subcommand imports another, nor the package's __init__ (checked on the source: relative
-    imports inside abrdf_jax/cli)."""
+    cli/_learned, the prior-only model, cli/_progress, the progress bars and lines,
+    cli/_resume, what --resume keeps, cli/_readers, the reader processes, and cli/_blas, the
+    BLAS thread count): no subcommand imports another, nor the package's __init__ (checked on
+    the source: relative imports inside abrdf_jax/cli)."""
     import ast
 
     folder = REPO / "abrdf_jax" / "cli"
@@ -146,6 +146,7 @@ def test_subcommands_import_only_the_shared_module():
                         "_resume",
                         "_uncertainty",
                         "_readers",
+                        "_blas",
                     },
                     "_args.py": set(),
                     "_outputs.py": set(),
