@@ -50,7 +50,7 @@ def check_table(table, where: str) -> np.ndarray:
     arr = np.asarray(table)
     _check_table_header(arr.shape, arr.dtype, where)
     with np.errstate(over="ignore"):
-        arr = arr.astype(np.float32)
+        arr = arr.astype(np.float32, copy=False)  # a float32 table as it is
     bad = ~np.isfinite(arr)
     if bad.any():
         i, v, c = np.argwhere(bad)[0]
