@@ -1,7 +1,8 @@
 """The command line as a user runs it, against the scipy peer's command line (issue 13).
 
-Run: ``python -m benchmarks.cli [--quick] [--peer-limit N] [--repeats K]``. Writes
-``benchmarks/results/cli.json`` and the README table ``cli.md`` (``--quick``: ``cli_quick.*``).
+Run: ``python -m benchmarks.cli [--quick] [--peer-limit N] [--repeats K] [--folder-repeats R]``.
+Writes ``benchmarks/results/cli.json`` and the README table ``cli.md`` (``--quick``:
+``cli_quick.*``).
 
 Everything runs in this one process tree and one run, each command a child process of the small
 launcher :mod:`benchmarks._timed_child`, which times it by ``time.perf_counter`` around
@@ -18,7 +19,9 @@ command forked straight from this process would inherit this process's RSS as it
   files with 0.5° of encoder jitter (:data:`JITTER_DEG`: each file's angles its own, as a real
   capture's, so each is a slice layout of its own: no map is shared), each with a
   fresh cache (so compile is included, as the issue's targets say), then once more with the
-  cache that run filled (warm: what a repeat run on the machine costs);
+  cache that run filled (warm: what a repeat run on the machine costs), ``--folder-repeats``
+  rounds of both (default 3), each into a new output folder, the median of each kind (one
+  folder call's time depends on the file system's state: a thousand files are created);
 - the peer: :mod:`benchmarks.scipy_cli` (numpy/scipy only, the paper's setting) on the same
   inputs; on a folder of more than ``--peer-limit`` files it runs the first N (``--limit N``) and
   its time is scaled to the whole folder as ``start-up + (T_N - start-up) * files / N``, where
@@ -74,9 +77,10 @@ FOLDERS = {
     "aniso_large": ("aniso204", 0.0),
     "iso_jitter": ("iso102", JITTER_DEG),
 }
-#: Default ``--peer-limit`` and ``--repeats`` of each mode.
+#: Default ``--peer-limit``, ``--repeats`` and ``--folder-repeats`` of each mode.
 PEER_LIMIT = {"full": 100, "quick": 10}
 REPEATS = {"full": 3, "quick": 1}
+FOLDER_REPEATS = {"full": 3, "quick": 1}
 PACKAGE = ("-m", "abrdf_jax.cli")
 PEER = ("-m", "benchmarks.scipy_cli")
 LAUNCHER = ("-m", "benchmarks._timed_child")
@@ -279,25 +283,53 @@ def single_file(r: Runner, key: str, csv: Path, extra: list[str], repeats: int) 
     return {"cold": cold, "warm": warm}
 
 
+def median_run(calls: list[dict]) -> dict:
+    """One row of several timed calls of a command (:meth:`Runner.timed`, one call each): the
+    median call's figures, every call's seconds, the largest RSS, every exit as expected."""
+    ordered = sorted(calls, key=lambda c: c["seconds"])
+    row = dict(ordered[(len(ordered) - 1) // 2])
+    row["seconds"] = statistics.median(c["seconds"] for c in calls)
+    row["all_seconds"] = [c["seconds"] for c in calls]
+    row["repeats"] = len(calls)
+    row["peak_rss_mib"] = max((c["peak_rss_mib"] or 0.0) for c in calls) or None
+    row["ok"] = all(c["ok"] for c in calls)
+    bad = [c["exit_code"] for c in calls if c["exit_code"] != c["expected_exit"]]
+    row["exit_code"] = bad[0] if bad else row["expected_exit"]
+    return row
+
+
 def folder_runs(
-    r: Runner, key: str, folder: Path, files: int, peer_limit: int, startup: float
+    r: Runner,
+    key: str,
+    folder: Path,
+    files: int,
+    peer_limit: int,
+    startup: float,
+    repeats: int = 1,
 ) -> dict:
+    """``repeats`` rounds of a cold call (a fresh cache folder) and a warm call (the cache that
+    cold call filled), each into an output folder of its own, the rounds in turn (so both see
+    the disk in the same states); the median of each, then the peer once."""
     py = sys.executable
-    out = r.work / f"{key}.out"
-    cmd = [py, *PACKAGE, "reconstruct", str(folder), "-o", str(out), "-q"]
-    env = r.cache(key)
-    package = r.timed(cmd, files=files, env=env, outputs=_count(out))
-    wout = r.work / f"{key}.warm.out"  # the same folder again, the cache the cold run filled
-    wcmd = [py, *PACKAGE, "reconstruct", str(folder), "-o", str(wout), "-q"]
-    warm = r.timed(wcmd, files=files, env=env, outputs=_count(wout))
+    cold, warm = [], []
+    for i in range(repeats):
+        env = r.cache(key if i == 0 else f"{key}-{i}")
+        for calls, tag in ((cold, "out"), (warm, "warm.out")):
+            out = r.work / (f"{key}.{tag}" if i == 0 else f"{key}.{i}.{tag}")
+            cmd = [py, *PACKAGE, "reconstruct", str(folder), "-o", str(out), "-q"]
+            calls.append(r.timed(cmd, files=files, env=env, outputs=_count(out)))
     n = min(files, peer_limit)
     pout = r.work / f"{key}.peer"
     pcmd = [py, *PEER, str(folder), "-o", str(pout)] + (["--limit", str(n)] if n < files else [])
     peer = r.timed(pcmd, files=n, cwd=REPO, outputs=_count(pout))
-    return {"package": package, "warm": warm, "peer": scale_peer(peer, files, startup)}
+    return {
+        "package": median_run(cold),
+        "warm": median_run(warm),
+        "peer": scale_peer(peer, files, startup),
+    }
 
 
-def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int) -> dict:
+def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int, folder_repeats: int = 1) -> dict:
     py, work, log = sys.executable, r.work, r.log
     log("writing inputs ...")
     t0 = time.perf_counter()
@@ -374,7 +406,7 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int) -> dict:
         n = sizes[key]
         log(f"folder {key}: {n} files")
         budget, jitter = FOLDERS[key]
-        res = folder_runs(r, key, folder, n, peer_limit, startup)
+        res = folder_runs(r, key, folder, n, peer_limit, startup, folder_repeats)
         what = f"a folder of {n} {budget} files" + (
             f" with {jitter:g} deg jitter (a layout each)" if jitter else ""
         )
@@ -405,14 +437,22 @@ def parse_args(argv=None) -> argparse.Namespace:
         type=int,
         help=f"warm calls of one file, median taken (default {REPEATS['full']}, --quick {REPEATS['quick']})",
     )
+    ap.add_argument(
+        "--folder-repeats",
+        type=int,
+        help="rounds of a folder's cold and warm calls, median of each (default "
+        f"{FOLDER_REPEATS['full']}, --quick {FOLDER_REPEATS['quick']})",
+    )
     ap.add_argument("--out", type=Path, default=RESULTS, help="results folder")
     args = ap.parse_args(argv)
     args.mode = "quick" if args.quick else "full"
     args.sizes = SIZES[args.mode]
     args.peer_limit = PEER_LIMIT[args.mode] if args.peer_limit is None else args.peer_limit
     args.repeats = REPEATS[args.mode] if args.repeats is None else args.repeats
-    if args.peer_limit < 2 or args.repeats < 1:
-        ap.error("--peer-limit must be at least 2 and --repeats at least 1")
+    if args.folder_repeats is None:
+        args.folder_repeats = FOLDER_REPEATS[args.mode]
+    if args.peer_limit < 2 or args.repeats < 1 or args.folder_repeats < 1:
+        ap.error("--peer-limit must be at least 2, --repeats and --folder-repeats at least 1")
     return args
 
 
@@ -431,6 +471,7 @@ def main(argv=None, log=None) -> dict:
         "sizes": args.sizes,
         "peer_limit": args.peer_limit,
         "repeats": args.repeats,
+        "folder_repeats": args.folder_repeats,
         "inputs": {
             "what": f"Inputs: the {len(materials.material_names())} built-in analytic materials "
             f"(file i of a folder: material i mod 8; one file: {ISO_MATERIAL} iso102, "
@@ -441,8 +482,9 @@ def main(argv=None, log=None) -> dict:
             "noise": NOISE,
         },
         "caches": f"Cold: {CACHE_ENV} a fresh empty folder; warm: the same folder again, the "
-        f"median of {args.repeats} call(s); every folder runs cold (compile included), then once "
-        "more warm (the cache the cold run filled).",
+        f"median of {args.repeats} call(s); a folder runs {args.folder_repeats} round(s) of a "
+        "cold call (a fresh cache, compile included) and a warm call (the cache that cold call "
+        "filled), each into a new output folder, the median of each kind.",
         "bytecode": "Both commands' Python sources compiled to bytecode once before the runs "
         "(python -m compileall), as an installed package has them; a sync before every call "
         "(the earlier calls' outputs written back before it starts, not during it).",
@@ -452,13 +494,14 @@ def main(argv=None, log=None) -> dict:
     }
     log(
         f"load average {payload['load_average_before']}; mode {args.mode}, sizes {args.sizes}, "
-        f"peer limit {args.peer_limit}, repeats {args.repeats}"
+        f"peer limit {args.peer_limit}, repeats {args.repeats}, folder repeats "
+        f"{args.folder_repeats}"
     )
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="clibench-") as tmp:
         r = Runner(Path(tmp), log)
         payload["entry_point"] = r.entry_point
-        payload["runs"] = run_all(r, args.sizes, args.peer_limit, args.repeats)
+        payload["runs"] = run_all(r, args.sizes, args.peer_limit, args.repeats, args.folder_repeats)
         payload["floors"] = floors(Path(tmp), args.sizes["iso_large"], log)
     payload["seconds"] = time.perf_counter() - t0
     payload["load_average_after"] = _load()

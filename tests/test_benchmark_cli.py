@@ -103,6 +103,27 @@ def test_parse_args_modes():
     assert (quick.peer_limit, quick.repeats) == (5, 2)
     with pytest.raises(SystemExit):
         cli.parse_args(["--peer-limit", "1"])
+    assert full.folder_repeats == cli.FOLDER_REPEATS["full"] and quick.folder_repeats == 1
+    assert cli.parse_args(["--folder-repeats", "5"]).folder_repeats == 5
+    with pytest.raises(SystemExit):
+        cli.parse_args(["--folder-repeats", "0"])
+
+
+def test_median_run_of_folder_calls():
+    calls = [
+        _run(3.0, files=1000, rss=150.0) | {"expected_exit": 0, "shown": "a"},
+        _run(1.0, files=1000, rss=300.0) | {"expected_exit": 0, "shown": "b"},
+        _run(2.0, files=1000, rss=100.0) | {"expected_exit": 0, "shown": "c"},
+    ]
+    row = cli.median_run(calls)
+    assert row["seconds"] == 2.0 and row["shown"] == "c" and row["all_seconds"] == [3.0, 1.0, 2.0]
+    assert row["repeats"] == 3 and row["peak_rss_mib"] == 300.0 and row["ok"]
+    assert row["exit_code"] == 0
+    calls[0] |= {"ok": False, "exit_code": 2}  # one call failing fails the row
+    row = cli.median_run(calls)
+    assert not row["ok"] and row["exit_code"] == 2
+    even = cli.median_run(calls[1:])
+    assert even["seconds"] == 1.5 and even["shown"] == "b"  # two: their mean, the lower's row
 
 
 def test_scale_peer():
