@@ -14,7 +14,8 @@ command forked straight from this process would inherit this process's RSS as it
   empty folder) and warm (the same folder, the median of ``--repeats`` further calls), one
   aniso204 file with ``--model auto``, with ``--model aniso`` and with ``--model auto --prior
   default`` (the learned models join the choice), one iso102 file with the last (cold and warm
-  each), and folders
+  each), 40 iso102 files one call each, two calls at a time (:mod:`benchmarks._parallel_calls`,
+  what a shell loop with ``xargs -P 2`` does; warm), and folders
   ``reconstruct DIR -o OUT -q`` of 100 and 1000 iso102 files, 1000 aniso204 files and 200 iso102
   files with 0.5° of encoder jitter (:data:`JITTER_DEG`: each file's angles its own, as a real
   capture's, so each is a slice layout of its own: no map is shared), each with a
@@ -38,12 +39,7 @@ are printed as PASS/FAIL lines (:func:`benchmarks._cli_report.check_targets`).
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import shlex
-import shutil
-import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -53,19 +49,41 @@ import abrdf_jax as aj
 from abrdf_jax import io, materials
 
 from ._cli_floors import floors
+from ._cli_runner import (
+    CACHE_ENV,
+    PACKAGE,
+    REPO,
+    Runner,
+    count_outputs,
+    output_exists,
+    load_average,
+    median_run,
+)
 from ._cli_report import check_targets, derive, markdown, pass_fail_lines
 from ._common import RESULTS, machine, write_json
 
-REPO = Path(__file__).resolve().parents[1]
 #: Seed of file ``i``'s capture: ``SEED + i``.
 SEED = 13
 #: Relative value noise of every capture (so that the files of a folder differ).
 NOISE = 0.01
 ISO_MATERIAL, ANISO_MATERIAL = "ggx-plastic", "ggx-aniso-metal"
-#: Folder sizes of each mode (each folder's budget and jitter: :data:`FOLDERS`).
+#: Folder sizes of each mode (each folder's budget and jitter: :data:`FOLDERS`), and the files
+#: of ``iso_small`` called one at a time, :data:`PARALLEL` calls at once (``iso_parallel``).
 SIZES = {
-    "full": {"iso_small": 100, "iso_large": 1000, "aniso_large": 1000, "iso_jitter": 200},
-    "quick": {"iso_small": 20, "iso_large": 50, "aniso_large": 50, "iso_jitter": 10},
+    "full": {
+        "iso_small": 100,
+        "iso_large": 1000,
+        "aniso_large": 1000,
+        "iso_jitter": 200,
+        "iso_parallel": 40,
+    },
+    "quick": {
+        "iso_small": 20,
+        "iso_large": 50,
+        "aniso_large": 50,
+        "iso_jitter": 10,
+        "iso_parallel": 10,
+    },
 }
 #: Encoder jitter (degrees) of the ``iso_jitter`` folder: each file's angles are its own (a real
 #: capture's), so each is a slice layout of its own.
@@ -81,139 +99,9 @@ FOLDERS = {
 PEER_LIMIT = {"full": 100, "quick": 10}
 REPEATS = {"full": 3, "quick": 1}
 FOLDER_REPEATS = {"full": 3, "quick": 1}
-PACKAGE = ("-m", "abrdf_jax.cli")
+#: The row of one call per file, ``PARALLEL`` calls at a time (a shell loop with ``xargs -P``).
+PARALLEL = 2
 PEER = ("-m", "benchmarks.scipy_cli")
-LAUNCHER = ("-m", "benchmarks._timed_child")
-CACHE_ENV = "ABRDF_JAX_CACHE_DIR"
-
-
-def _load() -> list[float]:
-    return [round(x, 2) for x in os.getloadavg()]
-
-
-class Runner:
-    """Runs and times the commands of one benchmark run inside its work folder ``work``."""
-
-    def __init__(self, work: Path, log):
-        self.work, self.log = work, log
-        self.env = dict(os.environ)
-        self.env["PYTHONPATH"] = str(REPO) + os.pathsep + self.env.get("PYTHONPATH", "")
-        self.env.pop(CACHE_ENV, None)
-        # An installed package has its bytecode (pip compiles it on install); a machine that sets
-        # PYTHONDONTWRITEBYTECODE=1 (this project's does) would make every child compile the
-        # repository's sources again. Both commands read bytecode compiled once here, as a user's
-        # installation has it.
-        self.env.pop("PYTHONDONTWRITEBYTECODE", None)
-        subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "compileall",
-                "-q",
-                str(REPO / "abrdf_jax"),
-                str(REPO / "benchmarks"),
-            ],
-            env=self.env,
-            check=True,
-            stdout=subprocess.DEVNULL,
-        )
-        entry = Path(sys.executable).parent / "abrdf-jax"
-        found = entry if entry.exists() else shutil.which("abrdf-jax")
-        self.entry_point = [str(found)] if found else [sys.executable, *PACKAGE]
-
-    def shown(self, cmd: list[str], env: dict) -> str:
-        """``cmd`` as a reader would type it: ``$WORK`` for the work folder, ``python``."""
-        words = [f"{k}={v}" for k, v in env.items()] + cmd
-        words = ["python" if w == sys.executable else w for w in words]
-        words = [
-            "abrdf-jax" if w == self.entry_point[0] and len(self.entry_point) == 1 else w
-            for w in words
-        ]
-        return shlex.join(words).replace(str(self.work), "$WORK").replace(str(REPO) + os.sep, "")
-
-    def once(self, cmd: list[str], env: dict, cwd: Path) -> dict:
-        """One call of ``cmd`` through :mod:`benchmarks._timed_child` (its own wall seconds, exit
-        code and peak RSS), the tail of its stderr, and the wall time around the launcher."""
-        with (
-            tempfile.TemporaryFile() as out,
-            tempfile.TemporaryFile() as err,
-            tempfile.TemporaryDirectory() as tmp,
-        ):
-            result = Path(tmp) / "result.json"
-            launch = [sys.executable, *LAUNCHER, str(result), *cmd]
-            if hasattr(
-                os, "sync"
-            ):  # the earlier runs' writeback lands before, not inside, the call
-                os.sync()
-            t0 = time.perf_counter()
-            proc = subprocess.run(launch, env=self.env | env, cwd=cwd, stdout=out, stderr=err)
-            outer = time.perf_counter() - t0
-            err.seek(0)
-            tail = err.read()[-2000:].decode("utf-8", "replace")
-            if proc.returncode != 0 or not result.is_file():  # the launcher itself failed
-                return {
-                    "seconds": outer,
-                    "exit_code": -1,
-                    "peak_rss_mib": None,
-                    "stderr_tail": tail,
-                }
-            call = json.loads(result.read_text())
-        return call | {"launcher_seconds": outer, "stderr_tail": tail}
-
-    def timed(
-        self,
-        cmd: list[str],
-        *,
-        files: int,
-        env: dict | None = None,
-        cwd: Path | None = None,
-        repeats: int = 1,
-        expected_exit: int = 0,
-        outputs=None,
-    ) -> dict:
-        """``repeats`` calls of ``cmd``: median seconds, largest RSS, every exit as expected?
-
-        ``outputs`` (a callable returning the count of output files) is checked against
-        ``files`` after the calls.
-        """
-        env = env or {}
-        calls = [self.once(cmd, env, cwd or self.work) for _ in range(repeats)]
-        bad = [c["exit_code"] for c in calls if c["exit_code"] != expected_exit]
-        run = {
-            "command": shlex.join([f"{k}={v}" for k, v in env.items()] + cmd),
-            "shown": self.shown(cmd, env),
-            "files": files,
-            "seconds": statistics.median(c["seconds"] for c in calls),
-            "all_seconds": [c["seconds"] for c in calls],
-            "repeats": repeats,
-            "exit_code": bad[0] if bad else expected_exit,
-            "expected_exit": expected_exit,
-            "peak_rss_mib": max((c["peak_rss_mib"] or 0.0) for c in calls) or None,
-            "launcher_seconds": [c.get("launcher_seconds") for c in calls],
-            "stderr_tail": calls[-1]["stderr_tail"] if bad or expected_exit else "",
-        }
-        if outputs is not None:
-            run["outputs"] = outputs()
-        run["ok"] = not bad and run.get("outputs", files) == files
-        self.log(
-            f"  {run['shown'][:110]:110s} {run['seconds']:8.3f} s  exit {run['exit_code']}"
-            f"  {run['peak_rss_mib'] or 0:6.0f} MiB" + ("" if run["ok"] else "  NOT OK")
-        )
-        return run
-
-    def cache(self, name: str) -> dict:
-        """The environment of a fresh, empty cache folder ``$WORK/cache-NAME``."""
-        folder = self.work / f"cache-{name}"
-        folder.mkdir()
-        return {CACHE_ENV: str(folder)}
-
-
-def _count(folder: Path):
-    return lambda: len(list(folder.glob("*.npz"))) if folder.is_dir() else 0
-
-
-def _exists(path: Path):
-    return lambda: int(path.is_file())
 
 
 # --------------------------------------------------------------------------------------------
@@ -278,24 +166,9 @@ def single_file(r: Runner, key: str, csv: Path, extra: list[str], repeats: int) 
     env = r.cache(key)
     cold_out, warm_out = csv.with_name(f"{key}-cold.npz"), csv.with_name(f"{key}-warm.npz")
     mk = lambda out: [py, *PACKAGE, "reconstruct", str(csv), "-o", str(out), *extra]  # noqa: E731
-    cold = r.timed(mk(cold_out), files=1, env=env, outputs=_exists(cold_out))
-    warm = r.timed(mk(warm_out), files=1, env=env, repeats=repeats, outputs=_exists(warm_out))
+    cold = r.timed(mk(cold_out), files=1, env=env, outputs=output_exists(cold_out))
+    warm = r.timed(mk(warm_out), files=1, env=env, repeats=repeats, outputs=output_exists(warm_out))
     return {"cold": cold, "warm": warm}
-
-
-def median_run(calls: list[dict]) -> dict:
-    """One row of several timed calls of a command (:meth:`Runner.timed`, one call each): the
-    median call's figures, every call's seconds, the largest RSS, every exit as expected."""
-    ordered = sorted(calls, key=lambda c: c["seconds"])
-    row = dict(ordered[(len(ordered) - 1) // 2])
-    row["seconds"] = statistics.median(c["seconds"] for c in calls)
-    row["all_seconds"] = [c["seconds"] for c in calls]
-    row["repeats"] = len(calls)
-    row["peak_rss_mib"] = max((c["peak_rss_mib"] or 0.0) for c in calls) or None
-    row["ok"] = all(c["ok"] for c in calls)
-    bad = [c["exit_code"] for c in calls if c["exit_code"] != c["expected_exit"]]
-    row["exit_code"] = bad[0] if bad else row["expected_exit"]
-    return row
 
 
 def folder_runs(
@@ -317,16 +190,32 @@ def folder_runs(
         for calls, tag in ((cold, "out"), (warm, "warm.out")):
             out = r.work / (f"{key}.{tag}" if i == 0 else f"{key}.{i}.{tag}")
             cmd = [py, *PACKAGE, "reconstruct", str(folder), "-o", str(out), "-q"]
-            calls.append(r.timed(cmd, files=files, env=env, outputs=_count(out)))
+            calls.append(r.timed(cmd, files=files, env=env, outputs=count_outputs(out)))
     n = min(files, peer_limit)
     pout = r.work / f"{key}.peer"
     pcmd = [py, *PEER, str(folder), "-o", str(pout)] + (["--limit", str(n)] if n < files else [])
-    peer = r.timed(pcmd, files=n, cwd=REPO, outputs=_count(pout))
+    peer = r.timed(pcmd, files=n, cwd=REPO, outputs=count_outputs(pout))
     return {
         "package": median_run(cold),
         "warm": median_run(warm),
         "peer": scale_peer(peer, files, startup),
     }
+
+
+def parallel_calls(r: Runner, folder: Path, files: int) -> dict:
+    """The first ``files`` CSV files of ``folder``, one command-line call each, :data:`PARALLEL`
+    at a time (:mod:`benchmarks._parallel_calls`), for the package (the cache of the one-file
+    rows: warm) and the peer."""
+    py, entry = sys.executable, {}
+    launch = [py, "-m", "benchmarks._parallel_calls", str(PARALLEL), str(files), str(folder)]
+    env = {CACHE_ENV: str(r.work / "cache-iso1")}
+    tools = (("package", (*PACKAGE, "reconstruct"), {"env": env}), ("peer", PEER, {"cwd": REPO}))
+    for who, tool, kw in tools:
+        out = r.work / f"parallel-{who}"
+        cmd = [*launch, str(out), py, *tool, "{in}", "-o", "{out}"]
+        entry[who] = r.timed(cmd, files=files, outputs=count_outputs(out), **kw)
+    what = f"{files} iso102 files, one call each, {PARALLEL} at a time (xargs -P {PARALLEL}), warm"
+    return {"what": what, "files": files, **entry}
 
 
 def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int, folder_repeats: int = 1) -> dict:
@@ -375,7 +264,7 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int, folder_repeat
     def peer_one(csv):  # the peer on one file
         pout = csv.with_name("peer.npz")
         cmd = [py, *PEER, str(csv), "-o", str(pout)]
-        return r.timed(cmd, files=1, cwd=REPO, repeats=repeats, outputs=_exists(pout))
+        return r.timed(cmd, files=1, cwd=REPO, repeats=repeats, outputs=output_exists(pout))
 
     log("one iso102 file")
     peer_iso = peer_one(iso_csv)
@@ -395,6 +284,9 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int, folder_repeat
                 "package": res[state],
                 "peer": peer_aniso,
             }
+    log(f"iso102 files one call each, {PARALLEL} at a time")
+    runs["iso_parallel"] = parallel_calls(r, folders["iso_small"], sizes["iso_parallel"])
+
     log("one iso102 file, --model auto --prior default")
     res = single_file(r, "iso1_prior", iso_csv, PRIOR_AUTO, repeats)
     for state in ("cold", "warm"):
@@ -466,7 +358,7 @@ def main(argv=None, log=None) -> dict:
     payload = {
         "mode": args.mode,
         "machine": machine() | {"abrdf_jax": aj.__version__},
-        "load_average_before": _load(),
+        "load_average_before": load_average(),
         "commands": {"benchmark": argv_text},
         "sizes": args.sizes,
         "peer_limit": args.peer_limit,
@@ -504,7 +396,7 @@ def main(argv=None, log=None) -> dict:
         payload["runs"] = run_all(r, args.sizes, args.peer_limit, args.repeats, args.folder_repeats)
         payload["floors"] = floors(Path(tmp), args.sizes["iso_large"], log)
     payload["seconds"] = time.perf_counter() - t0
-    payload["load_average_after"] = _load()
+    payload["load_average_after"] = load_average()
     payload["targets"] = check_targets(payload["runs"])
     args.out.mkdir(parents=True, exist_ok=True)
     md = markdown(payload)

@@ -96,6 +96,7 @@ def test_parse_args_modes():
         "iso_large": 1000,
         "aniso_large": 1000,
         "iso_jitter": 200,
+        "iso_parallel": 40,
     }
     assert (full.peer_limit, full.repeats) == (cli.PEER_LIMIT["full"], cli.REPEATS["full"])
     quick = cli.parse_args(["--quick", "--peer-limit", "5", "--repeats", "2"])
@@ -259,3 +260,20 @@ def test_floors_are_measured_and_shown(tmp_path):
     text = "\n".join(_floors(f))
     assert "writing 3 tables took" in text and "parsing 3 iso102 CSV files" in text
     assert _floors(None) == []
+
+
+def test_parallel_calls_run_each_file_and_report_a_failure(tmp_path):
+    from benchmarks import _parallel_calls as pc
+
+    (tmp_path / "in").mkdir()
+    for name in ("b", "a", "c"):
+        (tmp_path / "in" / f"{name}.csv").write_text(name)
+    copy = [sys.executable, "-c", "import shutil, sys; shutil.copy(sys.argv[1], sys.argv[2])"]
+    cmds = pc.commands(2, tmp_path / "in", tmp_path / "out", [*copy, "{in}", "{out}"])
+    assert [c[-2:] for c in cmds] == [
+        [str(tmp_path / "in" / f"{n}.csv"), str(tmp_path / "out" / f"{n}.npz")] for n in "ab"
+    ]
+    code = pc.main(["2", "3", str(tmp_path / "in"), str(tmp_path / "out"), *copy, "{in}", "{out}"])
+    assert code == 0 and sorted(p.read_text() for p in (tmp_path / "out").iterdir()) == list("abc")
+    fail = [sys.executable, "-c", "import sys; sys.exit(3 if 'b' in sys.argv[1] else 0)", "{in}"]
+    assert pc.run(pc.commands(3, tmp_path / "in", tmp_path / "out", fail), 2) == 3

@@ -1,22 +1,33 @@
-"""One BLAS thread while a command's own threads share the cores.
+"""One BLAS thread for ``abrdf-jax reconstruct``.
 
 numpy's OpenBLAS (the library numpy's wheels ship) runs a matrix product on one thread per core,
-and after each call its worker threads keep spinning on their core for a while (OpenBLAS's
-thread timeout) before they sleep. A folder run computes each batch while a small thread pool
-writes the previous batch's tables (:mod:`abrdf_jax.cli.reconstruct`); on a 2-core machine the
-spinning worker took the core the writers needed. A scratch ``perf record`` of a 1000-file
-iso102 folder call (docs/notes.md) counted 14.6 % of the process's samples in OpenBLAS's idle
-loop (``blas_thread_server``) against 1.5 % in its matrix kernel: the products of a folder run are
-small (a batch's map product is about a GFLOP), one thread does them in milliseconds.
+and its worker threads spin on their core for a while (OpenBLAS's thread timeout) before they
+sleep: after each product, and when they start (at numpy's import, after a fork at the next call
+that asks for threads, and when the count is set). The command's products are small (a folder
+batch's map product is about a GFLOP; one file's is a few MFLOP), one thread does them in
+milliseconds, and the spinning took cores other work needed:
+
+- a folder run computes each batch while a small thread pool writes the previous batch's tables
+  (:mod:`abrdf_jax.cli.reconstruct`) and reads its inputs in forked reader processes
+  (:mod:`abrdf_jax.cli._readers`): a scratch ``perf record`` of a 1000-file iso102 folder call
+  (docs/notes.md) counted 14.6 % of the process's samples in OpenBLAS's idle loop
+  (``blas_thread_server``) against 1.5 % in its matrix kernel, and each reader's worker spun at
+  its first grouping;
+- one file's call spent about as much CPU spinning as computing (scratch, warm iso102 file:
+  0.25 s of user CPU, 0.12-0.15 s with one thread, the same 0.17 s of wall time), and several
+  calls at once (a shell loop with ``xargs -P``, a job array) took each other's cores
+  (``python -m benchmarks.cli``, the row of 40 files two at a time).
+
+The price is a cold call's build of an operator in numpy (a solve and products of some thousand
+rows, now on one core: scratch, one cold aniso204 ``--model auto`` file 0.71-0.75 s with two
+threads on an idle machine, 0.75-0.84 s with one).
 
 :func:`one_blas_thread` sets OpenBLAS to one thread for the block it guards and restores the
-count after; a folder run enters it before numpy is imported, so that OpenBLAS starts without
-worker threads, and its reader processes (:mod:`abrdf_jax.cli._readers`) inherit that. The order
-matters: OpenBLAS's workers spin for a while when they start (at numpy's import, after a fork at
-the next call that asks for threads, and when the count is set). Scratch checks: importing
-numpy and sleeping cost 0.22 s of CPU, 0.08 s with ``OPENBLAS_NUM_THREADS=1``; setting one
-thread in a freshly forked child cost it 0.1 s of CPU, setting it before the fork nothing; in
-the perf record above each reader's worker spun at its first grouping.
+count after; the command enters it before numpy is imported, so that OpenBLAS starts without
+worker threads (none spins at the import), and a folder's reader processes inherit that. Scratch
+checks: importing numpy and sleeping cost 0.22 s of CPU, 0.08 s with ``OPENBLAS_NUM_THREADS=1``;
+setting one thread in a freshly forked child cost it 0.1 s of CPU, setting it before the fork
+nothing.
 Nothing happens (it yields ``False``) where numpy's BLAS is not an OpenBLAS this
 module can find (another BLAS, another system) or where the user chose the thread count
 (``OPENBLAS_NUM_THREADS``, ``OMP_NUM_THREADS``, ``GOTO_NUM_THREADS``). The thread count

@@ -290,11 +290,11 @@ def run(args) -> int:
     prior = common.prior_source(args)  # a bad prior file fails here, before any work
     common.check_params_file(args.params)  # and a bad parameter file
     # One writer of the output (and its model record) at a time; a killed one's lock is taken
-    # over and its temporary files removed (docs/stability.md, "Faults"); said at the write. A
-    # folder computes on one BLAS thread, set before its readers fork (cli/_blas.py).
+    # over and its temporary files removed (docs/stability.md, "Faults"); said at the write.
+    # One BLAS thread, set before numpy's import and the readers' fork (cli/_blas.py).
     record = out.parent / ((out.name if folder_mode else out.stem) + ".model.json")
     also = [record] + ([common.std_path(out)] if args.uncertainty else [])
-    with common.one_blas_thread(folder_mode), common.output_lock(out, also=also, announce=False):
+    with common.one_blas_thread(), common.output_lock(out, also=also, announce=False):
         return _run(args, files, targets, out, folder_mode, prior)
 
 
