@@ -39,6 +39,7 @@ are printed as PASS/FAIL lines (:func:`benchmarks._cli_report.check_targets`).
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import sys
 import tempfile
@@ -205,17 +206,39 @@ def folder_runs(
 def parallel_calls(r: Runner, folder: Path, files: int) -> dict:
     """The first ``files`` CSV files of ``folder``, one command-line call each, :data:`PARALLEL`
     at a time (:mod:`benchmarks._parallel_calls`), for the package (the cache of the one-file
-    rows: warm) and the peer."""
-    py, entry = sys.executable, {}
+    rows: warm) and the peer; and the package once more with ``OPENBLAS_NUM_THREADS`` set to the
+    cores (OpenBLAS's own default, which the command otherwise replaces by one thread:
+    ``abrdf_jax/cli/_blas.py``)."""
+    py = sys.executable
     launch = [py, "-m", "benchmarks._parallel_calls", str(PARALLEL), str(files), str(folder)]
     env = {CACHE_ENV: str(r.work / "cache-iso1")}
-    tools = (("package", (*PACKAGE, "reconstruct"), {"env": env}), ("peer", PEER, {"cwd": REPO}))
-    for who, tool, kw in tools:
+    cores = {"OPENBLAS_NUM_THREADS": str(os.cpu_count() or 1)}
+    calls = {
+        "package": ((*PACKAGE, "reconstruct"), {"env": env}),
+        "peer": (PEER, {"cwd": REPO}),
+        "blas": ((*PACKAGE, "reconstruct"), {"env": env | cores}),
+    }
+    run = {}
+    for who, (tool, kw) in calls.items():
         out = r.work / f"parallel-{who}"
         cmd = [*launch, str(out), py, *tool, "{in}", "-o", "{out}"]
-        entry[who] = r.timed(cmd, files=files, outputs=count_outputs(out), **kw)
+        run[who] = r.timed(cmd, files=files, outputs=count_outputs(out), **kw)
     what = f"{files} iso102 files, one call each, {PARALLEL} at a time (xargs -P {PARALLEL}), warm"
-    return {"what": what, "files": files, **entry}
+    blas = f"{what}, OpenBLAS on {cores['OPENBLAS_NUM_THREADS']} threads"
+    return {
+        "iso_parallel": {
+            "what": what,
+            "files": files,
+            "package": run["package"],
+            "peer": run["peer"],
+        },
+        "iso_parallel_blas": {
+            "what": blas,
+            "files": files,
+            "package": run["blas"],
+            "peer": run["peer"],
+        },
+    }
 
 
 def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int, folder_repeats: int = 1) -> dict:
@@ -285,7 +308,7 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int, folder_repeat
                 "peer": peer_aniso,
             }
     log(f"iso102 files one call each, {PARALLEL} at a time")
-    runs["iso_parallel"] = parallel_calls(r, folders["iso_small"], sizes["iso_parallel"])
+    runs |= parallel_calls(r, folders["iso_small"], sizes["iso_parallel"])
 
     log("one iso102 file, --model auto --prior default")
     res = single_file(r, "iso1_prior", iso_csv, PRIOR_AUTO, repeats)
