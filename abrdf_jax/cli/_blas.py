@@ -34,7 +34,7 @@ module can find (another BLAS, another system) or where the user chose the threa
 changes how a product is split and blocked, not what it computes: a folder's tables agree with
 those of a run on more threads within a few float32 units in the last place (a scratch
 comparison over the 1000-file iso102 and aniso204 folders of ``python -m benchmarks.cli``: 4 at
-most; tests/test_cli_blas.py allows 8), as docs/stability.md states for thread counts.
+most; tests/test_cli_blas.py allows 8; docs/stability.md, "Load").
 """
 
 from __future__ import annotations
