@@ -1,6 +1,7 @@
-"""A folder run computes on one BLAS thread while its writers run (abrdf_jax.cli._blas): the
-count is set inside the block and restored after, a user's own setting wins, and the tables
-stay those of a run on more threads within float32 rounding."""
+"""``abrdf-jax reconstruct`` computes on one BLAS thread (abrdf_jax.cli._blas): the count is set
+inside the block (through the environment before numpy's import) and restored after, a user's
+own setting wins, and a folder's tables stay those of a run on more threads within float32
+rounding."""
 
 import os
 import subprocess

@@ -28,13 +28,14 @@ worker threads (none spins at the import), and a folder's reader processes inher
 checks: importing numpy and sleeping cost 0.22 s of CPU, 0.08 s with ``OPENBLAS_NUM_THREADS=1``;
 setting one thread in a freshly forked child cost it 0.1 s of CPU, setting it before the fork
 nothing.
-Nothing happens (it yields ``False``) where numpy's BLAS is not an OpenBLAS this
-module can find (another BLAS, another system) or where the user chose the thread count
-(``OPENBLAS_NUM_THREADS``, ``OMP_NUM_THREADS``, ``GOTO_NUM_THREADS``). The thread count
-changes how a product is split and blocked, not what it computes: a folder's tables agree with
-those of a run on more threads within a few float32 units in the last place (a scratch
-comparison over the 1000-file iso102 and aniso204 folders of ``python -m benchmarks.cli``: 4 at
-most; tests/test_cli_blas.py allows 8; docs/stability.md, "Load").
+
+Nothing happens (it yields ``False``) where numpy's BLAS is not an OpenBLAS this module can find
+(another BLAS, another system) or where the user chose the thread count
+(``OPENBLAS_NUM_THREADS``, ``OMP_NUM_THREADS``, ``GOTO_NUM_THREADS``). The thread count changes
+how a product is split and blocked, not what it computes: a folder's tables agree with those of
+a run on more threads within a few float32 units in the last place (a scratch comparison over
+the 1000-file iso102 and aniso204 folders of ``python -m benchmarks.cli``: 4 at most;
+tests/test_cli_blas.py allows 8; docs/stability.md, "Load").
 """
 
 from __future__ import annotations
@@ -105,15 +106,14 @@ def set_threads(n: int) -> int | None:
 
 
 @contextlib.contextmanager
-def one_blas_thread(on: bool = True):
-    """OpenBLAS on one thread inside the block (module docstring); yields whether it was set
-    (``on=False``: nothing is done).
+def one_blas_thread():
+    """OpenBLAS on one thread inside the block (module docstring); yields whether it was set.
 
     Before numpy is imported (a command's own process) it sets :data:`ENV` to 1, so that
     OpenBLAS starts without workers (none spins, none is forked); after the block the variable
     is removed and, where numpy was imported inside it, the count set back to the cores'.
     With numpy imported the count is set and restored with OpenBLAS's own functions."""
-    if not on or any(k in os.environ for k in USER_ENV):
+    if any(k in os.environ for k in USER_ENV):
         yield False
         return
     if "numpy" not in sys.modules:
