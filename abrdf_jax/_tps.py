@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._errors import InputError
+from ._kernels import kernel_block
 
 #: Above this many samples the plane is binned before the solve, which costs ``O(n³)``: cells
 #: of 1/:data:`BINS` per axis, coarser (halved) until at most this many are occupied.
@@ -26,10 +27,9 @@ BINS = 128
 
 
 def kernel(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The thin-plate kernel ``r² ln r`` between the points ``a`` ``(m, 2)`` and ``b`` ``(n, 2)``."""
-    r2 = np.subtract.outer(a[:, 0], b[:, 0]) ** 2  # per axis: no (m, n, 2) temporary
-    r2 += np.subtract.outer(a[:, 1], b[:, 1]) ** 2
-    return 0.5 * r2 * np.log(np.where(r2 > 0.0, r2, 1.0))
+    """The thin-plate kernel ``r² ln r`` between the points ``a`` ``(m, 2)`` and ``b`` ``(n, 2)``
+    (the RBF's own, :func:`abrdf_jax._kernels.kernel_block`, at unit widths)."""
+    return kernel_block(a, b, 1.0, "thin_plate_spline", np)
 
 
 def poly(x: np.ndarray) -> np.ndarray:

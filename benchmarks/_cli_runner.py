@@ -22,10 +22,6 @@ LAUNCHER = ("-m", "benchmarks._timed_child")
 CACHE_ENV = "ABRDF_JAX_CACHE_DIR"
 
 
-def load_average() -> list[float]:
-    return [round(x, 2) for x in os.getloadavg()]
-
-
 class Runner:
     """Runs and times the commands of one benchmark run inside its work folder ``work``."""
 

@@ -109,18 +109,23 @@ def write_json(name: str | Path, payload: dict, indent: int = 2) -> Path:
     return path
 
 
+def load_average() -> list[float]:
+    """The 1, 5 and 15 minute load averages, rounded: stored beside every timing."""
+    return [round(x, 2) for x in os.getloadavg()]
+
+
 def timed_run(stem: str, run, markdown, key: str = "results", **settings) -> dict:
     """Run ``run()`` between two readings of the load average and store its results beside the
     machine's facts: ``results/STEM.json`` (``settings``, the results under ``key``, load,
     seconds) and ``results/STEM.md`` (``markdown(payload)``, also printed). Returns the payload."""
     t0 = time.time()
-    load_before = [round(x, 2) for x in os.getloadavg()]
+    load_before = load_average()
     results = run()
     payload = dict(
         machine=machine(),
         **settings,
         load_before=load_before,
-        load_after=[round(x, 2) for x in os.getloadavg()],
+        load_after=load_average(),
         seconds=time.time() - t0,
         **{key: results},
     )

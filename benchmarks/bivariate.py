@@ -39,8 +39,8 @@ import abrdf_jax as aj
 from abrdf_jax import io, materials
 
 from ._captures_kinds import KINDS
-from ._common import RESULTS, machine, write_json
-from .captures import _file, _load, errors, run_cli, summary
+from ._common import RESULTS, load_average, machine, write_json
+from .captures import _file, errors, run_cli, summary
 
 KIND_NAMES = ("protocol", "dense-100", "jitter-0.5", "extra-pairs", "off-ubo")
 QUICK_KINDS = ("protocol", "dense-100")
@@ -258,7 +258,7 @@ def main(argv=None, log=None) -> dict:
         "mode": "quick" if args.quick else "full",
         "command": " ".join(["python -m benchmarks.bivariate", *(argv or sys.argv[1:])]),
         "machine": machine(),
-        "load_before": _load(),
+        "load_before": load_average(),
         "defaults": {
             k: aj.reconstruct_bivariate.__kwdefaults__[k]
             for k in ("log_eps", "smoothing", "pair_width")
@@ -267,7 +267,7 @@ def main(argv=None, log=None) -> dict:
     t0 = time.perf_counter()
     payload |= run(args.quick, log)
     payload["seconds"] = time.perf_counter() - t0
-    payload["load_after"] = _load()
+    payload["load_after"] = load_average()
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / f"bivariate{suffix}.json", payload)
     md = markdown(payload)

@@ -30,8 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import RESULTS, machine, write_json
-from .captures import _load
+from ._common import RESULTS, load_average, machine, write_json
 
 MATERIAL = "ggx-plastic"
 PER_SLICE = (None, 250, 2500, 10000, 25000)  # None: the protocol's 25/25/26/26
@@ -172,12 +171,12 @@ def main(argv=None, log=None) -> dict:
         "mode": "quick" if args.quick else "full",
         "command": " ".join(["python -m benchmarks.bivariate_scaling", *(argv or sys.argv[1:])]),
         "machine": machine(),
-        "load_before": _load(),
+        "load_before": load_average(),
     }
     t0 = time.perf_counter()
     payload["rows"] = run(args.quick, log)
     payload["seconds"] = time.perf_counter() - t0
-    payload["load_after"] = _load()
+    payload["load_after"] = load_average()
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / f"bivariate_scaling{suffix}.json", payload)
     md = markdown(payload)

@@ -39,16 +39,12 @@ from abrdf_jax import io, materials, metrics
 
 from ._captures_kinds import KINDS, QUICK_KINDS, SETS, check_targets, protocol_pair_cells
 from ._captures_report import charts, markdown, pass_fail_lines
-from ._common import RESULTS, machine, write_json
+from ._common import RESULTS, load_average, machine, write_json
 
 REPO = Path(__file__).resolve().parents[1]
 #: Seed of material ``i``'s capture: ``SEED + i`` (the same in every kind).
 SEED = 12
 CLI = ("python", "-m", "abrdf_jax.cli", "reconstruct")
-
-
-def _load():
-    return [round(x, 2) for x in os.getloadavg()]
 
 
 #: Where the error lies: mean ΔE76 over the cells at the protocol's pairs and over the rest.
@@ -254,7 +250,7 @@ def main(argv=None, log=None) -> dict:
     payload = {
         "mode": "quick" if args.quick else "full",
         "machine": machine(),
-        "load_average_before": _load(),
+        "load_average_before": load_average(),
         "commands": {"benchmark": argv_text},
         "seed": SEED,
         "sets": {},
@@ -279,7 +275,7 @@ def main(argv=None, log=None) -> dict:
             }
     payload["targets"] = check_targets(results)
     payload["seconds"] = time.perf_counter() - t0
-    payload["load_average_after"] = _load()
+    payload["load_average_after"] = load_average()
     payload["commands"]["reconstruct"] = "python -m abrdf_jax.cli reconstruct DIR -o OUT -q"
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.no_plot:

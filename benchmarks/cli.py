@@ -57,11 +57,10 @@ from ._cli_runner import (
     Runner,
     count_outputs,
     output_exists,
-    load_average,
     median_run,
 )
 from ._cli_report import check_targets, derive, markdown, pass_fail_lines
-from ._common import RESULTS, machine, write_json
+from ._common import RESULTS, load_average, machine, write_json
 
 #: Seed of file ``i``'s capture: ``SEED + i``.
 SEED = 13

@@ -23,7 +23,6 @@ and ``.md``.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -35,6 +34,7 @@ from abrdf_jax import select
 
 from ._common import (
     RESULTS,
+    load_average,
     machine,
     merl_split,
     metric_cells,
@@ -233,7 +233,7 @@ def main(argv=None) -> int:
     )
     merl, zeros = ({}, None) if args.skip_merl else merl_accuracy(prior, budgets)
     out |= dict(merl_test=merl, merl_test_zeros=zeros, analytic=analytic_choice(prior, names))
-    out |= dict(load_average=[round(x, 2) for x in os.getloadavg()], seconds=time.time() - t0)
+    out |= dict(load_average=load_average(), seconds=time.time() - t0)
     stem = "fused_operator_quick" if args.quick else "fused_operator"
     write_json(f"{stem}.json", out)
     (RESULTS / f"{stem}.md").write_text(_markdown(out))

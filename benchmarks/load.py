@@ -39,8 +39,8 @@ import numpy as np
 import abrdf_jax as aj
 from abrdf_jax import io, materials
 
-from ._common import RESULTS, machine, write_json
-from .cli import CACHE_ENV, _load
+from ._common import RESULTS, load_average, machine, write_json
+from .cli import CACHE_ENV
 
 REPO = Path(__file__).resolve().parents[1]
 SEED = 16
@@ -95,7 +95,7 @@ def timed(work: Path, name: str, cmd: list[str], env: dict, files: int) -> dict:
     result = work / f"{name}.result.json"
     full_env = dict(os.environ) | env
     full_env["PYTHONPATH"] = str(REPO) + os.pathsep + full_env.get("PYTHONPATH", "")
-    before = _load()
+    before = load_average()
     with open(work / f"{name}.stderr", "w+") as err, open(os.devnull, "w") as out:
         launch = [sys.executable, "-m", "benchmarks._timed_child", str(result), *cmd]
         subprocess.run(launch, env=full_env, cwd=work, stdout=out, stderr=err, check=True)
@@ -112,7 +112,7 @@ def timed(work: Path, name: str, cmd: list[str], env: dict, files: int) -> dict:
         "peak_rss_mib": call["peak_rss_mib"],
         "exit_code": call["exit_code"],
         "load_before": before,
-        "load_after": _load(),
+        "load_after": load_average(),
         "progress": _progress_lines(stderr),
     }
 
@@ -237,14 +237,14 @@ def main(argv=None, log=None) -> dict:
         "command": argv_text,
         "machine": machine() | {"abrdf_jax": aj.__version__},
         "sizes": SIZES[mode],
-        "load_average_before": _load(),
+        "load_average_before": load_average(),
     }
     log(f"load average {payload['load_average_before']}; {mode}: {SIZES[mode]}")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="loadbench-") as tmp:
         payload |= run_all(Path(tmp), SIZES[mode], log)
     payload["seconds"] = time.perf_counter() - t0
-    payload["load_average_after"] = _load()
+    payload["load_average_after"] = load_average()
     args.out.mkdir(parents=True, exist_ok=True)
     md = markdown(payload)
     (args.out / f"load{suffix}.md").write_text(md)

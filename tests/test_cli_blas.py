@@ -57,7 +57,7 @@ with _blas.one_blas_thread() as set_:
     found = _blas._thread_functions()  # imports numpy: OpenBLAS starts with one thread
     count = None if found is None else found[1]()
 after = None if found is None else found[1]()
-print(set_, inside, count, "OPENBLAS_NUM_THREADS" in os.environ, after, _blas._cores())
+print(set_, inside, count, "OPENBLAS_NUM_THREADS" in os.environ, after, _blas.cores())
 """
 
 

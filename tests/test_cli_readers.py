@@ -105,7 +105,7 @@ def test_reader_count_rules(tmp_path, monkeypatch):
     # this test process has imported JAX: forking it is not safe, so it reads itself
     assert _readers.reader_count(files) == 1
     monkeypatch.setattr(_readers, "_fork_is_safe", lambda: True)
-    monkeypatch.setattr(_readers, "_cores", lambda: 2)
+    monkeypatch.setattr(_readers, "cores", lambda: 2)
     assert _readers.reader_count(files) == 2
     monkeypatch.setenv(_readers.READERS_ENV, "3")
     assert _readers.reader_count(files[:5]) == 3  # the variable overrides the folder size

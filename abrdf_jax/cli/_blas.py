@@ -45,6 +45,8 @@ import ctypes
 import os
 import sys
 
+from ._readers import cores
+
 #: The environment variables by which a user sets OpenBLAS's thread count (they win).
 USER_ENV = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "GOTO_NUM_THREADS")
 #: The one :func:`one_blas_thread` sets while numpy is not yet imported.
@@ -86,13 +88,6 @@ def _thread_functions():
     return None
 
 
-def _cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
 def set_threads(n: int) -> int | None:
     """Set OpenBLAS's thread count to ``n``; the count before, or ``None`` where nothing was set
     (no OpenBLAS found)."""
@@ -123,7 +118,7 @@ def one_blas_thread():
         finally:
             os.environ.pop(ENV, None)
             if "numpy" in sys.modules:
-                set_threads(_cores())
+                set_threads(cores())
         return
     before = set_threads(1)
     try:

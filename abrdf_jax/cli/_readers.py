@@ -40,7 +40,8 @@ MAX_READERS = 8
 READERS_ENV = "ABRDF_JAX_READERS"
 
 
-def _cores() -> int:
+def cores() -> int:
+    """The cores this process may run on."""
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
@@ -76,7 +77,7 @@ def reader_count(files) -> int:
     else:
         if len(files) < PARALLEL_MIN:
             return 1
-        n = min(_cores(), MAX_READERS)
+        n = min(cores(), MAX_READERS)
     if n < 2 or len(files) < 2 or not _fork_is_safe():
         return 1
     try:
