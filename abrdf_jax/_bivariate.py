@@ -150,9 +150,8 @@ POINT_TOL = 1e-9
 def _distinct(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct rows of ``points`` ``(q, 2)`` (to :data:`POINT_TOL`; each the first of its
     kind) and each row's index among them."""
-    key = np.round(points / POINT_TOL).astype(np.int64)
-    _, first, at = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    return points[first], at.reshape(-1)
+    first, at, _ = _tps.tolerance_groups(points, POINT_TOL)
+    return points[first], at
 
 
 def checked_angles(get, where: str) -> tuple[np.ndarray, ...]:

@@ -22,7 +22,7 @@ import numpy as np
 
 from ._grid import from_vector
 from ._grouping import infer_pairs
-from ._tps import cell_means
+from ._tps import cell_means, tolerance_groups
 
 #: Width (degrees) of the Gaussian in ``(θi, θv)`` that carries a measured pair's residual curve
 #: to the targets around it (module docstring); ``0`` turns the correction off.
@@ -46,10 +46,7 @@ def _periodic_index(knots: np.ndarray, x: np.ndarray, period: float):
 def _azimuth_knots(dphi_src: np.ndarray):
     """``(knots, which, count)``: the distinct ``Δφ`` of the sources (to 1e-6°, sorted; each the
     mean of its sources), each source's knot and each knot's number of sources."""
-    key = np.round(dphi_src / 1e-6).astype(np.int64)
-    uniq, which = np.unique(key, return_inverse=True)
-    which = which.reshape(-1)
-    count = np.bincount(which, minlength=len(uniq)).astype(float)
+    _, which, count = tolerance_groups(dphi_src, 1e-6)
     return cell_means(dphi_src[:, None], which, count)[:, 0], which, count
 
 

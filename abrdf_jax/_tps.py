@@ -51,6 +51,16 @@ def binned(src: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return cell_means(src, which, count), which, count
 
 
+def tolerance_groups(x: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(first, which, count)`` of values ``x`` ``(n,)`` or rows ``(n, d)`` equal to ``tol``
+    (rounded to multiples of it): the first item of each group (groups in sorted order), each
+    item's group and each group's size."""
+    key = np.round(x / tol).astype(np.int64)
+    _, first, which = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    which = which.reshape(-1)
+    return first, which, np.bincount(which, minlength=len(first)).astype(np.float64)
+
+
 def cell_means(x: np.ndarray, which: np.ndarray, count: np.ndarray) -> np.ndarray:
     """The mean of the rows of ``x`` ``(n, K)`` in each cell: ``(m, K)``."""
     return np.stack([np.bincount(which, c, len(count)) for c in x.T], -1) / count[:, None]

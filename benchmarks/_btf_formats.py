@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import shutil
 from pathlib import Path
+from ._loadavg import load_average
 
 FORMATS = ("npy", "zarr")
 
@@ -102,7 +103,7 @@ def write(out: dict, suffix: str, results: Path) -> int:
     """Write the ``--formats`` run's ``btf_formats{suffix}.json`` and ``.md``."""
     from ._common import write_json
 
-    out["load_average_end"] = list(os.getloadavg())
+    out["load_average_end"] = load_average()
     path = write_json(f"btf_formats{suffix}.json", out)
     (results / f"btf_formats{suffix}.md").write_text(markdown(out), encoding="utf-8")
     print(f"{path}: written")

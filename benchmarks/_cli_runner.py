@@ -114,12 +114,9 @@ class Runner:
             "command": shlex.join([f"{k}={v}" for k, v in env.items()] + cmd),
             "shown": self.shown(cmd, env),
             "files": files,
-            "seconds": statistics.median(c["seconds"] for c in calls),
-            "all_seconds": [c["seconds"] for c in calls],
-            "repeats": repeats,
+            **_spread(calls),
             "exit_code": bad[0] if bad else expected_exit,
             "expected_exit": expected_exit,
-            "peak_rss_mib": max((c["peak_rss_mib"] or 0.0) for c in calls) or None,
             "launcher_seconds": [c.get("launcher_seconds") for c in calls],
             "stderr_tail": calls[-1]["stderr_tail"] if bad or expected_exit else "",
         }
@@ -147,15 +144,22 @@ def output_exists(path: Path):
     return lambda: int(path.is_file())
 
 
+def _spread(calls: list[dict]) -> dict:
+    """What a row says of its calls (each with ``seconds`` and ``peak_rss_mib``): the median
+    seconds, every call's seconds, how many, the largest RSS."""
+    return {
+        "seconds": statistics.median(c["seconds"] for c in calls),
+        "all_seconds": [c["seconds"] for c in calls],
+        "repeats": len(calls),
+        "peak_rss_mib": max((c["peak_rss_mib"] or 0.0) for c in calls) or None,
+    }
+
+
 def median_run(calls: list[dict]) -> dict:
     """One row of several timed calls of a command (:meth:`Runner.timed`, one call each): the
     median call's figures, every call's seconds, the largest RSS, every exit as expected."""
     ordered = sorted(calls, key=lambda c: c["seconds"])
-    row = dict(ordered[(len(ordered) - 1) // 2])
-    row["seconds"] = statistics.median(c["seconds"] for c in calls)
-    row["all_seconds"] = [c["seconds"] for c in calls]
-    row["repeats"] = len(calls)
-    row["peak_rss_mib"] = max((c["peak_rss_mib"] or 0.0) for c in calls) or None
+    row = dict(ordered[(len(ordered) - 1) // 2]) | _spread(calls)
     row["ok"] = all(c["ok"] for c in calls)
     bad = [c["exit_code"] for c in calls if c["exit_code"] != c["expected_exit"]]
     row["exit_code"] = bad[0] if bad else row["expected_exit"]

@@ -16,6 +16,8 @@ import abrdf_jax as aj
 from abrdf_jax.materials import load_tables81, stack_nbrdf, load_nbrdf_all
 from abrdf_jax.metrics import evaluate_batch
 
+from ._loadavg import load_average as load_average  # re-exported: one copy
+
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
@@ -107,11 +109,6 @@ def write_json(name: str | Path, payload: dict, indent: int = 2) -> Path:
     tmp.write_text(json.dumps(payload, indent=indent, default=float))
     os.replace(tmp, path)
     return path
-
-
-def load_average() -> list[float]:
-    """The 1, 5 and 15 minute load averages, rounded: stored beside every timing."""
-    return [round(x, 2) for x in os.getloadavg()]
 
 
 def timed_run(stem: str, run, markdown, key: str = "results", **settings) -> dict:

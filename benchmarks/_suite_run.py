@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._common import metrics_of
+from ._common import load_average, metrics_of
 from ._suite_layouts import LAYOUTS, Context
 from ._suite_registry import Entry
 
@@ -123,7 +123,7 @@ def threads() -> dict:
     )
     affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
     try:
-        load = os.getloadavg()
+        load = load_average()
     except OSError:
         load = None
     return dict(
@@ -137,7 +137,7 @@ def threads() -> dict:
 def loadavg():
     """The 1, 5 and 15 minute load averages (``None`` where the system has none)."""
     try:
-        return [round(x, 2) for x in os.getloadavg()]
+        return load_average()
     except OSError:
         return None
 

@@ -46,6 +46,7 @@ from pathlib import Path
 from . import _btf_formats
 from ._btf_report import markdown as _markdown
 from ._btf_report import scaling_chart as _scaling_chart
+from ._loadavg import load_average
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SEED = 1
@@ -308,7 +309,7 @@ def main(argv=None) -> int:
         chunk=CHUNK,
         config=repr(btf.default_config()),
         note=args.note,
-        load_average_start=list(os.getloadavg()),
+        load_average_start=load_average(),
     )
     try:
         # Measurements for every size (no dense reference on disk: accuracy uses the generator).
@@ -471,7 +472,7 @@ def main(argv=None) -> int:
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
-    out["load_average_end"] = list(os.getloadavg())
+    out["load_average_end"] = load_average()
     path = write_json(f"btf{suffix}.json", out)
     (RESULTS / f"btf{suffix}.md").write_text(_markdown(out, suffix), encoding="utf-8")
     h = out["headline"]

@@ -18,7 +18,6 @@ Run: ``python -m benchmarks.capture_ablations [--materials N]``; writes
 from __future__ import annotations
 
 import argparse
-import os
 import time
 
 import numpy as np
@@ -26,7 +25,7 @@ import numpy as np
 import abrdf_jax as aj
 from abrdf_jax import materials, metrics, select
 
-from ._common import machine, write_json
+from ._common import load_average, machine, write_json
 
 NOISE = (0.0, 0.02, 0.05, 0.10)
 REGS = (None, 1e-2, 1e-1)  # None: the preset's tuned λ
@@ -96,7 +95,7 @@ def main(argv=None) -> int:
     ap.add_argument("--materials", type=int, default=10, help="MERL test materials (every k-th)")
     ap.add_argument("--per-slice", type=int, default=None, help="noise part: samples per slice")
     args = ap.parse_args(argv)
-    load0, t0 = os.getloadavg(), time.perf_counter()
+    load0, t0 = load_average(), time.perf_counter()
     test = materials.merl_split("test")
     names = test[:: max(1, len(test) // args.materials)][: args.materials]
     cfg = aj.preset("recommended", "iso102")
@@ -143,7 +142,7 @@ def main(argv=None) -> int:
         jitter_table=jitter_table,
         machine=machine(),
         load_average_before=load0,
-        load_average_after=os.getloadavg(),
+        load_average_after=load_average(),
         seconds=time.perf_counter() - t0,
         command="python -m benchmarks.capture_ablations " + " ".join(argv or []),
         materials=names,

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 from . import _kill_commands as kc
-from ._common import RESULTS, write_json
+from ._common import RESULTS, load_average, write_json
 from ._kill import Point, Report, kill_points
 
 #: name -> (inputs into a folder -> the Command), full and quick sizes.
@@ -54,7 +54,7 @@ def commands(inputs: Path, size: dict) -> dict:
 
 
 def _load() -> str:
-    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+    return " ".join(f"{x:.2f}" for x in load_average())
 
 
 def _row(r: Report) -> str:

@@ -22,7 +22,6 @@ the variants called in turn so that a change of load hits them alike.
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import time
 
@@ -34,7 +33,7 @@ import numpy as np
 import abrdf_jax as aj
 from abrdf_jax.materials import get_material
 
-from ._common import RESULTS, machine, write_json
+from ._common import RESULTS, load_average, machine, write_json
 
 
 def _variants():
@@ -108,7 +107,7 @@ def run(quick: bool = False) -> dict:
     flag = bool(variants["status"](op, bad)[1])
     return {
         "machine": machine(),
-        "loadavg": os.getloadavg(),
+        "loadavg": load_average(),
         "n_in": int(op.n_inputs),
         "reps": reps,
         "rows": rows,

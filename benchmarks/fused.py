@@ -48,7 +48,7 @@ import abrdf_jax as aj  # noqa: E402
 from abrdf_jax import prior as P  # noqa: E402
 
 from ._common import RESULTS, machine, mean_metrics, merl_split, metrics_of, sample_batch  # noqa: E402
-from ._common import write_json  # noqa: E402
+from ._common import load_average, write_json  # noqa: E402
 
 K, LAM = 32, 0.03
 FAMILY = "paint"
@@ -204,7 +204,7 @@ def main(argv=None) -> int:
         results[name] = _evaluate(name, meas, ref, budget, pr, hy, steps["evidence"], cal)
     out = dict(
         machine=machine(),
-        load_average=[round(x, 2) for x in os.getloadavg()],
+        load_average=load_average(),
         quick=args.quick,
         steps=steps,
         prior=dict(

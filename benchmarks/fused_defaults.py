@@ -17,7 +17,6 @@ into ``DEFAULT_RECIPE["fused"]`` by hand (a changed recipe is a new default prio
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -29,7 +28,7 @@ import abrdf_jax as aj
 from abrdf_jax import prior as P
 from abrdf_jax.metrics import delta_e76
 
-from ._common import machine, merl_split, sample_batch, write_json
+from ._common import load_average, machine, merl_split, sample_batch, write_json
 
 #: The start: ``benchmarks.fused --quick``'s population fit on MERL train (docs/prior.md).
 START = dict(widths=(0.12, 2.7, 0.34, 0.85), sigma_p=1.0, sigma_k=0.11, sigma_n=0.14)
@@ -72,7 +71,7 @@ def main(argv=None) -> int:
     best = min(losses)
     out = dict(
         machine(),
-        load_average=[round(x, 2) for x in os.getloadavg()],
+        load_average=load_average(),
         steps=args.steps,
         lr=args.lr,
         start=start,

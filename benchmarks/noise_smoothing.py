@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 
@@ -32,7 +31,7 @@ import numpy as np
 import abrdf_jax as aj
 from abrdf_jax import materials, metrics, select
 
-from ._common import RESULTS, machine, write_json
+from ._common import RESULTS, load_average, machine, write_json
 from .captures import SEED
 
 NOISE = (0.0, 0.02, 0.05, 0.10, 0.20)
@@ -131,7 +130,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--quick", action="store_true", help="every ninth material, fewer settings")
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
-    t0, load0 = time.perf_counter(), [round(x, 2) for x in os.getloadavg()]
+    t0, load0 = time.perf_counter(), load_average()
     every = 9 if args.quick else args.every
     names = materials.merl_split(args.split)[::every]
     if args.split == "train":
@@ -187,7 +186,7 @@ def main(argv=None) -> dict:
         "chosen": None if chosen is None else str(chosen),
         "chosen_setting": chosen,
         "load_before": load0,
-        "load_after": [round(x, 2) for x in os.getloadavg()],
+        "load_after": load_average(),
         "seconds": time.perf_counter() - t0,
     }
     write_json(f"{stem}.json", payload)

@@ -23,7 +23,6 @@ chart ``onion_hd.png`` (``*_quick.*`` with ``--quick``).
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -34,7 +33,7 @@ import abrdf_jax as aj
 from abrdf_jax import materials, metrics
 
 from ._common import RESULTS, machine, mean_metrics, merl_split, metrics_of, sample_batch
-from ._common import write_json
+from ._common import load_average, write_json
 
 WEIGHTS = (0.5, 0.7, 1.0, 1.5, 2.0)
 PARAMETERIZATIONS = ("onion", "onion-hd")
@@ -163,7 +162,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--quick", action="store_true", help="8 materials per split")
     args = ap.parse_args(argv)
     log = lambda *a: print(*a, file=sys.stderr, flush=True)  # noqa: E731
-    t0, load0 = time.time(), [round(x, 2) for x in os.getloadavg()]
+    t0, load0 = time.time(), load_average()
     _, models, refs, _ = merl_split("train")
     test = materials.merl_split("test")
     if args.quick:
@@ -175,7 +174,7 @@ def main(argv=None) -> dict:
         "machine": machine(),
         "quick": args.quick,
         "seconds": time.time() - t0,
-        "load": [load0, [round(x, 2) for x in os.getloadavg()]],
+        "load": [load0, load_average()],
         "hd_weight": 1.0,  # the package's rule (coordinate_widths), weight 1
         "weights": weights,
         "n_test": len(test),

@@ -22,7 +22,6 @@ Run: ``python -m benchmarks.prior [--quick]`` → ``results/prior.json`` and ``r
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -36,10 +35,11 @@ from abrdf_jax import prior as P
 
 from ._common import (
     RESULTS,
+    load_average,
     machine,
     mean_metrics,
-    metric_cells,
     merl_split,
+    metric_cells,
     metrics_of,
     sample_batch,
     write_json,
@@ -141,7 +141,7 @@ def main(argv=None) -> int:
 
     out = dict(
         machine=machine(),
-        load_average=[round(x, 2) for x in os.getloadavg()],
+        load_average=load_average(),
         quick=args.quick,
         grid={k: list(v) for k, v in grid.items()},
         default=dict(

@@ -13,7 +13,6 @@ the grid tables, as before); mean ΔE76 against ``materials.dense_table``.
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 
@@ -23,7 +22,7 @@ import abrdf_jax as aj
 from abrdf_jax import materials, metrics
 from abrdf_jax import prior as P
 
-from ._common import RESULTS, machine, write_json
+from ._common import RESULTS, load_average, machine, write_json
 
 CAPTURES = {"protocol": {}, "200 per slice": {"per_slice": 200}}
 
@@ -34,7 +33,7 @@ def _log(*a):
 
 def main(argv=None) -> int:
     t0 = time.time()
-    load0 = [round(x, 2) for x in os.getloadavg()]
+    load0 = load_average()
     exact = P.default_prior()
     grid_only = P.Prior(
         exact.mean, exact.components, exact.reference, exact.lam,
@@ -59,7 +58,7 @@ def main(argv=None) -> int:
                     de.append(float(metrics.evaluate(t, refs[n])["de76"]))
                 rows.append(dict(capture=cap, basis=basis, model=model, de76=float(np.mean(de))))
                 _log(f"{cap:14s} {basis:12s} {model:6s} mean dE76 {rows[-1]['de76']:.3f}")
-    out = dict(machine(), load_before=load0, load_after=[round(x, 2) for x in os.getloadavg()])
+    out = dict(machine(), load_before=load0, load_after=load_average())
     out |= dict(materials=list(names), rows=rows, seconds=time.time() - t0)
     write_json("prior_basis.json", out)
     lines = [

@@ -45,7 +45,7 @@ import abrdf_jax as aj
 from abrdf_jax import materials
 from abrdf_jax import prior as P
 
-from ._common import machine, write_json
+from ._common import load_average, machine, write_json
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -199,7 +199,7 @@ def main(argv=None):
     mode = "quick" if args.quick else "full"
     t0 = time.time()
     res = measure(mode, log=lambda s: print(s, flush=True))
-    res |= {"mode": mode, "seconds": time.time() - t0, "load": os.getloadavg()}
+    res |= {"mode": mode, "seconds": time.time() - t0, "load": load_average()}
     write_json(f"prior_throughput{'_quick' if args.quick else ''}.json", machine() | res)
     print(table(res))
     return 0

@@ -27,6 +27,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from ._loadavg import load_average
 
 RESULTS = Path(__file__).resolve().parent / "results"
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
@@ -90,7 +91,7 @@ def time_variant(variant: str, size: int, spp: int, table_file: Path) -> dict:
         render_table(__import__("numpy").full((81, 81, 3), 0.1), size=8, spp=1, variant=variant)
     except InputError as e:
         return {"available": False, "reason": str(e)}
-    load = os.getloadavg()
+    load = load_average()
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     argv = [sys.executable, "-m", "benchmarks.render", "--child", variant, str(size), str(spp)]
     proc = subprocess.run(
@@ -101,7 +102,7 @@ def time_variant(variant: str, size: int, spp: int, table_file: Path) -> dict:
         tail = (proc.stderr.strip().splitlines() or ["(no output)"])[-1]
         return {"available": False, "reason": f"exit status {proc.returncode}: {tail[:200]}"}
     doc = json.loads(lines[-1][len("RESULT ") :])
-    return {"available": True, **doc, "load_before": load, "load_after": os.getloadavg()}
+    return {"available": True, **doc, "load_before": load, "load_after": load_average()}
 
 
 def _markdown(out: dict) -> str:
@@ -187,7 +188,7 @@ def main(argv=None) -> int:
     variant = works[0]
     if variant == "scalar_rgb":
         fig_size, fig_spp = size, spp  # scalar is about 100x slower (render.md)
-    rows, mats, load, t0 = [], [], os.getloadavg(), time.perf_counter()
+    rows, mats, load, t0 = [], [], load_average(), time.perf_counter()
     for name, (budget, ref, rec) in tables.items():
         views = render.render_views(
             rec, ref, lights=("env", "point"), size=fig_size, spp=fig_spp, variant=variant
@@ -215,7 +216,7 @@ def main(argv=None) -> int:
     seconds = time.perf_counter() - t0
     out["figure"] = dict(
         variant=variant, size=fig_size, spp=fig_spp, seconds=seconds, load_before=load,
-        load_after=os.getloadavg(), materials=mats,
+        load_after=load_average(), materials=mats,
     )  # fmt: skip
     note = (
         f"python -m benchmarks.render: {variant}, {fig_size} x {fig_size} px, {fig_spp} spp, "

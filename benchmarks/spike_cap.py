@@ -20,7 +20,6 @@ its standard error, since every figure of the package moves with it.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 
 import numpy as np
@@ -29,7 +28,7 @@ import abrdf_jax as aj
 from abrdf_jax import materials, metrics
 
 from ._captures_kinds import KINDS as CAPTURE_KINDS
-from ._common import RESULTS, machine, write_json
+from ._common import RESULTS, load_average, machine, write_json
 from .captures import SEED
 
 SETTINGS = (
@@ -138,7 +137,7 @@ def main(argv=None) -> dict:
         payload = json.loads((RESULTS / f"{stem}.json").read_text())
         (RESULTS / f"{stem}.md").write_text(markdown(payload["rows"], payload))
         return payload
-    t0, load0 = time.perf_counter(), [round(x, 2) for x in os.getloadavg()]
+    t0, load0 = time.perf_counter(), load_average()
     names = materials.merl_split("train")[:: 3 if args.quick else 1]
     caps = captures(names)
     rows = []
@@ -165,7 +164,7 @@ def main(argv=None) -> dict:
         "rows": rows,
         "chosen": best["setting"],
         "load_before": load0,
-        "load_after": [round(x, 2) for x in os.getloadavg()],
+        "load_after": load_average(),
         "seconds": time.perf_counter() - t0,
     }
     write_json(f"{stem}.json", payload)

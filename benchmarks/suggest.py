@@ -20,7 +20,6 @@ the random mean and each fixed slice.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -35,7 +34,7 @@ import numpy as np  # noqa: E402
 import abrdf_jax as aj  # noqa: E402
 from abrdf_jax import prior as P  # noqa: E402
 
-from ._common import RESULTS, machine, merl_split, metrics_of, write_json  # noqa: E402
+from ._common import RESULTS, load_average, machine, merl_split, metrics_of, write_json  # noqa: E402
 
 SAMPLES = 26
 FIXED = {
@@ -188,7 +187,7 @@ def main(argv=None) -> int:
     rows = run([names[k] for k in keep], models, np.asarray(refs)[keep], prior, draws)
     out = dict(machine(), quick=args.quick, draws=draws, samples=SAMPLES)
     out |= dict(rows=rows, summary=summary(rows))
-    out |= dict(load_average=[round(x, 2) for x in os.getloadavg()], seconds=time.time() - t0)
+    out |= dict(load_average=load_average(), seconds=time.time() - t0)
     stem = "suggest_quick" if args.quick else "suggest"
     write_json(f"{stem}.json", out)
     (RESULTS / f"{stem}.md").write_text(markdown(out))

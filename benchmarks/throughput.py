@@ -34,7 +34,6 @@ What is measured (float32, the package default; CPU threads as the machine gives
 from __future__ import annotations
 
 import argparse
-import os
 import resource
 import statistics
 import sys
@@ -48,7 +47,7 @@ import numpy as np
 import abrdf_jax as aj
 from abrdf_jax.materials import default_materials
 
-from ._common import machine, operator_flops, write_json
+from ._common import load_average, machine, operator_flops, write_json
 
 BATCHES = {
     "full": (1, 10, 100, 1000, 3000, 10000),
@@ -235,7 +234,7 @@ def measure(mode: str = "quick", log=print) -> dict:
                 abrdfs_per_second_reused_output=b / reused,
                 fraction_of_roofline_reused_output=flops / reused / 1e9 / peak,
                 memory=memory_of(op, x),
-                load_average=os.getloadavg()[0],
+                load_average=load_average()[0],
             )
             rows.append(row)
             log(

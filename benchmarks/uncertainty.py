@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 import time
 
@@ -32,7 +31,15 @@ import numpy as np  # noqa: E402
 import abrdf_jax as aj  # noqa: E402
 from abrdf_jax import prior as P  # noqa: E402
 
-from ._common import RESULTS, machine, merl_split, metrics_of, sample_batch, write_json  # noqa: E402
+from ._common import (  # noqa: E402
+    RESULTS,
+    load_average,
+    machine,
+    merl_split,
+    metrics_of,
+    sample_batch,
+    write_json,
+)
 
 KS = tuple(np.round(np.arange(0, 3.01, 0.25), 2))
 
@@ -147,7 +154,7 @@ def main(argv=None) -> int:
         _log("analytic aniso204")
         datasets["analytic aniso204 (8)"] = coverage_rows(prior, *_analytic())
     out = dict(machine(), quick=args.quick, datasets=datasets)
-    out |= dict(load_average=[round(x, 2) for x in os.getloadavg()], seconds=time.time() - t0)
+    out |= dict(load_average=load_average(), seconds=time.time() - t0)
     stem = "uncertainty_quick" if args.quick else "uncertainty"
     write_json(f"{stem}.json", out)
     (RESULTS / f"{stem}.md").write_text(markdown(out))
