@@ -9,7 +9,8 @@ devices at 128²; quick: 16² … 64², 1–4 devices at 32².
 
 What is measured, all in one run:
 
-- **headline**: ``reconstruct_btf`` (the path ``abrdf-jax btf reconstruct`` runs) of the largest
+- **headline**: ``reconstruct_btf`` (the path ``abrdf-jax btf reconstruct`` runs, with the
+  command's allocator setting, ``abrdf_jax.cli.btf.keep_chunk_outputs``) of the largest
   size, float16 store, chunks of 1024 texels, in a fresh subprocess: wall time of the call cold
   (operator build and compilation included) and warm (a second call into a new folder), split
   into the build of the chunk map and the busy seconds of its three overlapping stages (read,
@@ -60,9 +61,11 @@ def _child(argv) -> int:
     import jax
 
     from abrdf_jax import btf
+    from abrdf_jax.cli.btf import keep_chunk_outputs
 
     meas, out, fmt = (*argv, "npy")[:3]
     t_import = time.perf_counter() - t0
+    kept = keep_chunk_outputs(CHUNK, "float16")  # as `abrdf-jax btf reconstruct` sets it
     runs = []
     for k, target in enumerate((out, out + "-warm")):
         stats: dict = {}
@@ -78,6 +81,7 @@ def _child(argv) -> int:
         + json.dumps(
             dict(
                 import_seconds=t_import,
+                allocator_keeps_chunks=kept,
                 cold=runs[0],
                 warm=runs[1],
                 texels=store.n_texels,
@@ -372,6 +376,7 @@ def main(argv=None) -> int:
             texels_per_second_warm=big * big / head["warm"]["seconds"],
             texels_per_second_cold=big * big / head["cold"]["seconds"],
             backend=head["warm"]["backend"],
+            allocator_keeps_chunks=head.get("allocator_keeps_chunks"),
             target="<= 8 s cold on 2 cores, bounded by its own I/O (issue 13; was <= 60 s)",
             split={
                 run: {

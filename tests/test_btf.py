@@ -645,11 +645,12 @@ def test_per_texel_model_choice(tmp_path):
         btf.reconstruct_btf(meas, tmp_path / "rec3", chunk=4, progress=False, model="best")
 
 
-def test_bivariate_model_per_texel(tmp_path, capsys):
+def test_bivariate_model_per_texel(tmp_path, capsys, monkeypatch):
     """``model="bivariate"`` (and ``btf reconstruct --model bivariate``): every texel through the
     bivariate map of the store's geometry (its recorded angles), equal to the library call on
-    that texel's samples; bad arguments are named."""
-    from abrdf_jax.cli import main
+    that texel's samples; bad arguments are named. The command lets the allocator keep a chunk's
+    output (``keep_chunk_outputs``: its size in bytes)."""
+    from abrdf_jax.cli import _common, main
     from abrdf_jax.materials import get_material
 
     names = ("ggx-plastic", "lambert-clay", "ward-brushed-steel", "ggx-aniso-metal")
@@ -669,7 +670,10 @@ def test_bivariate_model_per_texel(tmp_path, capsys):
         np.testing.assert_allclose(got[k], lib, rtol=2e-4, atol=1e-6 * lib.max())
     assert out.attrs["job"]["model"] == "bivariate"
     cli = ["btf", "reconstruct", str(tmp_path / "meas"), "-o", str(tmp_path / "c")]
-    assert main([*cli, "--model", "bivariate", "-q", "--dtype", "float32"]) == 0
+    kept = []
+    monkeypatch.setattr(_common, "keep_freed_blocks", lambda largest=0: kept.append(largest))
+    assert main([*cli, "--model", "bivariate", "-q", "--dtype", "float32", "--chunk", "8"]) == 0
+    assert kept == [8 * 81 * 81 * 3 * 4]  # one chunk of float32 tables
     # the same map (float32 rounding: the command line pads the chunk to its own batch)
     np.testing.assert_allclose(btf.ChunkedStore.open(tmp_path / "c").read(), out.read(), rtol=1e-5)
     capsys.readouterr()

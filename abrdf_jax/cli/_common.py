@@ -42,6 +42,7 @@ from ._args import (  # noqa: F401 - the arguments' validators, used through thi
 from . import _progress
 from ._progress import BigFile, progress, stage  # noqa: F401 - used through this module
 from ._blas import one_blas_thread  # noqa: F401 - used through this module
+from ._malloc import keep_freed_blocks  # noqa: F401 - used through this module
 
 PROG = "abrdf-jax"
 #: Format tag of the model record written beside a reconstruction (``OUT.model.json``).

@@ -16,6 +16,13 @@ thresholds set (docs/notes.md).
 :func:`keep_freed_blocks` sets both thresholds to the values glibc's own rule would reach at its
 maximum (``mallopt``), once per command, unless the user set them (``MALLOC_MMAP_THRESHOLD_``,
 ``MALLOC_TRIM_THRESHOLD_``). Elsewhere (another C library, another system) it does nothing.
+
+A command whose largest repeated block is larger raises both (``largest``): ``btf reconstruct``
+allocates each chunk's output anew (1,024 texels: 40 MB in float16, 81 MB in float32), above
+glibc's ceiling, so every chunk faulted its ~10,000 pages in again (scratch, docs/notes.md: the
+command on the 256² benchmark's store, empty caches, two interleaved pairs: 10.7 and 9.8 s →
+8.5 and 9.1 s, 710,000 → 370,000 minor faults, peak resident memory 0.64 → 0.78–0.84 GB: the
+results waiting for the writers are kept blocks now).
 """
 
 from __future__ import annotations
@@ -29,12 +36,20 @@ M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
 MMAP_THRESHOLD = 32 * 2**20
 #: Free memory at the top of the heap kept up to this size (twice the above, as glibc's rule).
 TRIM_THRESHOLD = 2 * MMAP_THRESHOLD
+#: The most ``largest`` raises the mmap threshold to (larger blocks are mapped and unmapped each
+#: time: their first touch is small next to their use).
+MAX_THRESHOLD = 512 * 2**20
 #: The environment variables by which a user sets the thresholds (they win).
 USER_ENV = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
 
 
-def keep_freed_blocks() -> bool:
-    """Set glibc's mmap and trim thresholds (module docstring); ``True`` when they were set."""
+def keep_freed_blocks(largest: int = 0) -> bool:
+    """Set glibc's mmap and trim thresholds (module docstring); ``True`` when they were set.
+
+    Args:
+        largest: bytes of the largest block the command allocates again and again: the mmap
+            threshold is raised above it (to whole MiB; the trim threshold twice that).
+    """
     if not sys.platform.startswith("linux") or any(k in os.environ for k in USER_ENV):
         return False
     try:
@@ -46,6 +61,7 @@ def keep_freed_blocks() -> bool:
     except (OSError, AttributeError):
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    return mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD) == 1 and (
-        mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD) == 1
-    )
+    above = (int(largest) // 2**20 + 1) * 2**20 if largest > 0 else 0
+    mmap = min(max(MMAP_THRESHOLD, above), MAX_THRESHOLD)
+    trim = max(TRIM_THRESHOLD, 2 * mmap)
+    return mallopt(M_MMAP_THRESHOLD, mmap) == 1 and mallopt(M_TRIM_THRESHOLD, trim) == 1

@@ -168,6 +168,13 @@ def _import_capture(src: Path, out: Path, args, btf):
     return btf.read_image_pairs(src, store, **opts)
 
 
+def keep_chunk_outputs(chunk: int, dtype: str) -> bool:
+    """Let the C allocator keep one chunk's output (``chunk`` texels × 81 × 81 × RGB of
+    ``dtype``) for the next chunk: ``btf reconstruct`` allocates it anew per chunk, above glibc's
+    own mmap ceiling (:mod:`abrdf_jax.cli._malloc`). ``True`` when the thresholds were set."""
+    return common.keep_freed_blocks(chunk * 81 * 81 * 3 * {"float16": 2, "float32": 4}[dtype])
+
+
 def cmd_reconstruct(args) -> int:
     if args.preset is not None and args.params is not None:
         raise InputError(
@@ -206,6 +213,7 @@ def cmd_reconstruct(args) -> int:
         how = "export once all have finished, with 'abrdf-jax btf export'"
         raise InputError(f"--exr-dir with several processes: {how}")
     config, params = _config_params(args, meas)
+    keep_chunk_outputs(args.chunk, args.dtype)
     stats: dict = {}
     opts = dict(chunk=args.chunk, progress=not args.quiet, dtype=args.dtype, devices=args.devices)
     opts |= dict(backend=args.backend, overwrite=args.overwrite, stats=stats, model=args.model)
