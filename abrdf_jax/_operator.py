@@ -50,7 +50,7 @@ from ._low_rank import low_rank_factors, product as _product
 from ._measurements import Measurements
 from ._params import Config, Params
 from ._pipeline import fit_inputs, rbf_map, subspace_values
-from ._smoothing import smooth_compact
+from ._smoothing import operator_neighbours, smooth_compact
 from ._spikes import cap_samples
 from ._values import log_values, value_eps, value_space
 
@@ -80,6 +80,8 @@ class ReconstructionOperator(eqx.Module):
         factors: ``(U, W)``, ``U · W = matrix`` with ``U`` ``(q, r)``, ``W`` ``(r, f)`` where
             the matrix's rank ``r`` is low enough to save work (:mod:`abrdf_jax._low_rank`):
             every product then runs through them; or ``None``.
+        neighbours: the slice smoothing's neighbours of the valid samples, built on the host
+            (``_smoothing.operator_neighbours``), or ``None`` (found when applied).
     """
 
     matrix: Float[Array, "q f"]
@@ -96,6 +98,7 @@ class ReconstructionOperator(eqx.Module):
     centre_azimuths: int | None = eqx.field(static=True, default=None)
     keep_columns: Int[Array, "k nnz"] | None = None
     factors: tuple[Float[Array, "q r"], Float[Array, "r f"]] | None = None
+    neighbours: tuple | None = None
 
     @property
     def n_inputs(self) -> int:
@@ -298,7 +301,9 @@ def _apply_impl(op: ReconstructionOperator, x, full: bool, out=None):
     if op.stage == "single":
         z = log_values(x, eps) if vs.log_samples else x  # single stage: never log after the rule
         if vs.log_samples:  # the pipeline's slice smoothing (_pipeline.smoothed_samples)
-            z = smooth_compact(cfg.slice_smoothing, z, op.index, op.t.astype(x.dtype), op.count)
+            z = smooth_compact(
+                cfg.slice_smoothing, z, op.index, op.t.astype(x.dtype), op.count, nb=op.neighbours
+            )
         zc = cap_samples(z, cfg.spike_cap) if vs.log_samples and cfg.spike_cap else None
     else:
         s, nmax = op.t.shape
@@ -491,4 +496,5 @@ def compile_operator(
         template.centre_azimuths,
         None if cols is None else jnp.asarray(cols),
         None if factors is None else tuple(put(a, dtype) for a in factors),
+        operator_neighbours(config, built, dtype),
     )

@@ -266,15 +266,43 @@ def smooth_slices(setting, z, t, count, xp=None):
     return smooth(flat, beta, nb, xp, r).reshape(z.shape), beta, sigma
 
 
-def smooth_compact(setting, z, index, t, count, xp=None):
+def smooth_compact(setting, z, index, t, count, xp=None, nb=None):
     """The smoothing of compact values ``z`` ``(B, n_in, C)`` (the valid samples in the order
     ``index`` of the flat ``(S · nmax)`` layout ``t`` ``(S, nmax)``, ``count`` ``(S,)``): the
-    compiled operator's and the numpy operator entry's form, without the padded layout."""
+    compiled operator's and the numpy operator entry's form, without the padded layout.
+    ``nb``: :func:`compact` neighbours of the layout when the caller holds them
+    (:func:`operator_neighbours`)."""
     if setting is None:
         return z
-    nb = compact(neighbours(t, count, xp), index, xp)
+    nb = compact(neighbours(t, count, xp), index, xp) if nb is None else nb
     r = residuals(z, nb, xp)  # once, for the noise estimate and the shrink
     return smooth(z, weights(setting, z, count, nb, xp, r)[0], nb, xp, r)
+
+
+def operator_neighbours(config, built, dtype):
+    """The :func:`compact` neighbours of the valid samples of a compiled operator (``config``
+    and its ``_operator.BuiltMatrix`` ``built``), computed once on the host as the numpy operator
+    entry computes them, as JAX arrays (``left``, ``right``, ``slice_of`` int32; ``wl``, ``wr``
+    in ``dtype``): the operator keeps them, so its apply searches no neighbours (the search was
+    a quarter of the BTF chunk map's compilation; docs/notes.md). ``None`` where the operator
+    does not smooth (no setting, not single stage, not log samples) or its layout is traced."""
+    import jax
+    import jax.numpy as jnp
+
+    from ._names import LOG_SAMPLES
+
+    t, count, index = built.t, built.count, built.index
+    if (
+        config.slice_smoothing is None
+        or built.stage != "single"
+        or config.value_space not in LOG_SAMPLES
+        or any(isinstance(a, jax.core.Tracer) for a in (t, count, index))
+    ):
+        return None
+    t, count = np.asarray(t, dtype), np.asarray(count)
+    left, right, wl, wr, valid, slice_of = compact(neighbours(t, count, np), np.asarray(index), np)
+    left, right, slice_of = (jnp.asarray(a, jnp.int32) for a in (left, right, slice_of))
+    return left, right, jnp.asarray(wl, dtype), jnp.asarray(wr, dtype), jnp.asarray(valid), slice_of
 
 
 def smoothing_to_json(setting):
