@@ -40,6 +40,8 @@ entry) and works on the padded slice layout ``(..., S, nmax, C)`` of :class:`Mea
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ._host_eps import sample_eps
@@ -163,56 +165,75 @@ def nonneg_nanmedian(a):
     lower middle order statistic is found by bisection on it (one counting pass per bit, 31 for
     float32, in a loop); the upper one (the next rank, for even counts) is then the same value
     when it has copies enough, else the smallest value above it: two passes more, not a second
-    bisection. The values are the bit patterns found, averaged as ``jnp.nanmedian`` does, and the
-    gradient goes to the elements they are. On the BTF chunk map (1,024 texels, 210 samples) the
-    smoothing went from 32 to 8 ms with the bisection.
+    bisection. The values are the bit patterns found, averaged as ``jnp.nanmedian`` does; the
+    derivative (a ``custom_jvp``: nothing of it runs where nothing is differentiated) goes to
+    the elements they are. On the BTF chunk map (1,024 texels, 210 samples) the smoothing went
+    from 32 to 8 ms with the bisection.
     """
+    return _nanmedian()(a)
+
+
+def _order_statistics(a):
+    """``(median, bits, lo, hi, ok, n)`` of :func:`nonneg_nanmedian`: the bit patterns (NaN slots
+    at the integer maximum), those of the two middle order statistics, the valid slots and their
+    count per row."""
     import jax
     import jax.numpy as jnp
 
     ints = {2: jnp.int16, 4: jnp.int32, 8: jnp.int64}[a.dtype.itemsize]
+    top = jnp.iinfo(ints).max
     ok = ~jnp.isnan(a)
+    # NaN slots above every value (no bisection point reaches ``top``). The barrier materialises
+    # the bit patterns once: the loop and everything after it read these, where XLA would
+    # otherwise fuse the producers of ``a`` (the residuals' gathers) into every counting pass,
+    # and a fusion that recomputes ``a`` may round it differently (seen at XLA's optimisation
+    # level 0). Plain halvings in the loop, the upper rank after it (no conditional in the loop).
     bits = jax.lax.bitcast_convert_type(jnp.where(ok, a, 0), ints)
+    bits = jax.lax.optimization_barrier(jnp.where(ok, bits, top))
     n = jnp.sum(ok, axis=-1)
     k_lo = (jnp.maximum(n, 1) - 1) // 2  # the two middle ranks (equal for odd n), from 0
     k_hi = jnp.maximum(n, 1) // 2
 
-    def halve(bounds):  # the smallest b with more than k_lo bits <= b
-        lo, hi, upper = bounds
+    def halve(_, bounds):  # towards the smallest b with more than k_lo bits <= b
+        lo, hi = bounds
         mid = lo + (hi - lo) // 2
-        more = jnp.sum(ok & (bits <= mid[..., None]), axis=-1) > k_lo
-        return jnp.where(more, lo, mid + 1), jnp.where(more, mid, hi), upper
+        more = jnp.sum(bits <= mid[..., None], axis=-1) > k_lo
+        return jnp.where(more, lo, mid + 1), jnp.where(more, mid, hi)
 
-    def finish(bounds):  # rank k_hi: lo itself if it has copies enough, else the next value
-        lo, hi, _ = bounds
-        at_most = jnp.sum(ok & (bits <= lo[..., None]), axis=-1)
-        above = jnp.min(jnp.where(ok & (bits > lo[..., None]), bits, top[..., None]), axis=-1)
-        return lo, hi, jnp.where(at_most > k_hi, lo, above)
+    start = (jnp.zeros(n.shape, ints), jnp.full(n.shape, top, ints))
+    lo, _ = jax.lax.fori_loop(0, 8 * a.dtype.itemsize - 1, halve, start)
+    # rank k_hi: lo itself if it has copies enough, else the next value
+    at_most = jnp.sum(bits <= lo[..., None], axis=-1)
+    above = jnp.min(jnp.where(bits > lo[..., None], bits, top), axis=-1)
+    hi = jnp.where(at_most > k_hi, lo, above)
+    low, high = (jax.lax.bitcast_convert_type(v, a.dtype) for v in (lo, hi))
+    med = jnp.where(n > 0, low * 0.5 + high * 0.5, jnp.nan).astype(a.dtype)
+    return med, bits, lo, hi, ok, n
 
-    # A loop, not unrolled passes: its operands are materialised once, where XLA would fuse
-    # the producers of ``a`` (the residuals' gathers) into every counting pass. Everything
-    # after it is read off the loop's results, not off ``bits`` again (so the last trip finds
-    # the upper rank): a fusion that recomputes ``a`` may round it differently (seen at XLA's
-    # optimisation level 0).
-    zero = jnp.zeros(n.shape, ints)
-    top = jnp.full(n.shape, jnp.iinfo(ints).max, ints)
-    passes = 8 * a.dtype.itemsize - 1
-    lo1, _, lo2 = jax.lax.fori_loop(
-        0,
-        passes + 1,
-        lambda i, b: jax.lax.cond(i < passes, halve, finish, b),
-        (zero, top, zero),
-    )
-    low, high = (jax.lax.bitcast_convert_type(v, a.dtype) for v in (lo1, lo2))
-    med = low * 0.5 + high * 0.5
-    # the gradient of the elements the order statistics are (zero in value)
-    grad = 0.0
-    for v in (lo1, lo2):
+
+def _median_jvp(primals, tangents):
+    """Half of the mean tangent of the elements at each of the two middle order statistics."""
+    import jax.numpy as jnp
+
+    (a,), (da,) = primals, tangents
+    med, bits, lo, hi, ok, n = _order_statistics(a)
+    dmed = jnp.zeros(med.shape, a.dtype)
+    for v in (lo, hi):
         pick = ok & (bits == v[..., None])
-        moved = jnp.sum(jnp.where(pick, a - jax.lax.stop_gradient(a), 0.0), axis=-1)
-        grad = grad + 0.5 * moved / jnp.maximum(jnp.sum(pick, axis=-1), 1).astype(a.dtype)
-    med = med + grad
-    return jnp.where(n > 0, med, jnp.nan).astype(a.dtype)
+        moved = jnp.sum(jnp.where(pick, da, 0.0), axis=-1)
+        dmed = dmed + 0.5 * moved / jnp.maximum(jnp.sum(pick, axis=-1), 1).astype(a.dtype)
+    return med, jnp.where(n > 0, dmed, 0.0).astype(a.dtype)
+
+
+@functools.cache
+def _nanmedian():
+    """:func:`nonneg_nanmedian` as a ``jax.custom_jvp`` (made on first use: this module imports no
+    JAX at import, for the numpy operator entry)."""
+    import jax
+
+    f = jax.custom_jvp(lambda a: _order_statistics(a)[0])
+    f.defjvp(_median_jvp)
+    return f
 
 
 def weights(setting, z, count, nb, xp=None, r=None):
