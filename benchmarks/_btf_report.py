@@ -72,6 +72,22 @@ def markdown(out: dict, suffix: str) -> str:
         f"Target: {h['target']}.",
         "",
     ]
+    if len(h.get("rounds", ())) > 1:
+        pairs = ", ".join(f"{r['cold']:.1f} / {r['warm']:.1f} s" for r in h["rounds"])
+        lines += [
+            f"{len(h['rounds'])} fresh processes (cold / warm): {pairs}; the table gives the "
+            "round of median cold time and the median warm time.",
+            "",
+        ]
+    if h.get("glibc_thresholds"):
+        g = h["glibc_thresholds"]
+        pairs = ", ".join(f"{r['cold']:.1f} / {r['warm']:.1f} s" for r in g["rounds"])
+        lines += [
+            "The same rounds with glibc's own allocator thresholds, interleaved with those above "
+            "(each chunk's output then mapped and faulted in anew; `abrdf_jax.cli._malloc`): "
+            f"{pairs}; peak RSS {g['peak_rss_gib']:.2f} GiB against {h['peak_rss_gib']:.2f} GiB.",
+            "",
+        ]
     if h.get("split"):
         lines += [
             "| where the time goes (busy seconds; read, compute and write overlap) | build | read "

@@ -12,7 +12,9 @@ What is measured, all in one run:
 - **headline**: ``reconstruct_btf`` (the path ``abrdf-jax btf reconstruct`` runs, with the
   command's allocator setting, ``abrdf_jax.cli.btf.keep_chunk_outputs``) of the largest
   size, float16 store, chunks of 1024 texels, in a fresh subprocess: wall time of the call cold
-  (operator build and compilation included) and warm (a second call into a new folder), split
+  (operator build and compilation included) and warm (a second call into a new folder); three
+  such processes (``--rounds``; one in quick mode): the round of median cold time, the median
+  warm time, every round's pair beside them; split
   into the build of the chunk map and the busy seconds of its three overlapping stages (read,
   compute, write: ``reconstruct_btf``'s ``stats``; the writers' seconds are summed over its
   threads), the child's peak resident memory (``ru_maxrss``), texels per second; the EXR export
@@ -94,8 +96,16 @@ def _child(argv) -> int:
     return 0
 
 
-def _run_child(meas: Path, out: Path, devices: int | None = None, fmt: str = "npy") -> dict:
-    env = dict(os.environ)
+#: The environment of a child that leaves glibc's allocator to its own rule: any ``MALLOC_*``
+#: threshold variable means the user's setting (``abrdf_jax.cli._malloc``), and this one is
+#: glibc's default trim threshold, so the mmap threshold stays glibc's dynamic one.
+GLIBC_DEFAULT = {"MALLOC_TRIM_THRESHOLD_": "131072"}
+
+
+def _run_child(
+    meas: Path, out: Path, devices: int | None = None, fmt: str = "npy", extra_env=None
+) -> dict:
+    env = dict(os.environ) | (extra_env or {})
     if devices is not None:
         env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
     t = time.perf_counter()
@@ -290,6 +300,13 @@ def main(argv=None) -> int:
     ap.add_argument("--no-exr", action="store_true", help="skip the EXR export")
     ap.add_argument("--formats", action="store_true", help="only the npy-vs-zarr store row")
     ap.add_argument(
+        "--rounds",
+        type=int,
+        default=None,
+        help="fresh-process runs of the largest size, the headline their median (default: 3 "
+        "full, 1 quick)",
+    )
+    ap.add_argument(
         "--note", default="", help="a remark stored with the figures (e.g. the machine was busy)"
     )
     args = ap.parse_args(argv)
@@ -363,17 +380,38 @@ def main(argv=None) -> int:
                 f"peak RSS {r['peak_rss_bytes'] / 2**30:.2f} GiB, {r['warm']['backend']} backend",
                 flush=True,
             )
-        head = runs[big]
+        # More rounds of the largest size (this machine's spread between runs is ~1 s): the
+        # headline is the round of median cold time, the warm figure the median of the rounds.
+        # In full mode each round is followed by one with glibc's own allocator thresholds
+        # (``GLIBC_DEFAULT``), the chunk outputs then mapped anew each time: what
+        # ``keep_chunk_outputs`` gains, in the same run, rounds interleaved.
+        rounds, default_alloc = [runs[big]], []
+        for k in range(args.rounds or (1 if args.quick else 3)):
+            todo = ([] if k == 0 else [(rounds, {})]) + (
+                [] if args.quick else [(default_alloc, GLIBC_DEFAULT)]
+            )
+            for into, env in todo:
+                folder = work / f"round{k}{'-glibc' if env else ''}"
+                into.append(_run_child(work / f"btf{big}" / "measurements", folder, extra_env=env))
+                shutil.rmtree(folder, ignore_errors=True)
+                print(
+                    f"{big}x{big}, round {k + 1}{', glibc thresholds' if env else ''}: cold "
+                    f"{into[-1]['cold']['seconds']:.1f} s, warm {into[-1]['warm']['seconds']:.1f} s",
+                    flush=True,
+                )
+        head = sorted(rounds, key=lambda r: r["cold"]["seconds"])[(len(rounds) - 1) // 2]
+        warm = sorted(r["warm"]["seconds"] for r in rounds)[(len(rounds) - 1) // 2]
         out["headline"] = dict(
             size=big,
             texels=big * big,
             samples_per_texel=204,
             store_dtype="float16",
             seconds_cold=head["cold"]["seconds"],
-            seconds_warm=head["warm"]["seconds"],
+            seconds_warm=warm,
+            rounds=[dict(cold=r["cold"]["seconds"], warm=r["warm"]["seconds"]) for r in rounds],
             process_wall_seconds=head["process_wall_seconds"],
-            peak_rss_gib=head["peak_rss_bytes"] / 2**30,
-            texels_per_second_warm=big * big / head["warm"]["seconds"],
+            peak_rss_gib=max(r["peak_rss_bytes"] for r in rounds) / 2**30,
+            texels_per_second_warm=big * big / warm,
             texels_per_second_cold=big * big / head["cold"]["seconds"],
             backend=head["warm"]["backend"],
             allocator_keeps_chunks=head.get("allocator_keeps_chunks"),
@@ -387,6 +425,14 @@ def main(argv=None) -> int:
             },
             store_bytes=sum(f.stat().st_size for f in (work / f"rec{big}" / "chunks").iterdir()),
         )
+        if default_alloc:
+            out["headline"]["glibc_thresholds"] = dict(
+                rounds=[
+                    dict(cold=r["cold"]["seconds"], warm=r["warm"]["seconds"])
+                    for r in default_alloc
+                ],
+                peak_rss_gib=max(r["peak_rss_bytes"] for r in default_alloc) / 2**30,
+            )
         known = {"npy": (head, work / f"rec{big}")}
         meas = work / f"btf{big}" / "measurements"
         out["store_formats"] = _btf_formats.compare(work, meas, big, _run_child, known)
