@@ -36,92 +36,20 @@ Seed 1 throughout: the BTF default configuration was chosen on seed 0 (``btf.def
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import resource
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from . import _btf_formats
+from . import _btf_formats, _btf_runs
 from ._btf_report import markdown as _markdown
+from ._btf_runs import CHUNK
 from ._btf_report import scaling_chart as _scaling_chart
 from ._loadavg import load_average
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SEED = 1
-CHUNK = 1024
-
-
-def _child(argv) -> int:
-    """``--child MEAS OUT [FORMAT]``: reconstruct twice (cold, then warm into OUT-warm) into the
-    store format FORMAT (default npy); print JSON."""
-    t0 = time.perf_counter()
-    import jax
-
-    from abrdf_jax import btf
-    from abrdf_jax.cli.btf import keep_chunk_outputs
-
-    meas, out, fmt = (*argv, "npy")[:3]
-    t_import = time.perf_counter() - t0
-    kept = keep_chunk_outputs(CHUNK, "float16")  # as `abrdf-jax btf reconstruct` sets it
-    runs = []
-    for k, target in enumerate((out, out + "-warm")):
-        stats: dict = {}
-        t = time.perf_counter()
-        store = btf.reconstruct_btf(
-            meas, target, chunk=CHUNK, progress=False, dtype="float16", stats=stats, format=fmt
-        )
-        runs.append(dict(stats, seconds=time.perf_counter() - t))  # the whole call
-        if k == 1:
-            shutil.rmtree(target)
-    print(
-        "RESULT "
-        + json.dumps(
-            dict(
-                import_seconds=t_import,
-                allocator_keeps_chunks=kept,
-                cold=runs[0],
-                warm=runs[1],
-                texels=store.n_texels,
-                devices=[str(d) for d in jax.devices()],
-                peak_rss_bytes=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
-                total_seconds=time.perf_counter() - t0,
-            )
-        )
-    )
-    return 0
-
-
-#: The environment of a child that leaves glibc's allocator to its own rule: any ``MALLOC_*``
-#: threshold variable means the user's setting (``abrdf_jax.cli._malloc``), and this one is
-#: glibc's default trim threshold, so the mmap threshold stays glibc's dynamic one.
-GLIBC_DEFAULT = {"MALLOC_TRIM_THRESHOLD_": "131072"}
-
-
-def _run_child(
-    meas: Path, out: Path, devices: int | None = None, fmt: str = "npy", extra_env=None
-) -> dict:
-    env = dict(os.environ) | (extra_env or {})
-    if devices is not None:
-        env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
-    t = time.perf_counter()
-    res = subprocess.run(
-        [sys.executable, "-m", "benchmarks.btf", "--child", str(meas), str(out), fmt],
-        env=env,
-        capture_output=True,
-        text=True,
-        cwd=Path(__file__).resolve().parents[1],
-    )
-    wall = time.perf_counter() - t
-    if res.returncode != 0:
-        raise RuntimeError(f"child failed:\n{res.stderr[-4000:]}")
-    doc = json.loads([ln for ln in res.stdout.splitlines() if ln.startswith("RESULT ")][-1][7:])
-    doc["process_wall_seconds"] = wall
-    return doc
 
 
 def _gemm_rate(m: int, k: int, n: int) -> float:
@@ -287,7 +215,7 @@ def _config_comparison(work: Path, size: int = 16, seed: int = 0) -> dict:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "--child":
-        return _child(argv[1:])
+        return _btf_runs.child(argv[1:])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
         "--quick", action="store_true", help="16² to 64² texels, 1-2-4 devices (CI smoke)"
@@ -345,7 +273,7 @@ def main(argv=None) -> int:
         big = sizes[-1]
         if args.formats:
             meas = work / f"btf{big}" / "measurements"
-            out["store_formats"] = _btf_formats.compare(work, meas, big, _run_child)
+            out["store_formats"] = _btf_formats.compare(work, meas, big, _btf_runs.run_child)
             return _btf_formats.write(out, suffix, RESULTS)
 
         # Roofline and the single-material figure, same process, same machine state.
@@ -370,7 +298,7 @@ def main(argv=None) -> int:
         # Headline and texel-count scaling (each size in a fresh process: cold + warm).
         runs = {}
         for s in sizes:
-            runs[s] = _run_child(work / f"btf{s}" / "measurements", work / f"rec{s}")
+            runs[s] = _btf_runs.run_child(work / f"btf{s}" / "measurements", work / f"rec{s}")
             r = runs[s]
             c = r["cold"]
             print(
@@ -380,62 +308,12 @@ def main(argv=None) -> int:
                 f"peak RSS {r['peak_rss_bytes'] / 2**30:.2f} GiB, {r['warm']['backend']} backend",
                 flush=True,
             )
-        # More rounds of the largest size (this machine's spread between runs is ~1 s): the
-        # headline is the round of median cold time, the warm figure the median of the rounds.
-        # In full mode each round is followed by one with glibc's own allocator thresholds
-        # (``GLIBC_DEFAULT``), the chunk outputs then mapped anew each time: what
-        # ``keep_chunk_outputs`` gains, in the same run, rounds interleaved.
-        rounds, default_alloc = [runs[big]], []
-        for k in range(args.rounds or (1 if args.quick else 3)):
-            todo = ([] if k == 0 else [(rounds, {})]) + (
-                [] if args.quick else [(default_alloc, GLIBC_DEFAULT)]
-            )
-            for into, env in todo:
-                folder = work / f"round{k}{'-glibc' if env else ''}"
-                into.append(_run_child(work / f"btf{big}" / "measurements", folder, extra_env=env))
-                shutil.rmtree(folder, ignore_errors=True)
-                print(
-                    f"{big}x{big}, round {k + 1}{', glibc thresholds' if env else ''}: cold "
-                    f"{into[-1]['cold']['seconds']:.1f} s, warm {into[-1]['warm']['seconds']:.1f} s",
-                    flush=True,
-                )
-        head = sorted(rounds, key=lambda r: r["cold"]["seconds"])[(len(rounds) - 1) // 2]
-        warm = sorted(r["warm"]["seconds"] for r in rounds)[(len(rounds) - 1) // 2]
-        out["headline"] = dict(
-            size=big,
-            texels=big * big,
-            samples_per_texel=204,
-            store_dtype="float16",
-            seconds_cold=head["cold"]["seconds"],
-            seconds_warm=warm,
-            rounds=[dict(cold=r["cold"]["seconds"], warm=r["warm"]["seconds"]) for r in rounds],
-            process_wall_seconds=head["process_wall_seconds"],
-            peak_rss_gib=max(r["peak_rss_bytes"] for r in rounds) / 2**30,
-            texels_per_second_warm=big * big / warm,
-            texels_per_second_cold=big * big / head["cold"]["seconds"],
-            backend=head["warm"]["backend"],
-            allocator_keeps_chunks=head.get("allocator_keeps_chunks"),
-            target="<= 8 s cold on 2 cores, bounded by its own I/O (issue 13; was <= 60 s)",
-            split={
-                run: {
-                    stage: head[run].get(f"{stage}_seconds")
-                    for stage in ("build", "read", "compute", "write")
-                }
-                for run in ("cold", "warm")
-            },
-            store_bytes=sum(f.stat().st_size for f in (work / f"rec{big}" / "chunks").iterdir()),
+        head, out["headline"] = _btf_runs.headline(
+            work, big, runs[big], args.rounds or (1 if args.quick else 3), args.quick
         )
-        if default_alloc:
-            out["headline"]["glibc_thresholds"] = dict(
-                rounds=[
-                    dict(cold=r["cold"]["seconds"], warm=r["warm"]["seconds"])
-                    for r in default_alloc
-                ],
-                peak_rss_gib=max(r["peak_rss_bytes"] for r in default_alloc) / 2**30,
-            )
         known = {"npy": (head, work / f"rec{big}")}
         meas = work / f"btf{big}" / "measurements"
-        out["store_formats"] = _btf_formats.compare(work, meas, big, _run_child, known)
+        out["store_formats"] = _btf_formats.compare(work, meas, big, _btf_runs.run_child, known)
         out["headline"]["vs_single_material"] = (
             out["headline"]["texels_per_second_warm"] / out["single_material"]["abrdfs_per_second"]
         )
@@ -452,7 +330,9 @@ def main(argv=None) -> int:
         # Device scaling: simulated CPU devices (the same two cores split N ways).
         dev = {}
         for d in device_counts:
-            r = _run_child(work / f"btf{device_size}" / "measurements", work / f"dev{d}", devices=d)
+            r = _btf_runs.run_child(
+                work / f"btf{device_size}" / "measurements", work / f"dev{d}", devices=d
+            )
             dev[d] = r
             shutil.rmtree(work / f"dev{d}", ignore_errors=True)
             print(
