@@ -39,7 +39,6 @@ are printed as PASS/FAIL lines (:func:`benchmarks._cli_report.check_targets`).
 from __future__ import annotations
 
 import argparse
-import os
 import shlex
 import sys
 import tempfile
@@ -48,6 +47,7 @@ from pathlib import Path
 
 import abrdf_jax as aj
 from abrdf_jax import io, materials
+from abrdf_jax.cli import _readers as readers
 
 from ._cli_floors import floors
 from ._cli_runner import (
@@ -211,7 +211,7 @@ def parallel_calls(r: Runner, folder: Path, files: int) -> dict:
     py = sys.executable
     launch = [py, "-m", "benchmarks._parallel_calls", str(PARALLEL), str(files), str(folder)]
     env = {CACHE_ENV: str(r.work / "cache-iso1")}
-    cores = {"OPENBLAS_NUM_THREADS": str(os.cpu_count() or 1)}
+    cores = {"OPENBLAS_NUM_THREADS": str(readers.cores())}  # as the command restores it
     calls = {
         "package": ((*PACKAGE, "reconstruct"), {"env": env}),
         "peer": (PEER, {"cwd": REPO}),

@@ -172,7 +172,11 @@ def keep_chunk_outputs(chunk: int, dtype: str) -> bool:
     """Let the C allocator keep one chunk's output (``chunk`` texels × 81 × 81 × RGB of
     ``dtype``) for the next chunk: ``btf reconstruct`` allocates it anew per chunk, above glibc's
     own mmap ceiling (:mod:`abrdf_jax.cli._malloc`). ``True`` when the thresholds were set."""
-    return common.keep_freed_blocks(chunk * 81 * 81 * 3 * {"float16": 2, "float32": 4}[dtype])
+    import numpy as np
+
+    from ..btf._chunkfn import N_PAIRS  # a chunk map's tables: (texels, N_PAIRS, 3)
+
+    return common.keep_freed_blocks(chunk * N_PAIRS * 3 * np.dtype(dtype).itemsize)
 
 
 def cmd_reconstruct(args) -> int:
