@@ -212,6 +212,34 @@ def test_store_round_trip_and_corruption(tmp_path):
         )
 
 
+def test_store_checksums_new_and_older_markers(tmp_path):
+    """Markers carry the CRC-32C of the whole chunk file (the standard check value of
+    ``b"123456789"`` is 0xE3069283); a marker of an older store (zlib's CRC-32 under ``crc32``)
+    still verifies, a wrong one of either kind or none at all is a checksum mismatch."""
+    import zlib
+
+    from abrdf_jax.btf._checksum import checksum
+
+    assert checksum(b"1234", memoryview(b"56789")) == {"crc32c": 0xE3069283}
+    s = btf.ChunkedStore.create(
+        tmp_path / "s", kind="measurements", texel_shape=(1, 4), item_shape=(2, 3), chunk=4
+    )
+    s.write_chunk(0, np.arange(24, dtype=np.float32).reshape(4, 2, 3))
+    npy, marker = s._files(0)
+    m = json.loads(marker.read_text())
+    assert m["crc32c"] == checksum(npy.read_bytes())["crc32c"] and "crc32" not in m
+    old = {k: v for k, v in m.items() if k != "crc32c"}
+    for crc, status in ((zlib.crc32(npy.read_bytes()), "done"), (12345, _store.CORRUPT)):
+        marker.write_text(json.dumps(dict(old, crc32=crc)))
+        assert s.chunk_status(0) == status
+    np.testing.assert_array_equal(s.read_chunk(0, verify=False).ravel(), np.arange(24))
+    for bad in (dict(m, crc32c=m["crc32c"] ^ 1), old):
+        marker.write_text(json.dumps(bad))
+        assert s.chunk_status(0) == _store.CORRUPT and s.chunk_status(0, verify=False) == "done"
+        with pytest.raises(InputError, match="checksum"):
+            s.read_chunk(0)
+
+
 # ------------------------------------------------------------------------------------ batch path
 
 

@@ -4,7 +4,7 @@ Layout of a store folder::
 
     manifest.json          what the store holds (see below); written once, atomically
     chunks/c000000.npy     texels [0, chunk) of the array, a plain NumPy file
-    chunks/c000000.json    the chunk's completion marker: range, shape, dtype, byte count, CRC-32
+    chunks/c000000.json    the chunk's completion marker: range, shape, dtype, byte count, CRC-32C
     chunks/c000001.npy ...
 
 The array has shape ``(n_texels, *item_shape)``, texels numbered row-major over the texture
@@ -15,8 +15,9 @@ The array has shape ``(n_texels, *item_shape)``, texels numbered row-major over 
 Crash safety: a chunk is written to a temporary file beside it, flushed, ``fsync``-ed and renamed
 onto its name; only then is its marker written the same way. A chunk counts as done only when
 its marker exists, agrees with the manifest (range, shape, dtype) and with the file (byte count,
-and with ``verify`` its CRC-32). A crash at any point leaves either no file, a stray temporary
-file, or a chunk without marker: none of them looks valid, and a rerun rewrites the chunk.
+and with ``verify`` its checksum, :mod:`._checksum`). A crash at any point leaves either no file,
+a stray temporary file, or a chunk without marker: none of them looks valid, and a rerun rewrites
+the chunk.
 Before a chunk is rewritten its old marker is removed first.
 """
 
@@ -27,7 +28,6 @@ import io
 import json
 import os
 import sys
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +35,7 @@ import numpy as np
 from .._errors import InputError
 from .._names import STORE_DTYPES as DTYPES
 from ..io import atomic_write
+from ._checksum import checksum, matches
 from ._chunked import ChunkIndex
 
 FORMAT = "abrdf_jax.btf-store"
@@ -303,7 +304,7 @@ class ChunkedStore(ChunkIndex):
             return "data file missing"
         if size != m.get("bytes"):
             return f"data file has {size} bytes, marker says {m.get('bytes')}"
-        if verify and zlib.crc32(data.read_bytes()) != m.get("crc32"):
+        if verify and not matches(m, data.read_bytes()):
             return CORRUPT
         return "done"
 
@@ -336,7 +337,7 @@ class ChunkedStore(ChunkIndex):
             f.write(header)
             f.write(body)
         meta = self._expected_marker(k)
-        meta.update(bytes=len(header) + len(body), crc32=zlib.crc32(body, zlib.crc32(header)))
+        meta.update(bytes=len(header) + len(body), **checksum(header, body))
         with atomic_write(marker, "w") as f:
             json.dump(meta, f)
 
@@ -349,7 +350,7 @@ class ChunkedStore(ChunkIndex):
         data, _ = self._files(k)
         status = self.chunk_status(k, verify=False)
         raw = data.read_bytes() if status == "done" else b""
-        if verify and status == "done" and zlib.crc32(raw) != self._marker(k).get("crc32"):
+        if verify and status == "done" and not matches(self._marker(k) or {}, raw):
             status = CORRUPT
         if status != "done":
             raise InputError(f"{data}: chunk {k} of {self.path} is not valid: {status}")
