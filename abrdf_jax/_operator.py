@@ -494,7 +494,7 @@ def compile_operator(
         template.has_axial,
         targets is None,
         template.centre_azimuths,
-        None if cols is None else jnp.asarray(cols),
+        None if cols is None else put(cols, jnp.int32),
         None if factors is None else tuple(put(a, dtype) for a in factors),
         operator_neighbours(config, built, dtype),
     )
