@@ -323,7 +323,8 @@ def operator_neighbours(config, built, dtype):
     t, count = np.asarray(t, dtype), np.asarray(count)
     left, right, wl, wr, valid, slice_of = compact(neighbours(t, count, np), np.asarray(index), np)
     left, right, slice_of = (jnp.asarray(a, jnp.int32) for a in (left, right, slice_of))
-    return left, right, jnp.asarray(wl, dtype), jnp.asarray(wr, dtype), jnp.asarray(valid, bool), slice_of
+    wl, wr, valid = jnp.asarray(wl, dtype), jnp.asarray(wr, dtype), jnp.asarray(valid, bool)
+    return left, right, wl, wr, valid, slice_of
 
 
 def smoothing_to_json(setting):
