@@ -50,6 +50,17 @@ def scaling_chart(path: Path, sizes, size_times, devices, device_times, title: s
     plt.close(fig)
 
 
+def checksum_rows(c: dict | None) -> list[str]:
+    """The store checksums' rows of the "beside it" table (runs before 2026-12-07: none)."""
+    if not c:
+        return []
+    return [
+        f"| store checksum of one chunk ({c['megabytes']:.0f} MB), {name}"
+        f"{' (written)' if name == c['written'] else ' (older stores, verified)'} | {ms:.1f} ms |"
+        for name, ms in c["ms_per_chunk"].items()
+    ]
+
+
 def markdown(out: dict, suffix: str) -> str:
     """The results as markdown tables (``btf.md``), every figure from ``out`` (the JSON)."""
     m, h = out["machine"], out["headline"]
@@ -120,6 +131,7 @@ def markdown(out: dict, suffix: str) -> str:
         f"| float32 GEMM roofline, operator shape {op['gemm_shape']} | {roof['operator_shape']:.1f} GFLOP/s "
         f"(chunk map reaches {100 * op['fraction_of_roofline']:.0f} %) |",
         f"| float32 GEMM, 2048³ | {roof['square_2048']:.1f} GFLOP/s |",
+        *checksum_rows(out.get("checksums")),
         "",
         "| texels | cold | warm | peak RSS |",
         "|---|---|---|---|",

@@ -22,7 +22,8 @@ What is measured, all in one run:
 - **beside it**: the single-material figure (one ``abrdf_jax.reconstruct`` call, recommended
   settings, after compilation), the in-memory operator throughput (one chunk, no I/O) and the
   machine's float32 matrix-product rate (the roofline: the operator's own GEMM shape and a
-  2048² GEMM), with the fraction of it the operator reaches;
+  2048² GEMM), with the fraction of it the operator reaches; the store's checksums of one
+  chunk's tables (CRC-32C, written; zlib's CRC-32, still verified on older stores);
 - **store formats**: the largest size into the zarr v3 group beside the ``.npy`` store, same
   settings: time and bytes on disk (:mod:`benchmarks._btf_formats`);
 - **scaling**: warm time against texel count (64² … 256²) and against the number of simulated
@@ -63,6 +64,22 @@ def _gemm_rate(m: int, k: int, n: int) -> float:
     b = jax.random.normal(jax.random.PRNGKey(1), (k, n), jnp.float32)
     f = jax.jit(jnp.matmul)
     return 2.0 * m * k * n / median_seconds(lambda: f(a, b)) / 1e9
+
+
+def _checksums() -> dict:
+    """Milliseconds per chunk of each store checksum (``abrdf_jax.btf._checksum.ALGORITHMS``:
+    the one written, the older one still verified) over one chunk's float16 tables
+    (``CHUNK`` × 6561 × 3, random values), median of 5 after a warm-up, in this process."""
+    import numpy as np
+
+    from abrdf_jax.btf._checksum import ALGORITHMS, WRITTEN
+
+    from ._common import median_seconds
+
+    rng = np.random.default_rng(SEED)
+    body = memoryview(rng.uniform(0, 4, (CHUNK, 81 * 81, 3)).astype(np.float16)).cast("B")
+    ms = {name: 1e3 * median_seconds(lambda f=f: f(body, 0)) for name, f in ALGORITHMS.items()}
+    return dict(ms_per_chunk=ms, megabytes=body.nbytes / 1e6, written=WRITTEN)
 
 
 def _single_material() -> dict:
@@ -287,6 +304,7 @@ def main(argv=None) -> int:
             op["gflops"] / out["roofline_gflops"]["operator_shape"]
         )
         out["single_material"] = _single_material()
+        out["checksums"] = _checksums()
         print(
             f"roofline {out['roofline_gflops']['operator_shape']:.1f} GFLOP/s (operator shape), "
             f"{out['roofline_gflops']['square_2048']:.1f} (2048²); operator in memory "
