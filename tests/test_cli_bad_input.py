@@ -200,6 +200,29 @@ def test_large_csv_is_streamed_in_bounded_memory(tmp_path):
     assert peak < 0.7 * naive
 
 
+def test_a_dark_capture_warns_and_reconstructs_zero(tmp_path, capsys, monkeypatch):
+    """A capture with no positive value (a dark frame, a capped lens) is reconstructed, but not
+    silently: a warning names the file (in a folder, that file only), and the table it
+    promises is zero to rounding (the real reconstruction: the log of ``0 + ε`` restored)."""
+    monkeypatch.chdir(tmp_path)
+    rows = protocol_rows()
+    (tmp_path / "dark.csv").write_text(csv_text(rows, (0.0, 0.0, 0.0)))
+    assert main(["reconstruct", "dark.csv", "-o", "dark.npz"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: dark.csv: every sample is 0 or below (102 samples, max 0)" in err
+    assert np.abs(io.read_table(tmp_path / "dark.npz")).max() < 1e-12
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    (folder / "a.csv").write_text(csv_text(rows))
+    rgb = np.zeros((len(rows), 3))
+    rgb[3] = -0.001  # below zero is no brighter
+    (folder / "b.csv").write_text(csv_text(rows, rgb))
+    assert main(["reconstruct", "folder", "-o", "out", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "b.csv: every sample is 0 or below (102 samples, max 0)" in err
+    assert "a.csv" not in err and "negative" not in err  # one warning: the dark one says it
+
+
 def test_negative_values_warn_and_write_failure_keeps_output(tmp_path, capsys, monkeypatch):
     """Negative samples are kept with a warning; a write that fails half-way leaves no trace.
 

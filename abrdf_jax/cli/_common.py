@@ -332,7 +332,7 @@ def read_inputs(files, forced, alpha, before=None, quiet=True, keep=True, warn=T
     def make_bar():
         return progress(len(files), "read", quiet or len(files) < 2, _progress.READ_BAR_DELAY)
 
-    work = functools.partial(_readers.read_one, plan, warn_negative, forced, alpha, keep, warn)
+    work = functools.partial(_readers.read_one, plan, warn_values, forced, alpha, keep, warn)
     n, done = _readers.reader_count(files), None
     if n > 1:
         done = _readers.read_parallel(work, files, n, make_bar)
@@ -347,7 +347,7 @@ def read_inputs(files, forced, alpha, before=None, quiet=True, keep=True, warn=T
         raise InputError(bad[0][1] + more)
     fill_noise(items)
     for item in items if warn else ():
-        warn_negative(item.path, item.samples)
+        warn_values(item.path, item.samples)
     return items
 
 
@@ -420,11 +420,20 @@ def params_for(budget: str, alpha: float, preset: str = "recommended", params_fi
 # --------------------------------------------------------------------------------------------
 
 
-def warn_negative(path: Path, samples) -> None:
-    """Negative values are kept (dark-frame noise); say so, since the output is clamped at 0."""
+def warn_values(path: Path, samples) -> None:
+    """Say what the values of a capture hold that its reconstruction cannot show: negative
+    values (dark-frame noise; kept, the output is clamped at 0), or no positive value at all
+    (a dark frame, a capped lens, a wrong column: the reconstruction is a table of zeros)."""
     import numpy as np
 
     rgb = np.asarray(samples.rgb)
+    if len(rgb) and not (rgb > 0).any():
+        warn(
+            f"{path}: every sample is 0 or below ({len(rgb)} samples, max {rgb.max():.3g}): "
+            "the reconstruction is zero everywhere (to rounding); a dark frame, a capped lens, "
+            "the wrong columns?"
+        )
+        return
     neg = (rgb < 0).any(axis=1)
     if neg.any():
         warn(

@@ -119,12 +119,12 @@ def _orphan_guard(parent: int) -> None:
 
 
 def read_one(
-    plan, negative, forced, alpha, keep: bool, warn: bool, path
+    plan, values, forced, alpha, keep: bool, warn: bool, path
 ) -> tuple[str, object, str]:
     """One input: ``(what, result, console text)``; ``what`` is ``"ok"`` (result: the planned
     item, or ``None`` when not kept), ``"read"`` or ``"plan"`` (result: the error's message).
     What the planning says on stderr is returned, for :func:`merged` to print in file order.
-    ``plan`` and ``negative``: the command line's ``_common.plan`` and ``_common.warn_negative``
+    ``plan`` and ``values``: the command line's ``_common.plan`` and ``_common.warn_values``
     (bound with :func:`functools.partial`, the one function both readers call)."""
     from .. import io
 
@@ -139,7 +139,7 @@ def read_one(
         except InputError as e:
             return "plan", str(e), out.getvalue()
         if not keep and warn:
-            negative(path, samples)
+            values(path, samples)
     return "ok", item if keep else None, out.getvalue()
 
 
