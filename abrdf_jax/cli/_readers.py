@@ -118,9 +118,7 @@ def _orphan_guard(parent: int) -> None:
         threading.Thread(target=watch, daemon=True).start()
 
 
-def read_one(
-    plan, values, forced, alpha, keep: bool, warn: bool, path
-) -> tuple[str, object, str]:
+def read_one(plan, values, forced, alpha, keep: bool, warn: bool, path) -> tuple[str, object, str]:
     """One input: ``(what, result, console text)``; ``what`` is ``"ok"`` (result: the planned
     item, or ``None`` when not kept), ``"read"`` or ``"plan"`` (result: the error's message).
     What the planning says on stderr is returned, for :func:`merged` to print in file order.
