@@ -40,6 +40,7 @@ from typing import ClassVar
 import numpy as np
 
 from ._errors import InputError
+from ._groups import tolerance_groups
 from ._grid import half_diff, to_vector, ubo_grid
 from ._host_eps import EPS_FLOOR
 from ._memo import BoundedMemo
@@ -150,7 +151,7 @@ POINT_TOL = 1e-9
 def _distinct(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct rows of ``points`` ``(q, 2)`` (to :data:`POINT_TOL`; each the first of its
     kind) and each row's index among them."""
-    first, at, _ = _tps.tolerance_groups(points, POINT_TOL)
+    first, at, _ = tolerance_groups(points, POINT_TOL)
     return points[first], at
 
 

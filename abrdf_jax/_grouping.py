@@ -48,6 +48,7 @@ import numpy as np
 
 from ._arrays import SampleColumns, SliceArrays
 from ._errors import InputError
+from ._groups import cell_means, key_groups, tolerance_groups
 from ._grid import mean_directions, to_vector
 from ._memo import BoundedMemo
 from ._protocol import PROTOCOL_PAIRS, UBO_THETAS_DEG
@@ -195,11 +196,10 @@ def _reduce(angle, src, max_knots):
         return angle, src, np.zeros(0, np.int64), np.zeros(0)
     if len(angle) > max_knots:
         keys = np.minimum((angle / 360.0 * max_knots).astype(np.int64), max_knots - 1)
+        _, inv, cnt = key_groups(keys)
     else:
-        keys = np.round(angle / 1e-6).astype(np.int64)
-    uniq, inv = np.unique(keys, return_inverse=True)
-    cnt = np.bincount(inv, minlength=len(uniq)).astype(float)
-    return np.bincount(inv, angle, len(uniq)) / cnt, src, inv, cnt
+        _, inv, cnt = tolerance_groups(angle, 1e-6)
+    return cell_means(angle[:, None], inv, cnt)[:, 0], src, inv, cnt
 
 
 def _gaps(angle_deg) -> list[tuple[float, float]]:

@@ -22,7 +22,7 @@ import numpy as np
 
 from ._grid import from_vector
 from ._grouping import infer_pairs
-from ._tps import cell_means, tolerance_groups
+from ._groups import cell_means, tolerance_groups
 
 #: Width (degrees) of the Gaussian in ``(θi, θv)`` that carries a measured pair's residual curve
 #: to the targets around it (module docstring); ``0`` turns the correction off.

@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._errors import InputError
+from ._groups import cell_means, key_groups
 from ._kernels import kernel_block
 
 #: Above this many samples the plane is binned before the solve, which costs ``O(n³)``: cells
@@ -42,28 +43,11 @@ def binned(src: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     bins = BINS
     while True:
         cell = np.clip((src * bins).astype(np.int64), 0, bins - 1)
-        _, which = np.unique(cell[:, 0] * bins + cell[:, 1], return_inverse=True)
-        if which.max() < MAX_POINTS or bins == 1:
+        _, which, count = key_groups(cell[:, 0] * bins + cell[:, 1])
+        if len(count) <= MAX_POINTS or bins == 1:
             break
         bins //= 2
-    which = which.reshape(-1)
-    count = np.bincount(which).astype(np.float64)
     return cell_means(src, which, count), which, count
-
-
-def tolerance_groups(x: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(first, which, count)`` of values ``x`` ``(n,)`` or rows ``(n, d)`` equal to ``tol``
-    (rounded to multiples of it): the first item of each group (groups in sorted order), each
-    item's group and each group's size."""
-    key = np.round(x / tol).astype(np.int64)
-    _, first, which = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    which = which.reshape(-1)
-    return first, which, np.bincount(which, minlength=len(first)).astype(np.float64)
-
-
-def cell_means(x: np.ndarray, which: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """The mean of the rows of ``x`` ``(n, K)`` in each cell: ``(m, K)``."""
-    return np.stack([np.bincount(which, c, len(count)) for c in x.T], -1) / count[:, None]
 
 
 class Fit(NamedTuple):

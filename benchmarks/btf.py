@@ -67,19 +67,19 @@ def _gemm_rate(m: int, k: int, n: int) -> float:
 
 
 def _checksums() -> dict:
-    """Milliseconds per chunk of each store checksum (``abrdf_jax.btf._checksum.ALGORITHMS``:
+    """Milliseconds per chunk of each store checksum (``abrdf_jax.btf.CHECKSUMS``:
     the one written, the older one still verified) over one chunk's float16 tables
     (``CHUNK`` × 6561 × 3, random values), median of 5 after a warm-up, in this process."""
     import numpy as np
 
-    from abrdf_jax.btf._checksum import ALGORITHMS, WRITTEN
+    from abrdf_jax.btf import CHECKSUM, CHECKSUMS
 
     from ._common import median_seconds
 
     rng = np.random.default_rng(SEED)
     body = memoryview(rng.uniform(0, 4, (CHUNK, 81 * 81, 3)).astype(np.float16)).cast("B")
-    ms = {name: 1e3 * median_seconds(lambda f=f: f(body, 0)) for name, f in ALGORITHMS.items()}
-    return dict(ms_per_chunk=ms, megabytes=body.nbytes / 1e6, written=WRITTEN)
+    ms = {name: 1e3 * median_seconds(lambda f=f: f(body, 0)) for name, f in CHECKSUMS.items()}
+    return dict(ms_per_chunk=ms, megabytes=body.nbytes / 1e6, written=CHECKSUM)
 
 
 def _single_material() -> dict:

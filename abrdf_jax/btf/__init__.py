@@ -4,7 +4,8 @@
   materials, self-shadowing, masking and tilted normals; anisotropic, non-reciprocal texels) with
   dense ground truth and slice measurements, deterministic from a seed, written chunk by chunk.
 - :class:`ChunkedStore`: a folder with a JSON manifest and one checksummed ``.npy`` per chunk of
-  texels, written atomically (a crash never leaves a chunk that looks valid).
+  texels, written atomically (a crash never leaves a chunk that looks valid); :data:`CHECKSUMS`,
+  :data:`CHECKSUM`: the markers' checksums (CRC-32C written, zlib's CRC-32 of older stores read).
 - :class:`ZarrStore` / :func:`export_zarr`: the same store as a zarr v3 group (``[zarr]``
   extra; read by xarray, dask, napari); :func:`open_store` opens either format.
 - :func:`write_exr_pairs` / :func:`read_image_pairs`: one image per direction pair, the layout of
@@ -25,6 +26,7 @@ from .._lazy import lazy_exports
 _EXPORTS = {
     "_batch": ("DEFAULT_CHUNK", "default_config", "isotropy_map", "reconstruct_btf"),
     "_bivariate": ("BivariateChunkFunction", "make_bivariate_chunk_fn"),
+    "_checksum": ("CHECKSUM", "CHECKSUMS"),
     "_chunkfn": (
         "ChunkFunction",
         "ModelChoiceChunkFunction",

@@ -20,23 +20,23 @@ import zlib
 import crc32c as _crc32c
 
 #: Marker key → incremental checksum ``f(data, value) -> int`` (both start at 0).
-ALGORITHMS = {"crc32c": _crc32c.crc32c, "crc32": zlib.crc32}
+CHECKSUMS = {"crc32c": _crc32c.crc32c, "crc32": zlib.crc32}
 #: The algorithm of the markers this version writes.
-WRITTEN = "crc32c"
+CHECKSUM = "crc32c"
 
 
 def checksum(*parts) -> dict:
-    """``{WRITTEN: value}``: the checksum of the bytes ``parts`` (buffers) concatenated."""
-    fn, value = ALGORITHMS[WRITTEN], 0
+    """``{CHECKSUM: value}``: the checksum of the bytes ``parts`` (buffers) concatenated."""
+    fn, value = CHECKSUMS[CHECKSUM], 0
     for part in parts:
         value = fn(part, value)
-    return {WRITTEN: value}
+    return {CHECKSUM: value}
 
 
 def matches(marker: dict, data) -> bool:
     """Whether the bytes ``data`` agree with the checksum in ``marker`` (the first algorithm of
-    :data:`ALGORITHMS` it carries); ``False`` when it carries none."""
-    for key, fn in ALGORITHMS.items():
+    :data:`CHECKSUMS` it carries); ``False`` when it carries none."""
+    for key, fn in CHECKSUMS.items():
         if key in marker:
             return fn(data, 0) == marker[key]
     return False
