@@ -716,6 +716,25 @@ def test_bivariate_model_per_texel(tmp_path, capsys, monkeypatch):
         )
 
 
+def test_keep_chunk_outputs_sizes_the_padded_batch(monkeypatch):
+    """The allocator is asked to keep a chunk's output as the chunk map pads it on the devices
+    (the next multiple of devices × block), not the bare chunk; a device count beyond the
+    machine's is refused as ``reconstruct_btf`` refuses it."""
+    from abrdf_jax.btf._devices import padded_batch
+    from abrdf_jax.cli import _common
+    from abrdf_jax.cli.btf import keep_chunk_outputs
+
+    cases = ((1024, 1), (1024, 8), (1024, 3), (1000, 8), (10, 4))
+    assert [padded_batch(c, d) for c, d in cases] == [1024, 1024, 1152, 1000, 12]
+    kept = []
+    monkeypatch.setattr(_common, "keep_freed_blocks", lambda largest=0: kept.append(largest) or 1)
+    assert keep_chunk_outputs(1024, "float16", jax.local_devices()[:1] * 3)  # three "devices"
+    assert keep_chunk_outputs(1000, "float32", 1)
+    assert kept == [1152 * 6561 * 3 * 2, 1024 * 6561 * 3 * 4]  # blocks of 128 on one device too
+    with pytest.raises(InputError, match="devices must be in"):
+        keep_chunk_outputs(1024, "float16", len(jax.local_devices()) + 1)
+
+
 def test_learned_models_per_texel_equal_their_numpy_entry(generated, tmp_path, capsys):
     """``model="prior"|"fused"`` (issue 14, "folder and BTF runs use it"): every texel through the
     learned model's entry collapsed to one matrix, in JAX, equals the numpy entry that

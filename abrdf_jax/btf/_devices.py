@@ -88,6 +88,14 @@ def resolve_devices(devices=None) -> list:
 DEFAULT_BLOCK = 128
 
 
+def padded_batch(chunk: int, n_devices: int, block: int = DEFAULT_BLOCK) -> int:
+    """The batch a chunk of ``chunk`` texels is padded to on ``n_devices`` devices: the next
+    multiple of ``n_devices × b``, with ``b`` the block or, for a small chunk,
+    ``ceil(chunk / n_devices)`` (:meth:`ShardedRunner.batch_size`)."""
+    step = n_devices * min(block, -(-chunk // n_devices))
+    return -(-chunk // step) * step
+
+
 def _local(arrays, y, static, block, out_dtype):
     """One device's share: the chunk map over blocks of ``block`` texels (one shape, any count)."""
     fn = eqx.combine(arrays, static)
@@ -154,10 +162,8 @@ class ShardedRunner:
         )
 
     def batch_size(self, chunk: int) -> int:
-        """The padded batch of a chunk: the next multiple of ``devices × b``, with ``b`` the
-        block or, for a small chunk, ``ceil(chunk / devices)``."""
-        step = len(self.devices) * min(self.block, -(-chunk // len(self.devices)))
-        return -(-chunk // step) * step
+        """The padded batch of a chunk (:func:`padded_batch` on these devices and block)."""
+        return padded_batch(chunk, len(self.devices), self.block)
 
     def __call__(self, y: np.ndarray):
         """Dispatch one padded batch ``(B, n, 3)`` (from :meth:`batch_size`); returns a (still

@@ -168,15 +168,22 @@ def _import_capture(src: Path, out: Path, args, btf):
     return btf.read_image_pairs(src, store, **opts)
 
 
-def keep_chunk_outputs(chunk: int, dtype: str) -> bool:
-    """Let the C allocator keep one chunk's output (``chunk`` texels × 81 × 81 × RGB of
-    ``dtype``) for the next chunk: ``btf reconstruct`` allocates it anew per chunk, above glibc's
-    own mmap ceiling (:mod:`abrdf_jax.cli._malloc`). ``True`` when the thresholds were set."""
+def keep_chunk_outputs(chunk: int, dtype: str, devices=None) -> bool:
+    """Let the C allocator keep one chunk's output (``chunk`` texels, padded as the chunk map on
+    ``devices`` pads them (``reconstruct_btf``'s argument: ``None`` all local devices, a count or
+    a list), × 81 × 81 × RGB of ``dtype``) for the next chunk: ``btf reconstruct`` allocates it
+    anew per chunk, above glibc's own mmap ceiling (:mod:`abrdf_jax.cli._malloc`). ``True`` when
+    the thresholds were set.
+
+    Raises:
+        InputError: ``devices`` names more devices than there are (as ``reconstruct_btf``)."""
     import numpy as np
 
     from ..btf._chunkfn import N_PAIRS  # a chunk map's tables: (texels, N_PAIRS, 3)
+    from ..btf._devices import padded_batch, resolve_devices
 
-    return common.keep_freed_blocks(chunk * N_PAIRS * 3 * np.dtype(dtype).itemsize)
+    texels = padded_batch(chunk, len(resolve_devices(devices)))
+    return common.keep_freed_blocks(texels * N_PAIRS * 3 * np.dtype(dtype).itemsize)
 
 
 def cmd_reconstruct(args) -> int:
@@ -217,7 +224,7 @@ def cmd_reconstruct(args) -> int:
         how = "export once all have finished, with 'abrdf-jax btf export'"
         raise InputError(f"--exr-dir with several processes: {how}")
     config, params = _config_params(args, meas)
-    keep_chunk_outputs(args.chunk, args.dtype)
+    keep_chunk_outputs(args.chunk, args.dtype, args.devices)
     stats: dict = {}
     opts = dict(chunk=args.chunk, progress=not args.quiet, dtype=args.dtype, devices=args.devices)
     opts |= dict(backend=args.backend, overwrite=args.overwrite, stats=stats, model=args.model)
