@@ -50,7 +50,7 @@ from ._low_rank import low_rank_factors, product as _product
 from ._measurements import Measurements
 from ._params import Config, Params
 from ._pipeline import fit_inputs, rbf_map, subspace_values
-from ._smoothing import operator_neighbours, smooth_compact
+from ._smoothing import operator_neighbours, smooth_compact, smooths_slices
 from ._spikes import cap_samples
 from ._values import log_values, value_eps, value_space
 
@@ -300,7 +300,7 @@ def _apply_impl(op: ReconstructionOperator, x, full: bool, out=None):
     )
     if op.stage == "single":
         z = log_values(x, eps) if vs.log_samples else x  # single stage: never log after the rule
-        if vs.log_samples:  # the pipeline's slice smoothing (_pipeline.smoothed_samples)
+        if smooths_slices(cfg):  # the pipeline's slice smoothing (_pipeline.smoothed_samples)
             z = smooth_compact(
                 cfg.slice_smoothing, z, op.index, op.t.astype(x.dtype), op.count, nb=op.neighbours
             )

@@ -21,7 +21,7 @@ from ._measurements import Measurements, Samples, stack_measurements
 from ._params import Config, Params
 from ._rbf import SolveInfo, fit_rbf_info
 from ._slices import PROTOCOL_PAIRS
-from ._smoothing import smooth_slices
+from ._smoothing import smooth_slices, smooths_slices
 from ._spikes import cap_samples
 from ._subspace import centre_subspaces
 from ._values import value_space
@@ -111,10 +111,10 @@ def capped_samples(enc: Measurements, config: Config, vs) -> Measurements:
     return enc.replace(y=cap_samples(enc.y, config.spike_cap, enc.mask))
 
 
-def smoothed_samples(enc: Measurements, config: Config, vs) -> Measurements:
+def smoothed_samples(enc: Measurements, config: Config) -> Measurements:
     """The encoded samples after the slice smoothing (``config.slice_smoothing``,
     :mod:`abrdf_jax._smoothing`) in the log-sample value space, else as they are."""
-    if not (vs.log_samples and config.slice_smoothing is not None):
+    if not smooths_slices(config):
         return enc
     z = smooth_slices(config.slice_smoothing, enc.y, enc.t, enc.count)[0]
     return enc.replace(y=z)
@@ -125,7 +125,7 @@ def fit_inputs(meas: Measurements, config: Config, params: Params, vs, eps):
     in the RBF's value space as restored from the (smoothed: :mod:`abrdf_jax._smoothing`)
     samples (what goes back at the grid pairs), and as the RBF fits them (from spike-capped log
     samples, or capped centre values: :mod:`abrdf_jax._spikes`)."""
-    enc = smoothed_samples(vs.encode_samples(meas, eps), config, vs)
+    enc = smoothed_samples(vs.encode_samples(meas, eps), config)
     vals = subspace_values(enc, config, params)
     raw = vs.encode_subspace(vals, eps)
     if vs.log_samples:

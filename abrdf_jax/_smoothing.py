@@ -300,6 +300,15 @@ def smooth_compact(setting, z, index, t, count, xp=None, nb=None):
     return smooth(z, weights(setting, z, count, nb, xp, r)[0], nb, xp, r)
 
 
+def smooths_slices(config) -> bool:
+    """Whether ``config`` smooths its slices: a ``slice_smoothing`` setting with the log taken
+    of the samples (``value_space="logsamples"``), the one value space it runs in (the
+    pipeline's ``smoothed_samples``, the compiled operator's and the numpy entry's apply)."""
+    from ._names import LOG_SAMPLES
+
+    return config.slice_smoothing is not None and config.value_space in LOG_SAMPLES
+
+
 def operator_neighbours(config, built, dtype):
     """The :func:`compact` neighbours of the valid samples of a compiled operator (``config``
     and its ``_operator.BuiltMatrix`` ``built``), computed once on the host as the numpy operator
@@ -310,13 +319,10 @@ def operator_neighbours(config, built, dtype):
     import jax
     import jax.numpy as jnp
 
-    from ._names import LOG_SAMPLES
-
     t, count, index = built.t, built.count, built.index
     if (
-        config.slice_smoothing is None
+        not smooths_slices(config)
         or built.stage != "single"
-        or config.value_space not in LOG_SAMPLES
         or any(isinstance(a, jax.core.Tracer) for a in (t, count, index))
     ):
         return None
@@ -385,10 +391,9 @@ def slice_smoothing(meas, config) -> dict | None:
 def slice_smoothings(measurements, configs) -> list:
     """:func:`slice_smoothing` of every ``(measurement, config)`` pair; those that share a
     layout and a setting in one vectorised pass (:func:`smoothing_reports`: the same numbers)."""
-    from ._names import LOG_SAMPLES
 
     def key(m, c):
-        if c.value_space in LOG_SAMPLES and c.slice_smoothing is not None:
+        if smooths_slices(c):
             return (repr(c.slice_smoothing), float(c.log_eps), *layout_of(m))
         return None
 

@@ -127,7 +127,7 @@ def _cv_core(data: dict, configs: tuple, params: Params):
 
     def fold_values(m, e):
         # what the pipeline's RBF fits (slice smoothing and spike cap: _pipeline.fit_inputs)
-        enc = capped_samples(smoothed_samples(vs.encode_samples(m, e), cfg0, vs), cfg0, vs)
+        enc = capped_samples(smoothed_samples(vs.encode_samples(m, e), cfg0), cfg0, vs)
         vals = _group_subspaces(enc, configs, params, lambda v: vs.encode_subspace(v, e))
         return _cap_centres(vals, m, vs)
 
