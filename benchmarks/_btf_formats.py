@@ -46,6 +46,7 @@ def compare(work: Path, meas: Path, size: int, run_child, known=None) -> dict:
             write_seconds_warm=r["warm"]["write_seconds"],
             texels_per_second_warm=size * size / r["warm"]["seconds"],
             peak_rss_gib=r["peak_rss_bytes"] / 2**30,
+            from_headline=fmt in known,
             **disk_usage(out),
         )
         if fmt not in known:
@@ -73,6 +74,13 @@ def markdown_rows(fc: dict, chunk: int) -> list[str]:
             f"{r['bytes'] / 2**20:.1f} MiB ({r['allocated_bytes'] / 2**20:.1f} MiB allocated) | "
             f"{r['files']} | {r['peak_rss_gib']:.2f} GiB |"
         )
+    shared = [fmt for fmt, r in fc["rows"].items() if r.get("from_headline")]
+    if shared:  # its warm run is that round's own, not the headline's median of the rounds
+        lines += [
+            "",
+            f"Each row is one fresh process; {', '.join(shared)}: the headline's round of median "
+            "cold time, cold and warm from that one process.",
+        ]
     return lines
 
 
