@@ -36,5 +36,11 @@ def test_both_formats_measured_and_their_stores_removed(tmp_path):
         assert (r["files"], r["bytes"]) == (2, sizes[fmt] + 1)
         assert r["texels_per_second_warm"] == 16 / 2.0 and r["peak_rss_gib"] == 1.0
     lines = _btf_formats.markdown_rows(fc, 1024)
-    assert [ln.split("|")[1].strip() for ln in lines[2:]] == ["npy", "zarr"]
+    assert [ln.split("|")[1].strip() for ln in lines[2:4]] == ["npy", "zarr"]
+    # the reused row is the headline's round, said below the table (only that one)
+    assert lines[4:] == [
+        "",
+        "Each row is one fresh process; npy: the headline's round of median cold time, cold and "
+        "warm from that one process.",
+    ]
     assert "4², float16, chunks of 1024" in lines[0]
