@@ -23,13 +23,14 @@ jax.tree_util.register_static(Config)
 
 def _strong_array(x):
     """``jnp.asarray`` without JAX's weak type, which is part of the compile cache key: ``Params(0.2,
-    ...)`` from Python floats and ``Params.default()`` then share one compile. A host value is
-    cast on the host, its dtype given: ``jnp.asarray`` told no dtype stages an eager conversion,
-    which a cold process compiles for every shape (about 10 ms each)."""
-    if isinstance(x, (jax.Array, jax.core.Tracer)):
-        return x.astype(x.dtype)
-    host = np.asarray(x)
-    return jnp.asarray(host, jax.dtypes.canonicalize_dtype(host.dtype))
+    ...)`` from Python floats and ``Params.default()`` then share one compile. A host number or
+    array is cast on the host, its dtype given: ``jnp.asarray`` told no dtype stages an eager
+    conversion, which a cold process compiles for every shape (about 10 ms each)."""
+    if isinstance(x, (np.ndarray, np.generic, float, int)):
+        host = np.asarray(x)
+        return jnp.asarray(host, jax.dtypes.canonicalize_dtype(host.dtype))
+    x = jnp.asarray(x)  # JAX arrays, tracers, sequences of them
+    return x.astype(x.dtype)
 
 
 class Params(eqx.Module):
