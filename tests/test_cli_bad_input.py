@@ -203,7 +203,8 @@ def test_large_csv_is_streamed_in_bounded_memory(tmp_path):
 def test_a_dark_capture_warns_and_reconstructs_zero(tmp_path, capsys, monkeypatch):
     """A capture with no positive value (a dark frame, a capped lens) is reconstructed, but not
     silently: a warning names the file (in a folder, that file only), and the table it
-    promises is zero to rounding (the real reconstruction: the log of ``0 + ε`` restored)."""
+    promises is zero to rounding (the real reconstruction: the log of ``0 + ε`` restored); so
+    is a capture with one or two dark channels (those channels zero)."""
     monkeypatch.chdir(tmp_path)
     rows = protocol_rows()
     (tmp_path / "dark.csv").write_text(csv_text(rows, (0.0, 0.0, 0.0)))
@@ -221,6 +222,18 @@ def test_a_dark_capture_warns_and_reconstructs_zero(tmp_path, capsys, monkeypatc
     err = capsys.readouterr().err
     assert "b.csv: every sample is 0 or below (102 samples, max 0)" in err
     assert "a.csv" not in err and "negative" not in err  # one warning: the dark one says it
+    # one dark channel (a monochrome camera writing r only): said, and that channel is zero
+    (tmp_path / "mono.csv").write_text(csv_text(rows, (0.2, 0.0, 0.0)))
+    assert main(["reconstruct", "mono.csv", "-o", "mono.npz"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: mono.csv: channels g and b are 0 or below in every sample: those" in err
+    table = io.read_table(tmp_path / "mono.npz")
+    assert np.abs(table[..., 1:]).max() < 1e-12 < table[..., 0].min()
+    (tmp_path / "nob.csv").write_text(csv_text(rows, (0.2, 0.1, 0.0)))
+    assert main(["reconstruct", "nob.csv", "-o", "nob.npz"]) == 0
+    assert (
+        "nob.csv: channel b is 0 or below in every sample: that channel" in capsys.readouterr().err
+    )
 
 
 def test_negative_values_warn_and_write_failure_keeps_output(tmp_path, capsys, monkeypatch):

@@ -422,18 +422,34 @@ def params_for(budget: str, alpha: float, preset: str = "recommended", params_fi
 
 def warn_values(path: Path, samples) -> None:
     """Say what the values of a capture hold that its reconstruction cannot show: negative
-    values (dark-frame noise; kept, the output is clamped at 0), or no positive value at all
-    (a dark frame, a capped lens, a wrong column: the reconstruction is a table of zeros)."""
+    values (dark-frame noise; kept, the output is clamped at 0), no positive value at all (a
+    dark frame, a capped lens, a wrong column: the reconstruction is a table of zeros), or none
+    in one or two of the channels (a monochrome camera writing one column: those channels of
+    the reconstruction are zero)."""
     import numpy as np
 
     rgb = np.asarray(samples.rgb)
-    if len(rgb) and not (rgb > 0).any():
+    lit = (rgb > 0).any(axis=0) if len(rgb) else np.ones(3, bool)
+    if not lit.any():
         warn(
             f"{path}: every sample is 0 or below ({len(rgb)} samples, max {rgb.max():.3g}): "
             "the reconstruction is zero everywhere (to rounding); a dark frame, a capped lens, "
             "the wrong columns?"
         )
         return
+    if not lit.all():
+        dark = [c for c, on in zip("rgb", lit) if not on]
+        two = len(dark) == 2
+        what = f"channels {dark[0]} and {dark[1]} are" if two else f"channel {dark[0]} is"
+        which = (
+            "those channels of the reconstruction are"
+            if two
+            else "that channel of the reconstruction is"
+        )
+        warn(
+            f"{path}: {what} 0 or below in every sample: {which} zero everywhere; a monochrome "
+            "capture, the wrong columns?"
+        )
     neg = (rgb < 0).any(axis=1)
     if neg.any():
         warn(
