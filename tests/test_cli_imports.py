@@ -122,7 +122,8 @@ def test_subcommands_import_only_the_shared_module():
     cli/_outputs, the output checks and overwrite policy, cli/_caches, --cache-dir,
     cli/_learned, the prior-only model, cli/_progress, the progress bars and lines,
     cli/_resume, what --resume keeps, cli/_readers, the reader processes, cli/_blas, the
-    BLAS thread count, and cli/_malloc, the allocator's thresholds): no subcommand imports another, nor the package's __init__ (checked on
+    BLAS thread count, cli/_malloc, the allocator's thresholds, and cli/_capture_values, the
+    warnings of a capture's values): no subcommand imports another, nor the package's __init__ (checked on
     the source: relative imports inside abrdf_jax/cli)."""
     import ast
 
@@ -148,6 +149,7 @@ def test_subcommands_import_only_the_shared_module():
                         "_readers",
                         "_blas",
                         "_malloc",
+                        "_capture_values",
                     },
                     "_args.py": set(),
                     "_outputs.py": set(),
@@ -160,6 +162,7 @@ def test_subcommands_import_only_the_shared_module():
                     "_readers.py": {"_progress"},
                     "_blas.py": {"_readers"},
                     "_malloc.py": set(),
+                    "_capture_values.py": set(),
                 }.get(path.name, {"_common"})
                 assert set(targets) <= allowed, (path.name, targets)
 

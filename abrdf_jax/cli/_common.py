@@ -43,6 +43,7 @@ from . import _progress
 from ._progress import BigFile, progress, stage  # noqa: F401 - used through this module
 from ._blas import one_blas_thread  # noqa: F401 - used through this module
 from ._malloc import keep_freed_blocks  # noqa: F401 - used through this module
+from ._capture_values import value_warnings
 
 PROG = "abrdf-jax"
 #: Format tag of the model record written beside a reconstruction (``OUT.model.json``).
@@ -421,42 +422,10 @@ def params_for(budget: str, alpha: float, preset: str = "recommended", params_fi
 
 
 def warn_values(path: Path, samples) -> None:
-    """Say what the values of a capture hold that its reconstruction cannot show: negative
-    values (dark-frame noise; kept, the output is clamped at 0), no positive value at all (a
-    dark frame, a capped lens, a wrong column: the reconstruction is a table of zeros), or none
-    in one or two of the channels (a monochrome camera writing one column: those channels of
-    the reconstruction are zero)."""
-    import numpy as np
-
-    rgb = np.asarray(samples.rgb)
-    lit = (rgb > 0).any(axis=0) if len(rgb) else np.ones(3, bool)
-    if not lit.any():
-        warn(
-            f"{path}: every sample is 0 or below ({len(rgb)} samples, max {rgb.max():.3g}): "
-            "the reconstruction is zero everywhere (to rounding); a dark frame, a capped lens, "
-            "the wrong columns?"
-        )
-        return
-    if not lit.all():
-        dark = [c for c, on in zip("rgb", lit) if not on]
-        two = len(dark) == 2
-        what = f"channels {dark[0]} and {dark[1]} are" if two else f"channel {dark[0]} is"
-        which = (
-            "those channels of the reconstruction are"
-            if two
-            else "that channel of the reconstruction is"
-        )
-        warn(
-            f"{path}: {what} 0 or below in every sample: {which} zero everywhere; a monochrome "
-            "capture, the wrong columns?"
-        )
-    neg = (rgb < 0).any(axis=1)
-    if neg.any():
-        warn(
-            f"{path}: {int(neg.sum())} of {len(rgb)} samples have negative values (min "
-            f"{rgb.min():.3g}, first in data row {int(np.argmax(neg)) + 1}); kept as measured, "
-            "the reconstruction is clamped at 0"
-        )
+    """Warn of what a capture's values hold that its reconstruction cannot show
+    (:func:`abrdf_jax.cli._capture_values.value_warnings`)."""
+    for message in value_warnings(path, samples):
+        warn(message)
 
 
 def warn_guard(path: Path, meas, config, params, params_file) -> None:
