@@ -1,10 +1,9 @@
 """What a capture's values hold that its reconstruction cannot show, said before any work
 (``abrdf-jax reconstruct``; docs/stability.md, "Bad input"): negative values, no positive value
-at all, or none in one or two of the channels. No JAX: the readers call it."""
+at all, or none in one or two of the channels. No JAX: the readers call it; numpy is imported
+when called (the command line imports this module at start-up, before numpy: cli/_blas.py)."""
 
 from __future__ import annotations
-
-import numpy as np
 
 
 def value_warnings(path, samples) -> list[str]:
@@ -13,6 +12,8 @@ def value_warnings(path, samples) -> list[str]:
     dark frame, a capped lens, a wrong column: the reconstruction is a table of zeros), or none
     in one or two of the channels (a monochrome camera writing one column: those channels of
     the reconstruction are zero)."""
+    import numpy as np
+
     rgb = np.asarray(samples.rgb)
     lit = (rgb > 0).any(axis=0) if len(rgb) else np.ones(3, bool)
     if not lit.any():
