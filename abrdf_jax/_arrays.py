@@ -84,13 +84,13 @@ class SliceArrays(NamedTuple):
     def to_measurements(self):
         """The :class:`abrdf_jax.Measurements` of these slices (imports JAX; same dtypes)."""
         import jax.numpy as jnp
-        from jax.dtypes import canonicalize_dtype
 
         from ._measurements import Measurements
+        from ._xp import to_device
 
         return Measurements(
-            jnp.asarray(self.t, canonicalize_dtype(self.t.dtype)),
-            jnp.asarray(self.y, canonicalize_dtype(self.y.dtype)),
+            to_device(self.t),
+            to_device(self.y),
             jnp.asarray(self.count, jnp.int32),
             self.pairs,
             self.has_axial,

@@ -53,6 +53,7 @@ from ._pipeline import fit_inputs, rbf_map, subspace_values
 from ._smoothing import operator_neighbours, smooth_compact, smooths_slices
 from ._spikes import cap_samples
 from ._values import log_values, value_eps, value_space
+from ._xp import to_device
 
 
 #: How many times the operator's apply function and its builder were traced (tests use this to
@@ -475,18 +476,15 @@ def compile_operator(
         )
     factors = low_rank_factors(built.matrix)
 
-    def put(x, dt):  # host arrays cast in numpy: no eager JAX op (each compiles on a cold call)
-        return jnp.asarray(np.asarray(x, dt) if isinstance(x, np.ndarray) else x, dt)
-
     host = built.matrix  # cast in numpy where built there; the kept rows' columns read off it
     host = host.astype(dtype) if isinstance(host, np.ndarray) else host
     cols, matrix = kept_columns(host, built.keep), jnp.asarray(host, dtype)
     return ReconstructionOperator(
         matrix,
-        put(built.index, jnp.int32),
-        put(built.keep, jnp.int32),
-        put(built.t, dtype),
-        put(built.count, jnp.int32),
+        to_device(built.index, jnp.int32),
+        to_device(built.keep, jnp.int32),
+        to_device(built.t, dtype),
+        to_device(built.count, jnp.int32),
         params.astype(dtype),
         config,
         built.stage,
@@ -494,7 +492,7 @@ def compile_operator(
         template.has_axial,
         targets is None,
         template.centre_azimuths,
-        None if cols is None else put(cols, jnp.int32),
-        None if factors is None else tuple(put(a, dtype) for a in factors),
+        None if cols is None else to_device(cols, jnp.int32),
+        None if factors is None else tuple(to_device(a, dtype) for a in factors),
         operator_neighbours(config, built, dtype),
     )

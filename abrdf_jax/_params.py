@@ -16,6 +16,7 @@ from ._config import (  # noqa: F401 - re-exported: the configuration's public h
     preset,
 )
 from ._slices import PROTOCOL_ALPHA_DEG
+from ._xp import to_device
 
 # A Config is a compile-time constant of every jitted function: a pytree node without leaves.
 jax.tree_util.register_static(Config)
@@ -27,8 +28,7 @@ def _strong_array(x):
     array is cast on the host, its dtype given: ``jnp.asarray`` told no dtype stages an eager
     conversion, which a cold process compiles for every shape (about 10 ms each)."""
     if isinstance(x, (np.ndarray, np.generic, float, int)):
-        host = np.asarray(x)
-        return jnp.asarray(host, jax.dtypes.canonicalize_dtype(host.dtype))
+        return to_device(x)
     x = jnp.asarray(x)  # JAX arrays, tracers, sequences of them
     return x.astype(x.dtype)
 

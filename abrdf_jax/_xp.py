@@ -19,3 +19,19 @@ def stop_gradient(x, xp):
     import jax
 
     return jax.lax.stop_gradient(x)
+
+
+def to_device(x, dtype=None):
+    """``jnp.asarray(x, dtype)``, cast on the host where ``x`` is a host array or number (its own
+    dtype made canonical when ``dtype`` is ``None``: float64 → float32 without x64). Told no
+    dtype, ``jnp.asarray`` of host data stages an eager conversion, which a cold process
+    compiles for every shape and dtype (~10 ms each); JAX arrays and tracers go to
+    ``jnp.asarray`` as they are."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    if isinstance(x, (np.ndarray, np.generic, float, int)):
+        x = np.asarray(x, dtype)
+        dtype = jax.dtypes.canonicalize_dtype(x.dtype)
+    return jnp.asarray(x, dtype)
