@@ -39,6 +39,7 @@ are printed as PASS/FAIL lines (:func:`benchmarks._cli_report.check_targets`).
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import sys
 import tempfile
@@ -47,7 +48,6 @@ from pathlib import Path
 
 import abrdf_jax as aj
 from abrdf_jax import io, materials
-from abrdf_jax.cli import _readers as readers
 
 from ._cli_floors import floors
 from ._cli_runner import (
@@ -211,7 +211,9 @@ def parallel_calls(r: Runner, folder: Path, files: int) -> dict:
     py = sys.executable
     launch = [py, "-m", "benchmarks._parallel_calls", str(PARALLEL), str(files), str(folder)]
     env = {CACHE_ENV: str(r.work / "cache-iso1")}
-    cores = {"OPENBLAS_NUM_THREADS": str(readers.cores())}  # as the command restores it
+    # the cores this process may run on: what the command restores OpenBLAS to after its runs
+    n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    cores = {"OPENBLAS_NUM_THREADS": str(n)}
     calls = {
         "package": ((*PACKAGE, "reconstruct"), {"env": env}),
         "peer": (PEER, {"cwd": REPO}),

@@ -289,24 +289,29 @@ class ChunkedStore(ChunkIndex):
             return None
         return m if isinstance(m, dict) else None
 
-    def chunk_status(self, k: int, verify: bool = True) -> str:
-        """``"done"``, ``"missing"`` (never finished) or why the chunk is not valid."""
+    def _unverified(self, k: int) -> tuple[str, dict | None]:
+        """:meth:`chunk_status` without the checksum, and the marker it read (once)."""
         data, _ = self._files(k)
         m = self._marker(k)
         if m is None:
-            return "missing"
+            return "missing", None
         exp = self._expected_marker(k)
         if any(m.get(key) != val for key, val in exp.items()):
-            return "marker disagrees with the manifest"
+            return "marker disagrees with the manifest", m
         try:
             size = data.stat().st_size
         except OSError:
-            return "data file missing"
+            return "data file missing", m
         if size != m.get("bytes"):
-            return f"data file has {size} bytes, marker says {m.get('bytes')}"
-        if verify and not matches(m, data.read_bytes()):
+            return f"data file has {size} bytes, marker says {m.get('bytes')}", m
+        return "done", m
+
+    def chunk_status(self, k: int, verify: bool = True) -> str:
+        """``"done"``, ``"missing"`` (never finished) or why the chunk is not valid."""
+        status, m = self._unverified(k)
+        if status == "done" and verify and not matches(m, self._files(k)[0].read_bytes()):
             return CORRUPT
-        return "done"
+        return status
 
     def write_chunk(self, k: int, values) -> None:
         """Write chunk ``k`` atomically, then its marker.
@@ -348,9 +353,9 @@ class ChunkedStore(ChunkIndex):
             InputError: the chunk is missing or invalid (the message says why).
         """
         data, _ = self._files(k)
-        status = self.chunk_status(k, verify=False)
+        status, marker = self._unverified(k)
         raw = data.read_bytes() if status == "done" else b""
-        if verify and status == "done" and not matches(self._marker(k) or {}, raw):
+        if verify and status == "done" and not matches(marker, raw):
             status = CORRUPT
         if status != "done":
             raise InputError(f"{data}: chunk {k} of {self.path} is not valid: {status}")

@@ -11,7 +11,7 @@ def value_warnings(path, samples) -> list[str]:
     values (dark-frame noise; kept, the output is clamped at 0), no positive value at all (a
     dark frame, a capped lens, a wrong column: the reconstruction is a table of zeros), or none
     in one or two of the channels (a monochrome camera writing one column: those channels of
-    the reconstruction are zero)."""
+    the reconstruction are zero). An empty capture gives none (the reader refuses it first)."""
     import numpy as np
 
     rgb = np.asarray(samples.rgb)
