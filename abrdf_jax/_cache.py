@@ -48,7 +48,7 @@ OPERATORS = "operators"
 #: Subfolder of the default prior (``abrdf_jax.prior.default_prior``), built on first use.
 PRIORS = "priors"
 #: Bound of ``operators/``: least recently used entries past it are removed on a save (an
-#: iso102 entry is about 2.7 MB, an aniso204 one 5.4 MB).
+#: iso102 entry is about 2.7 MB, an aniso204 one 5.4 MB, a two-stage aniso204 one 34 MB).
 OPERATORS_MAX_BYTES = 1 << 30
 #: dtype in which :func:`build_entry` computes the matrix (then rounded to float32).
 BUILD_DTYPE = "float64"
@@ -375,16 +375,23 @@ def build_entry(
     float64 reconstruction to float32 rounding (tests/test_cache.py), which a float32 build
     does not: its RBF solve is off by about 4e-4 of the table's maximum (docs/cache.md).
 
+    A rule that is not linear in the samples but affine in the slice terms (``"filip2012"`` on
+    the log of the samples, ``--model aniso``) is a two-stage entry: the rule per material in
+    numpy, then the matrix from the RBF centres (:mod:`abrdf_jax._centre_step`).
+
     Raises:
         InputError: for settings that are not linear in the (log) samples, as
-            ``compile_operator`` does (the rules ``"filip2012"``/``"log"`` on aniso204, or
-            ``value_space="log"``).
+            ``compile_operator`` does, except the two-stage ones above (the rule ``"log"``, a
+            nonlinear rule on linear values, or ``value_space="log"``).
     """
+    from ._centre_step import CentreStep, host_two_stage
     from ._host_build import host_matrix_or_none
     from ._names import LOG_SAMPLES
 
+    two = host_two_stage(config)
+    mode = "two_stage" if two else "raise"
     # in numpy: a cold call need not import JAX (_host_build)
-    built = host_matrix_or_none(config, params, meas) if build_dtype == "float64" else None
+    built = host_matrix_or_none(config, params, meas, mode) if build_dtype == "float64" else None
     if built is None:
         from ._operator import operator_matrix
 
@@ -394,7 +401,13 @@ def build_entry(
         # Host inputs straight into the one compiled build: no eager JAX operation (each
         # compiles a small program on a cold call; _operator.operator_matrix).
         with x64_scope(build_dtype == "float64"):
-            built = operator_matrix(config, params, meas, build_dtype=build_dtype)
+            built = operator_matrix(config, params, meas, build_dtype=build_dtype, nonlinear=mode)
+    step = None
+    if two:
+        alpha = float(np.asarray(params.alpha))
+        pairs = tuple(tuple(float(v) for v in p) for p in meas.pairs)
+        rule, interp = config.subspace_rule, config.interp
+        step = CentreStep(pairs, meas.centre_azimuths, alpha, rule, interp)
     matrix = np.asarray(built.matrix)
     return OperatorEntry(
         matrix=np.ascontiguousarray(matrix.astype(np.float32)),
@@ -406,6 +419,7 @@ def build_entry(
         log_eps=float(config.log_eps),
         spike_cap=config.spike_cap,
         slice_smoothing=config.slice_smoothing,
+        subspace=step,
     )
 
 

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from ._centre_step import host_two_stage
 from ._config import Config
 from ._grouping import layout_key
 
@@ -57,11 +58,12 @@ OPERATOR_MIN_GROUP = 32
 
 
 def operator_applies(config: Config, meas) -> bool:
-    """Whether ``config`` on ``meas`` is one matrix (:func:`~abrdf_jax.compile_operator`)
-    that reproduces :func:`~abrdf_jax.reconstruct`: a linear rule, no log after it
-    (:attr:`Config.linear`), and no dense layout (whose spike cap the pipeline applies and the
-    operator does not). No JAX is imported."""
-    return config.linear and meas.centre_azimuths is None
+    """Whether ``config`` on ``meas`` is an operator (:func:`~abrdf_jax.compile_operator`) that
+    reproduces :func:`~abrdf_jax.reconstruct`: one matrix (a linear rule, no log after it:
+    :attr:`Config.linear`) or two stages whose first the operator store runs in numpy
+    (:func:`abrdf_jax._centre_step.host_two_stage`: ``--model aniso``), and no dense layout (whose
+    spike cap the pipeline applies and the operator does not). No JAX is imported."""
+    return (config.linear or host_two_stage(config)) and meas.centre_azimuths is None
 
 
 def as_jax(meas, params) -> tuple["Measurements", "Params"]:
@@ -244,7 +246,8 @@ def reconstruct_many(
 
         def operator(config, params, template):
             template, params = as_jax(template, params)
-            return compile_operator(config, params, template)
+            mode = "two_stage" if host_two_stage(config) else "raise"
+            return compile_operator(config, params, template, nonlinear=mode)
 
     if plan is None:
         plan = _plan(meas, config, min_group, done, order, only)

@@ -93,9 +93,11 @@ def sample_index(t: np.ndarray, count: np.ndarray) -> np.ndarray:
     return np.nonzero((np.arange(t.shape[1])[None, :] < count[:, None]).reshape(-1))[0]
 
 
-def host_matrix(config, values, template) -> BuiltMatrix:
+def host_matrix(config, values, template, nonlinear: str = "raise") -> BuiltMatrix:
     """The operator of ``config`` with parameter values ``values`` (``ParamValues`` or
-    ``Params``) on ``template``'s layout, on the UBO grid, built in float64 numpy.
+    ``Params``) on ``template``'s layout, on the UBO grid, built in float64 numpy: one matrix
+    from the samples, or with ``nonlinear="two_stage"`` for a rule that is not linear in them
+    the second stage's, from the subspaces at the RBF centres (``_operator._build``).
 
     Raises:
         InputError: as :func:`abrdf_jax.compile_operator` for a setting that is not linear.
@@ -103,35 +105,36 @@ def host_matrix(config, values, template) -> BuiltMatrix:
             the guard's raised ``λ`` (the caller may build in JAX instead).
     """
     t, count = template_layout(template)
-    build_stage(config, template)  # the one-matrix stage only
+    stage = build_stage(config, template, nonlinear)
     pairs, azimuths = template.pairs, template.centre_azimuths
     index = sample_index(t, count)
     s, nmax = t.shape
-    unit = np.zeros((s * nmax, index.size))
-    unit[index, np.arange(index.size)] = 1.0
-    alpha = np.asarray(values.alpha, np.float64)
-    vals = centre_subspaces(
-        t.astype(np.float64), unit.reshape(s, nmax, -1), count, pairs, azimuths, alpha,
-        config.subspace_rule, config.interp, xp=np,
-    )  # fmt: skip
+    if stage == "two_stage":  # the centres' values are the inputs
+        vals = np.eye(sum(len(a) for a, _ in centre_layout(pairs, azimuths)))
+    else:
+        unit = np.zeros((s * nmax, index.size))
+        unit[index, np.arange(index.size)] = 1.0
+        alpha = np.asarray(values.alpha, np.float64)
+        vals = centre_subspaces(
+            t.astype(np.float64), unit.reshape(s, nmax, -1), count, pairs, azimuths, alpha,
+            config.subspace_rule, config.interp, xp=np,
+        )  # fmt: skip
     widths = tuple(float(w) for w in np.ravel(np.asarray(values.widths, np.float64)))
     key = tuple(tuple(float(x) for x in pair) for pair in pairs)
     rbf = _rbf_at_targets(
         config.parameterization, config.kernel, config.degree, widths, key, azimuths
     )
     coeffs, tail, _ = host_solve(rbf.k, rbf.p, rbf.sc, np.float64(np.asarray(values.reg)), vals)
-    out = np.zeros((81 * 81, index.size))
+    out = np.zeros((81 * 81, vals.shape[-1]))
     out[rbf.rest] = combine(rbf.kq, rbf.pq, coeffs, tail, np)  # evaluate(), blocks made once
-    return BuiltMatrix(
-        keep_centres(out, vals, pairs, azimuths), index, rbf.keep, "single", t, count
-    )
+    return BuiltMatrix(keep_centres(out, vals, pairs, azimuths), index, rbf.keep, stage, t, count)
 
 
-def host_matrix_or_none(config, values, template) -> BuiltMatrix | None:
+def host_matrix_or_none(config, values, template, nonlinear: str = "raise") -> BuiltMatrix | None:
     """:func:`host_matrix`, or ``None`` where its RBF system stays singular after the guard
     (the caller's JAX build then reports it)."""
     try:
-        return host_matrix(config, values, template)
+        return host_matrix(config, values, template, nonlinear)
     except np.linalg.LinAlgError:
         return None
 

@@ -466,8 +466,8 @@ def compile_operator(
         concrete = not any(
             isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves((params, template))
         )
-        if concrete and targets is None and build_stage(config, template, nonlinear) == "single":
-            built = host_matrix_or_none(config, params, template)
+        if concrete and targets is None:
+            built = host_matrix_or_none(config, params, template, nonlinear)
     if build_dtype is None:
         build_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
     if built is None:

@@ -14,6 +14,7 @@ import hashlib
 
 import numpy as np
 
+from ._centre_step import CentreStep
 from ._errors import InputError
 from ._host_eps import sample_eps
 from ._smoothing import smooth_compact, smoothing_from_json, smoothing_to_json
@@ -40,6 +41,9 @@ class OperatorEntry:
             ``log_samples`` the map applies the spike cap (``_spikes.py``) as the JAX operator.
         slice_smoothing: ``Config.slice_smoothing``: with ``log_samples`` the log samples are
             smoothed first (``_smoothing.py``), as the JAX operator does.
+        subspace: ``None`` (one stage: ``matrix`` reads the samples), or the per-material first
+            stage of a two-stage operator (:class:`~abrdf_jax._centre_step.CentreStep`: the
+            subspaces at the RBF centres, which ``matrix`` ``(6561, n_c)`` then reads).
     """
 
     matrix: np.ndarray
@@ -51,6 +55,7 @@ class OperatorEntry:
     log_eps: float
     spike_cap: tuple | None = None
     slice_smoothing: float | tuple | None = None
+    subspace: CentreStep | None = None
 
     #: The entry kind in the store's metadata (entries written before kinds existed are this).
     KIND = "rbf"
@@ -82,7 +87,7 @@ class OperatorEntry:
     def apply_compact(self, x) -> np.ndarray:
         """The same from the valid samples only, ``(B, n_in, C)`` → ``(B, 81, 81, C)``."""
         x = np.asarray(x, np.float32)
-        b, n_in, c = x.shape
+        b, _, c = x.shape
         q = self.matrix.shape[0]
         eps = xc = None
         if self.log_samples:
@@ -92,9 +97,12 @@ class OperatorEntry:
             x = x.astype(np.float32)
             if self.spike_cap:
                 xc = cap_samples(x, self.spike_cap, xp=np).astype(np.float32)
+        if self.subspace is not None:  # two stages: the restored and the fitted subspaces
+            x, xc = (None if v is None else self.subspace(v, self.index, self.t, self.count)
+                     for v in (x, xc))  # fmt: skip
 
         def rows(v):  # every material and channel is a row: one GEMM, as _operator
-            return np.ascontiguousarray(np.transpose(v, (0, 2, 1))).reshape(b * c, n_in)
+            return np.ascontiguousarray(np.transpose(v, (0, 2, 1))).reshape(b * c, v.shape[1])
 
         out = (rows(x if xc is None else xc) @ self.matrix.T).reshape(b, c, q)
         if xc is not None and self.keep.size:
@@ -135,18 +143,21 @@ class OperatorEntry:
             "log_eps": float(self.log_eps),
             "spike_cap": cap,
             "slice_smoothing": smoothing_to_json(self.slice_smoothing),
+            **({} if self.subspace is None else {"subspace": self.subspace.to_json()}),
         }
 
     @classmethod
     def from_stored(cls, arrays: dict[str, np.ndarray], meta: dict) -> "OperatorEntry":
         cap = meta.get("spike_cap")
         cap = None if cap is None else tuple(cap)
+        step = meta.get("subspace")
         return cls(
             **arrays,
             log_samples=meta["log_samples"],
             log_eps=meta["log_eps"],
             spike_cap=cap,
             slice_smoothing=smoothing_from_json(meta.get("slice_smoothing")),
+            subspace=None if step is None else CentreStep.from_json(step),
         )
 
     @staticmethod
@@ -155,7 +166,6 @@ class OperatorEntry:
         m = arrays["matrix"]
         if not (m.dtype == np.float32 and m.ndim == 2 and m.shape[0] == GRID[0] * GRID[1]):
             return "malformed (inconsistent array shapes)"
-        problem = check_layout(arrays, m.shape[1])
         keep = arrays.get("keep")
         if (
             keep is None
@@ -163,7 +173,17 @@ class OperatorEntry:
             or (keep.size and not 0 <= keep.min() <= keep.max() < m.shape[0])
         ):
             return "malformed (no kept rows)"
-        if problem or int(arrays["count"].sum()) != m.shape[1]:  # every valid sample is read
+        n_in, step = m.shape[1], meta.get("subspace")
+        if step is not None:  # two stages: the step reads the samples, the matrix the centres
+            try:
+                step = CentreStep.from_json(step)
+            except (ValueError, TypeError, KeyError):
+                return "malformed (no centre step)"
+            if m.shape[1] != step.n_centres:
+                return "malformed (inconsistent array shapes)"
+            n_in = arrays["index"].shape[0]
+        problem = check_layout(arrays, n_in)
+        if problem or int(arrays["count"].sum()) != n_in:  # every valid sample is read
             return problem or "malformed (inconsistent array shapes)"
         if not isinstance(meta.get("log_samples"), bool) or not isinstance(
             meta.get("log_eps"), float

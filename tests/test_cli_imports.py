@@ -111,6 +111,32 @@ def test_prior_info_imports_no_jax(tmp_path, rng):
     assert not report[0][2], "abrdf-jax prior info imported jax"
 
 
+def test_model_aniso_runs_in_numpy(tmp_path):
+    """``--model aniso`` (filip2012 on the log of the samples: not linear in them) on one
+    aniso204 file runs as a two-stage operator entry, the rule per material in numpy
+    (``abrdf_jax/_centre_step.py``): no JAX, cold and warm; its table is the float64 pipeline's
+    to float32 rounding (measured 2026-12-07: up to 5.5e-6 of the maximum on two materials,
+    tests/test_cache.py); the model record says the operator made it."""
+    import abrdf_jax as aj
+    from abrdf_jax import io, materials
+
+    s = aj.simulate_capture(materials.get_material("ward-brushed-steel"), noise=0.01, seed=2)
+    io.write_samples_csv(tmp_path / "m.csv", s)
+    argv = ["reconstruct", "m.csv", "-o", "rec.npz", "--model", "aniso", "--cache-dir", "c", "-q"]
+    report, err = _run([(argv, 0), (argv, 0)], tmp_path)
+    for _, code, jax_loaded in report:
+        assert code == 0 and not jax_loaded, (report, err)
+    assert len(list((tmp_path / "c" / "operators").glob("*.npz"))) == 1
+    record = json.loads((tmp_path / "rec.model.json").read_text())
+    assert record["model"] == "aniso" and record["engine"] == "operator"
+    config = aj.preset("recommended", "aniso204")
+    params = aj.Params.default(config, alpha_deg=record["measurement"]["alpha_deg"])
+    meas, _ = aj.group_slices(s, params.alpha_deg, dtype=np.float64)
+    want = np.asarray(aj.reconstruct(meas, config, params.astype(np.float64)))
+    got = io.read_table(tmp_path / "rec.npz")
+    assert np.max(np.abs(got - want)) <= 3e-5 * np.max(want)
+
+
 def test_materials_listing_imports_no_jax(tmp_path):
     report, err = _run([(["materials"], 0)], tmp_path)
     assert report[0][1] == 0, err

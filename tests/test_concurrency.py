@@ -56,11 +56,10 @@ def test_two_runs_share_one_cache_and_one_output(tmp_path):
         out = str(tmp_path / f"{name}.csv")
         assert main(["sample", material, "-o", out, "--budget", "aniso204"]) == 0
     cache = tmp_path / "cache"
-    # a: the general pipeline (compiled: JAX's compilation cache); b: an operator entry (built
-    # in numpy: the operator store)
-    flags = {
-        n: ["--model", model, "--cache-dir", cache] for n, model in zip(MATERIALS, ("aniso", "iso"))
-    }
+    # a: the general pipeline (the paper's setting, filip2012 on linear values: compiled, JAX's
+    # compilation cache); b: an operator entry (built in numpy: the operator store)
+    model = {"a": ["--preset", "paper"], "b": ["--model", "iso"]}
+    flags = {n: [*model[n], "--cache-dir", cache] for n in MATERIALS}
     # 1. two runs at once against one empty cache folder
     cold = _finish(
         [

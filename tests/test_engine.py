@@ -95,7 +95,7 @@ def test_a_resumed_group_gets_the_batch_rows_and_bits_of_the_whole_run():
 def test_pipeline_groups_pad_the_last_batch_and_compile_once(monkeypatch):
     """Dense captures (spike-capped) and nonlinear rules take the pipeline; 5 measurements in
     batches of 2 trace it once (the last batch is padded to the same shape)."""
-    config = aj.preset("recommended", "aniso204")  # filip2012: not linear
+    config = aj.preset("paper", "aniso204")  # filip2012 on linear values: no operator
     params = aj.Params.default(config)
     # 31 samples per slice and slices padded to 40 knots: a shape no other test compiles
     meas = [
@@ -119,6 +119,26 @@ def test_pipeline_groups_pad_the_last_batch_and_compile_once(monkeypatch):
     # float32 rounding of the vmapped RBF solve, which depends on XLA's fusion of the batch
     # (about 1e-4 of the maximum here; docs/cache.md: ~3e-4 of the max against float64)
     np.testing.assert_allclose(parts[-1][1][0], expected, rtol=0, atol=5e-4 * expected.max())
+
+
+def test_two_stage_rule_takes_the_operator():
+    """filip2012 on the log of the samples (``--model aniso``) is an operator of two stages
+    (``abrdf_jax/_centre_step.py``): ``reconstruct_many`` compiles it with
+    ``nonlinear="two_stage"`` and matches the pipeline (float32 here, so its RBF solve's
+    rounding: the bound of the test above)."""
+    config = aj.preset("recommended", "aniso204")
+    params = aj.Params.default(config)
+    meas = [
+        aj.group_slices(aj.simulate_capture(materials.get_material(n), noise=0.01, seed=k))[0]
+        for k, n in enumerate(NAMES[:3])
+    ]
+    assert all(_engine.operator_applies(config, m) for m in meas)
+    parts = list(_engine.reconstruct_many(meas, config, params, min_group=1))
+    assert {p for *_, p in parts} == {"operator"}
+    for idx, tables, _ in parts:
+        for k, table in zip(idx, tables):
+            want = np.asarray(aj.reconstruct(meas[k], config, params))
+            np.testing.assert_allclose(table, want, rtol=0, atol=5e-4 * want.max())
 
 
 def _folder(tmp_path, n=5):

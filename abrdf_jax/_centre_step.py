@@ -1,0 +1,82 @@
+"""The first stage of a two-stage host operator: each material's subspaces restored at the RBF
+centres, in numpy (issue 13: ``--model aniso`` without JAX).
+
+A subspace rule that is not linear in the samples makes the reconstruction two maps: the rule
+per material (the toroidal subspaces at the RBF centres, eq. 2–5), then one matrix from the
+centres to the grid (:func:`abrdf_jax.compile_operator` with ``nonlinear="two_stage"``). For the
+rule ``"filip2012"`` on the log of the samples (the recommended anisotropic model, ``--model
+aniso``) the first map is affine in the slice terms with coefficients read off each material's
+slice extremes (:mod:`abrdf_jax._rules`), so it runs in numpy as the pipeline runs it in JAX
+(:func:`abrdf_jax._subspace.centre_subspaces` with ``xp=numpy``): the operator store holds such
+an operator as an entry (:class:`abrdf_jax._operator_entry.OperatorEntry` with a
+:class:`CentreStep`), and the command line applies it without importing JAX. Other nonlinear
+settings (a log after the rule, the linear value space's centre cap) stay on the pipeline.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ._grid import centre_layout
+from ._rules import AFFINE
+from ._subspace import RULES, centre_subspaces
+
+
+def host_two_stage(config) -> bool:
+    """Whether the operator store holds ``config``'s operator as a two-stage numpy entry: a
+    subspace rule that is affine in the slice terms but not linear in the samples (``filip2012``)
+    on the log of the samples (module docstring)."""
+    rule = config.subspace_rule
+    return config.value_space == "logsamples" and rule in AFFINE and not RULES[rule].linear
+
+
+@dataclasses.dataclass(frozen=True)
+class CentreStep:
+    """The rule at the centres of one sample layout (module docstring): the elevation pairs,
+    the centres' azimuth count (``None``: the UBO grid's), α (radians), the rule and the slice
+    interpolation."""
+
+    pairs: tuple
+    azimuths: int | None
+    alpha: float
+    rule: str
+    interp: str
+
+    @property
+    def n_centres(self) -> int:
+        return sum(len(a) for a, _ in centre_layout(self.pairs, self.azimuths))
+
+    def __call__(self, z, index, t, count) -> np.ndarray:
+        """Compact values ``z`` ``(B, n_in, C)`` (the valid samples at the flat slots ``index``
+        of the padded layout ``t`` ``(S, nmax)``, ``count``) → their subspaces at the centres
+        ``(B, n_c, C)`` float32: every material and channel one column of one call."""
+        b, n_in, c = z.shape
+        s, nmax = t.shape
+        full = np.zeros((s * nmax, b * c), np.float32)
+        full[index] = np.transpose(z, (1, 0, 2)).reshape(n_in, b * c)
+        vals = centre_subspaces(
+            t.astype(np.float32), full.reshape(s, nmax, b * c), count, self.pairs,
+            self.azimuths, np.float32(self.alpha), self.rule, self.interp, xp=np,
+        )  # fmt: skip
+        # numpy's where() of two Python floats is float64: parts of the interpolation run in
+        # float64 here (float32 in JAX), which only rounds less; the features go on in float32
+        return np.transpose(vals.reshape(-1, b, c), (1, 0, 2)).astype(np.float32)
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self) | {"pairs": [list(p) for p in self.pairs]}
+
+    @classmethod
+    def from_json(cls, doc) -> "CentreStep":
+        """Raises ``ValueError`` (or ``TypeError``, ``KeyError``) for a malformed record."""
+        step = cls(
+            pairs=tuple((float(a), float(b)) for a, b in doc["pairs"]),
+            azimuths=None if doc["azimuths"] is None else int(doc["azimuths"]),
+            alpha=float(doc["alpha"]),
+            rule=str(doc["rule"]),
+            interp=str(doc["interp"]),
+        )
+        if step.rule not in AFFINE or not step.pairs or not np.isfinite(step.alpha):
+            raise ValueError(f"not a centre step: {doc!r}")
+        return step
