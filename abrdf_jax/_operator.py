@@ -442,7 +442,7 @@ def compile_operator(
             :func:`abrdf_jax._host_build.host_matrix`: no compilation on a cold call, a float32
             operator then matches the float64 reconstruction to float32 rounding, and its
             low-rank factors can be read off, :mod:`abrdf_jax._low_rank`) where the setting
-            allows it (one matrix on the UBO grid, concrete parameters and template, an RBF
+            allows it (the UBO grid, either stage, concrete parameters and template, an RBF
             system that is not singular), else JAX in float64 when ``jax_enable_x64`` is on,
             else in ``dtype``.
         targets: ``(wi, wv)`` unit vectors ``(q, 3)``: evaluate there instead of the UBO grid.
