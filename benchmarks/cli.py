@@ -95,6 +95,10 @@ FOLDERS = {
     "aniso_large": ("aniso204", 0.0),
     "iso_jitter": ("iso102", JITTER_DEG),
 }
+#: Folders run again with a model fixed: ``key: (folder, extra arguments)``; the row reuses the
+#: folder's files and its peer. ``--model aniso`` is the recommended anisotropic model (the
+#: min-max rule: a two-stage numpy entry, docs/cache.md).
+FOLDER_MODELS = {"aniso_large_aniso": ("aniso_large", ["--model", "aniso"])}
 #: Default ``--peer-limit``, ``--repeats`` and ``--folder-repeats`` of each mode.
 PEER_LIMIT = {"full": 100, "quick": 10}
 REPEATS = {"full": 3, "quick": 1}
@@ -179,18 +183,23 @@ def folder_runs(
     peer_limit: int,
     startup: float,
     repeats: int = 1,
+    extra: list[str] = (),
+    peer: dict | None = None,
 ) -> dict:
     """``repeats`` rounds of a cold call (a fresh cache folder) and a warm call (the cache that
     cold call filled), each into an output folder of its own, the rounds in turn (so both see
-    the disk in the same states); the median of each, then the peer once."""
+    the disk in the same states); the median of each, then the peer once (``peer``: its row
+    from an earlier call on the same folder). ``extra``: more arguments of every call."""
     py = sys.executable
     cold, warm = [], []
     for i in range(repeats):
         env = r.cache(key if i == 0 else f"{key}-{i}")
         for calls, tag in ((cold, "out"), (warm, "warm.out")):
             out = r.work / (f"{key}.{tag}" if i == 0 else f"{key}.{i}.{tag}")
-            cmd = [py, *PACKAGE, "reconstruct", str(folder), "-o", str(out), "-q"]
+            cmd = [py, *PACKAGE, "reconstruct", str(folder), "-o", str(out), "-q", *extra]
             calls.append(r.timed(cmd, files=files, env=env, outputs=count_outputs(out)))
+    if peer is not None:
+        return {"package": median_run(cold), "warm": median_run(warm), "peer": peer}
     n = min(files, peer_limit)
     pout = r.work / f"{key}.peer"
     pcmd = [py, *PEER, str(folder), "-o", str(pout)] + (["--limit", str(n)] if n < files else [])
@@ -330,6 +339,15 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int, folder_repeat
         runs[key]["peer"] = res["peer"]
         runs[f"{key}_warm"] = {"what": f"{what}, warm cache", "files": n, "package": res["warm"]}
         runs[f"{key}_warm"]["peer"] = res["peer"]
+    for key, (of, extra) in FOLDER_MODELS.items():
+        n, peer = sizes[of], runs[of]["peer"]
+        log(f"folder {of} with {' '.join(extra)}: {n} files")
+        res = folder_runs(r, key, folders[of], n, peer_limit, startup, folder_repeats, extra, peer)
+        what = f"a folder of {n} {FOLDERS[of][0]} files, {' '.join(extra)}"
+        for tag, state in (("", "package"), ("_warm", "warm")):
+            cache = "cold" if state == "package" else "warm"
+            runs[key + tag] = {"what": f"{what}, {cache} cache", "files": n, "package": res[state]}
+            runs[key + tag]["peer"] = peer
     derive(runs)
     return runs
 
