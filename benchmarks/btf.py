@@ -192,7 +192,7 @@ def _config_comparison(work: Path, size: int = 16, seed: int = 0) -> dict:
         "rule crossing, logsamples (operator)": aj.Config.recommended(
             budget="aniso204", rule="crossing", value_space="logsamples"
         ),
-        "Config.recommended(aniso204): rule filip2012, log after the rule (pipeline)": aj.Config.recommended(
+        "Config.recommended(aniso204): rule filip2012, logsamples (pipeline)": aj.Config.recommended(
             budget="aniso204"
         ),
         "paper method Config(aniso204) (pipeline)": aj.Config(budget="aniso204"),
