@@ -384,12 +384,11 @@ def build_entry(
             ``compile_operator`` does, except the two-stage ones above (the rule ``"log"``, a
             nonlinear rule on linear values, or ``value_space="log"``).
     """
-    from ._centre_step import CentreStep, host_two_stage
+    from ._centre_step import CentreStep, nonlinear_mode
     from ._host_build import host_matrix_or_none
     from ._names import LOG_SAMPLES
 
-    two = host_two_stage(config)
-    mode = "two_stage" if two else "raise"
+    mode = nonlinear_mode(config)
     # in numpy: a cold call need not import JAX (_host_build)
     built = host_matrix_or_none(config, params, meas, mode) if build_dtype == "float64" else None
     if built is None:
@@ -402,12 +401,7 @@ def build_entry(
         # compiles a small program on a cold call; _operator.operator_matrix).
         with x64_scope(build_dtype == "float64"):
             built = operator_matrix(config, params, meas, build_dtype=build_dtype, nonlinear=mode)
-    step = None
-    if two:
-        alpha = float(np.asarray(params.alpha))
-        pairs = tuple(tuple(float(v) for v in p) for p in meas.pairs)
-        rule, interp = config.subspace_rule, config.interp
-        step = CentreStep(pairs, meas.centre_azimuths, alpha, rule, interp)
+    step = CentreStep.of(config, params, meas) if built.stage == "two_stage" else None
     matrix = np.asarray(built.matrix)
     return OperatorEntry(
         matrix=np.ascontiguousarray(matrix.astype(np.float32)),

@@ -19,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from ._grid import centre_layout
+from ._grid import centre_count
 from ._rules import AFFINE
 from ._subspace import RULES, centre_subspaces
 
@@ -30,6 +30,12 @@ def host_two_stage(config) -> bool:
     on the log of the samples (module docstring)."""
     rule = config.subspace_rule
     return config.value_space == "logsamples" and rule in AFFINE and not RULES[rule].linear
+
+
+def nonlinear_mode(config) -> str:
+    """``compile_operator``'s ``nonlinear`` argument for ``config``'s operator: ``"two_stage"``
+    where :func:`host_two_stage` holds, else ``"raise"``."""
+    return "two_stage" if host_two_stage(config) else "raise"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,9 +50,16 @@ class CentreStep:
     rule: str
     interp: str
 
+    @classmethod
+    def of(cls, config, params, template) -> "CentreStep":
+        """The step of ``config`` with parameters ``params`` on ``template``'s layout."""
+        pairs = tuple(tuple(float(v) for v in p) for p in template.pairs)
+        alpha = float(np.asarray(params.alpha))
+        return cls(pairs, template.centre_azimuths, alpha, config.subspace_rule, config.interp)
+
     @property
     def n_centres(self) -> int:
-        return sum(len(a) for a, _ in centre_layout(self.pairs, self.azimuths))
+        return centre_count(self.pairs, self.azimuths)
 
     def __call__(self, z, index, t, count) -> np.ndarray:
         """Compact values ``z`` ``(B, n_in, C)`` (the valid samples at the flat slots ``index``

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from ._centre_step import host_two_stage
+from ._centre_step import host_two_stage, nonlinear_mode
 from ._config import Config
 from ._grouping import layout_key
 
@@ -246,8 +246,7 @@ def reconstruct_many(
 
         def operator(config, params, template):
             template, params = as_jax(template, params)
-            mode = "two_stage" if host_two_stage(config) else "raise"
-            return compile_operator(config, params, template, nonlinear=mode)
+            return compile_operator(config, params, template, nonlinear=nonlinear_mode(config))
 
     if plan is None:
         plan = _plan(meas, config, min_group, done, order, only)

@@ -220,6 +220,11 @@ def centre_layout(pairs, azimuths: int | None = None) -> list[tuple[np.ndarray, 
     return out
 
 
+def centre_count(pairs, azimuths: int | None = None) -> int:
+    """How many RBF centres :func:`centre_layout` gives."""
+    return sum(len(a) for a, _ in centre_layout(pairs, azimuths))
+
+
 def centre_vectors(pairs, dtype, azimuths: int | None = None, xp=None):
     """Unit vectors ``(wi, wv)``, each ``(n, 3)``, of the RBF centres of ``pairs`` (:func:`centre_layout` order)."""
     xp = namespace(xp)

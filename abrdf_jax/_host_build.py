@@ -25,7 +25,8 @@ import numpy as np
 from ._coords import pair_coordinates
 from ._errors import InputError
 from ._folds import fold_slots, gather, held_out_directions
-from ._grid import _centre_target_index, centre_layout, centre_vectors, keep_centres
+from ._grid import _centre_target_index, centre_count, centre_layout, centre_vectors
+from ._grid import keep_centres
 from ._grid import ubo_target_vectors
 from ._kernels import kernel_block
 from ._names import LOG_SUBSPACE
@@ -110,7 +111,7 @@ def host_matrix(config, values, template, nonlinear: str = "raise") -> BuiltMatr
     index = sample_index(t, count)
     s, nmax = t.shape
     if stage == "two_stage":  # the centres' values are the inputs
-        vals = np.eye(sum(len(a) for a, _ in centre_layout(pairs, azimuths)))
+        vals = np.eye(centre_count(pairs, azimuths))
     else:
         unit = np.zeros((s * nmax, index.size))
         unit[index, np.arange(index.size)] = 1.0

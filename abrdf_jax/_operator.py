@@ -42,7 +42,7 @@ from jaxtyping import Array, Float, Int
 from ._build_jit import build_jit
 from ._errors import InputError
 from ._finite import check_concrete
-from ._grid import _centre_target_index, centre_layout, keep_centres, ubo_target_vectors
+from ._grid import _centre_target_index, centre_count, keep_centres, ubo_target_vectors
 from ._host_build import NONLINEAR_MODES as NONLINEAR_MODES, BuiltMatrix as BuiltMatrix
 from ._host_build import build_stage, host_matrix_or_none, sample_index, template_layout
 from ._kept_rows import kept_columns, kept_product, kept_weights
@@ -374,8 +374,7 @@ def _build(
             Measurements(t.astype(dtype), unit, count, pairs, has_axial, azimuths), config, params
         )
     else:
-        n_c = sum(len(a) for a, _ in centre_layout(pairs, azimuths))
-        vals = jnp.eye(n_c, dtype=dtype)
+        vals = jnp.eye(centre_count(pairs, azimuths), dtype=dtype)
     if targets is not None:
         return rbf_map(vals, pairs, config, params, targets, azimuths=azimuths)
     # The UBO targets come in as arguments, not constants: XLA would constant-fold their

@@ -97,9 +97,10 @@ class OperatorEntry:
             x = x.astype(np.float32)
             if self.spike_cap:
                 xc = cap_samples(x, self.spike_cap, xp=np).astype(np.float32)
-        if self.subspace is not None:  # two stages: the restored and the fitted subspaces
-            x, xc = (None if v is None else self.subspace(v, self.index, self.t, self.count)
-                     for v in (x, xc))  # fmt: skip
+        if self.subspace is not None:  # two stages: the restored and the fitted subspaces,
+            both = x if xc is None else np.concatenate([x, xc])  # one call: columns independent
+            both = self.subspace(both, self.index, self.t, self.count)
+            x, xc = (both, None) if xc is None else (both[:b], both[b:])
 
         def rows(v):  # every material and channel is a row: one GEMM, as _operator
             return np.ascontiguousarray(np.transpose(v, (0, 2, 1))).reshape(b * c, v.shape[1])

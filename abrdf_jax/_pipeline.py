@@ -15,7 +15,7 @@ from jaxtyping import Array, Float
 from ._coords import pair_coordinates
 from ._errors import InputError
 from ._finite import when_traced
-from ._grid import centre_layout, centre_vectors, keep_centres, ubo_target_vectors
+from ._grid import centre_count, centre_vectors, keep_centres, ubo_target_vectors
 from ._grouping import group_slices
 from ._measurements import Measurements, Samples, stack_measurements
 from ._params import Config, Params
@@ -304,5 +304,5 @@ def solve_info(
 
 @eqx.filter_jit
 def _solve_info_jit(pairs, dtype, config, params, azimuths=None):
-    n = sum(len(a) for a, _ in centre_layout(pairs, azimuths))
+    n = centre_count(pairs, azimuths)
     return _fit_centres(jnp.zeros((n, 1), dtype), pairs, config, params, True, azimuths)[1]
