@@ -47,14 +47,57 @@ if TYPE_CHECKING:  # JAX pytrees: the pipeline path makes them (importing JAX), 
 #: 6561 x 3 floats a material, 20 MiB at 256); the general pipeline holds one RBF evaluation a
 #: material, so its batches are smaller.
 OPERATOR_BATCH, PIPELINE_BATCH = 256, 32
-#: A slice layout shared by fewer measurements than this (in a call of several) goes through
-#: the pipeline: building an operator costs an RBF solve with one right-hand side per sample,
-#: about as much as reconstructing dozens of materials in a batch, and a jittered capture's
-#: layout is never seen again (docs/notes.md, "Issue 13": 100 jittered files, one operator
-#: each, took 55 s and 257 MB of cache against 33 s through the pipeline). A caller with one measurement (``abrdf-jax
-#: reconstruct FILE``) passes ``min_group=1``: the next call with its layout loads the operator
-#: from the operator store.
+#: A slice layout shared by this many measurements of a job or more gets an operator. Below
+#: it, a job whose small layouts would cost more than :data:`OPERATOR_MAX_BUILDS` builds
+#: (every jittered capture is a layout of its own, never seen again) sends them through the
+#: pipeline: building an operator costs an RBF solve with one right-hand side per sample,
+#: about as much as reconstructing dozens of materials in a batch (docs/notes.md, "Issue 13":
+#: 100 jittered files, one operator each, took 55 s and 257 MB of cache against 33 s through
+#: the pipeline). A caller with one measurement (``abrdf-jax reconstruct FILE``) passes
+#: ``min_group=1``: the next call with its layout loads the operator from the operator store.
 OPERATOR_MIN_GROUP = 32
+#: A job builds an operator for each layout below :data:`OPERATOR_MIN_GROUP` too while they
+#: cost at most this many single-stage builds (:func:`small_builds`): a few numpy builds cost
+#: less than the pipeline's JAX start and compilation (seconds, once per setting), and a rerun
+#: loads them from the store. Scratch, 2026-12-07 (docs/notes.md): 16 jittered aniso204 files
+#: (``--model iso``, a layout each) 4.2 s cold / 1.1 s warm with 16 builds against 8.0 / 4.9 s
+#: through the pipeline; a folder of two anisotropic files (``--model auto``) 1.15 / 0.37 s
+#: against 20.9 / 6.4 s.
+OPERATOR_MAX_BUILDS = 16
+#: What one two-stage entry (``--model aniso``: 6561 × 1296 float32, 34 MB in the store, ~1 s)
+#: counts against :data:`OPERATOR_MAX_BUILDS`: 4 jittered files 5.4 s cold / 1.5 s warm with
+#: their builds against 9.0 / 4.4 s through the pipeline, 16 of them 16.8 / 5.0 s (and 520 MB of
+#: store) against 10.8 / 6.1 s (scratch, as above).
+TWO_STAGE_BUILD_COST = 4
+
+
+class Layouts(NamedTuple):
+    """Each measurement's layout key (``None`` where no operator applies) and how many
+    measurements of the whole job (done before or not) share each key (:func:`job_layouts`)."""
+
+    keys: list
+    sizes: Counter
+
+
+def job_layouts(meas: Sequence, config, done: Sequence["Done"] = ()) -> Layouts:
+    """The :class:`Layouts` of a job of ``config``: ``meas`` and the measurements ``done``."""
+    only = getattr(config, "operator_only", False)
+    key_of = getattr(config, "layout_key", layout_key)  # a model may read more of a layout
+    keys = [key_of(m) if only or operator_applies(config, m) else None for m in meas]
+    sizes = Counter(keys)
+    sizes.update(Counter(d.layout for d in done if d.layout is not None))
+    return Layouts(keys, sizes)
+
+
+def small_builds(layouts: Layouts, config, min_group: int = OPERATOR_MIN_GROUP) -> int:
+    """What building an operator for each layout of ``layouts`` below ``min_group`` costs, in
+    single-stage builds (a two-stage entry counts :data:`TWO_STAGE_BUILD_COST`; a learned or
+    bivariate model's map is always built: 0). A job builds them while the sum over its
+    settings is at most :data:`OPERATOR_MAX_BUILDS`."""
+    if getattr(config, "operator_only", False):
+        return 0
+    n = sum(1 for k, size in layouts.sizes.items() if k is not None and size < min_group)
+    return n * (1 if config.linear else TWO_STAGE_BUILD_COST)
 
 
 def operator_applies(config: Config, meas) -> bool:
@@ -124,29 +167,38 @@ def plan_job(
     min_group: int = OPERATOR_MIN_GROUP,
     done: Sequence[Done] = (),
     order: Sequence[int] | None = None,
+    layouts: Layouts | None = None,
+    small: bool | None = None,
 ) -> dict[str, dict]:
     """The plan of :func:`reconstruct_many` with these arguments (its groups, each with the
     layout key of its members), made once for both :func:`job_keys` and
     :func:`reconstruct_many` (``plan=``): a folder's record and its reconstruction read one
-    plan, and each measurement's layout is digested once."""
-    return _plan(meas, config, min_group, done, order, getattr(config, "operator_only", False))
+    plan, and each measurement's layout is digested once (``layouts``: :func:`job_layouts` of
+    the same ``meas``, ``config`` and ``done``, if made already).
+
+    A layout is an operator group when the job holds at least ``min_group`` measurements of it
+    (whichever of them are left to do), or when ``small``: layouts below ``min_group`` get
+    operators too (default: where their :func:`small_builds` are at most
+    :data:`OPERATOR_MAX_BUILDS`; a caller with several settings sums them over the job)."""
+    if layouts is None:
+        layouts = job_layouts(meas, config, done)
+    if small is None:
+        small = small_builds(layouts, config, min_group) <= OPERATOR_MAX_BUILDS
+    only = getattr(config, "operator_only", False)  # a learned model's map: always built
+    return _plan(meas, layouts, min_group, small or only, done, order)
 
 
-def _plan(meas, config, min_group, done, order, only) -> dict[str, dict]:
+def _plan(meas, layouts: Layouts, min_group, small, done, order) -> dict[str, dict]:
     """The groups of the whole job (``meas`` and the measurements ``done`` before): ``{group_id:
     {"kind", "members" (indices into meas), "layouts" (their layout keys, ``None`` where no
     operator applies), "slots" (their places among the job's group), "width" (the group's
-    longest slices)}}``. A layout is an operator group when the job holds
-    at least ``min_group`` measurements of it, whichever of them are left to do."""
+    longest slices)}}`` (:func:`plan_job`)."""
     done = list(done or ())
     order = list(range(len(meas))) if order is None else list(order)
-    key_of = getattr(config, "layout_key", layout_key)  # a model may read more of a layout
-    keys = [key_of(m) if only or operator_applies(config, m) else None for m in meas]
-    sizes = Counter(keys)
-    sizes.update(Counter(d.layout for d in done if d.layout is not None))
+    keys, sizes = layouts
     plan: dict[str, dict] = {}
     for k, (m, key) in enumerate(zip(meas, keys)):
-        fast = key is not None and (only or sizes[key] >= min_group)
+        fast = key is not None and (small or sizes[key] >= min_group)
         group = ("operator", key) if fast else ("pipeline", m.pairs, m.centre_azimuths)
         g = plan.setdefault(
             group_id(group), {"kind": group[0], "members": [], "layouts": [], "width": 0}
@@ -219,7 +271,8 @@ def reconstruct_many(
             that looks in an operator store first); default :func:`~abrdf_jax.compile_operator`.
         batch: materials per call (default ``OPERATOR_BATCH`` / ``PIPELINE_BATCH``).
         min_group: the fewest measurements of one slice layout that get an operator
-            (:data:`OPERATOR_MIN_GROUP`).
+            (:data:`OPERATOR_MIN_GROUP`) in a job whose smaller layouts would cost more
+            than :data:`OPERATOR_MAX_BUILDS` builds (:func:`plan_job`).
         before_jax: called before the pipeline's first JAX work (e.g. to turn on a
             compilation cache); the operator path leaves JAX to ``operator``.
         done: the measurements of the same job (settings) that an interrupted run already
@@ -249,7 +302,7 @@ def reconstruct_many(
             return compile_operator(config, params, template, nonlinear=nonlinear_mode(config))
 
     if plan is None:
-        plan = _plan(meas, config, min_group, done, order, only)
+        plan = plan_job(meas, config, min_group=min_group, done=done, order=order)
     for gid, g in plan.items():
         members, slots = g["members"], g["slots"]
         if g["kind"] == "operator":

@@ -144,7 +144,7 @@ def test_subcommands_import_only_the_shared_module():
     """Arrows point into cli/_common only (which holds cli/_record, the model record,
     cli/_outputs, the output checks and overwrite policy, cli/_caches, --cache-dir,
     cli/_learned, the prior-only model, cli/_progress, the progress bars and lines,
-    cli/_resume, what --resume keeps, cli/_readers, the reader processes, cli/_blas, the
+    cli/_resume, what --resume keeps, cli/_block_plan, a folder block's plans, cli/_readers, the reader processes, cli/_blas, the
     BLAS thread count, cli/_malloc, the allocator's thresholds, and cli/_capture_values, the
     warnings of a capture's values): no subcommand imports another, nor the package's __init__ (checked on
     the source: relative imports inside abrdf_jax/cli)."""
@@ -173,6 +173,7 @@ def test_subcommands_import_only_the_shared_module():
                         "_blas",
                         "_malloc",
                         "_capture_values",
+                        "_block_plan",
                     },
                     "_args.py": set(),
                     "_outputs.py": set(),
@@ -186,6 +187,7 @@ def test_subcommands_import_only_the_shared_module():
                     "_blas.py": {"_readers"},
                     "_malloc.py": set(),
                     "_capture_values.py": set(),
+                    "_block_plan.py": {"_resume"},
                 }.get(path.name, {"_common"})
                 assert set(targets) <= allowed, (path.name, targets)
 

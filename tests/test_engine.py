@@ -3,6 +3,7 @@ operator groups, fixed batch shapes (no recompile for the last batch), the recor
 batch, --resume and an interrupted run."""
 
 import json
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ def _meas(name, budget="iso102", **kw):
     return aj.group_slices(s)[0]
 
 
-def test_operator_groups_match_the_pipeline_and_ignore_the_batch_size():
+def test_operator_groups_match_the_pipeline_and_ignore_the_batch_size(monkeypatch):
     config = aj.preset("recommended", "iso102")
     params = aj.Params.default(config)
     meas = [_meas(n) for n in NAMES]
@@ -43,10 +44,48 @@ def test_operator_groups_match_the_pipeline_and_ignore_the_batch_size():
     parts = list(_engine.reconstruct_many(meas, config, params, batch=2, min_group=1))
     assert [i for i, _, _ in parts] == [[0, 1], [2, 3], [4]]
     np.testing.assert_array_equal(np.concatenate([t for _, t, _ in parts]), tables)
-    # fewer than OPERATOR_MIN_GROUP of a layout: the pipeline (no operator built for a few)
+    # fewer than OPERATOR_MIN_GROUP of a layout: still an operator in a job of few layouts
     few = list(_engine.reconstruct_many(meas, config, params, operator=operator))
-    assert len(built) == 1 and {p for *_, p in few} == {"pipeline"}
-    np.testing.assert_allclose(few[0][1], tables, rtol=0, atol=2e-3 * expected.max())
+    assert len(built) == 2 and {p for *_, p in few} == {"operator"}
+    few_tables = np.concatenate([t for _, t, _ in few])  # a batch of 256: BLAS's rounding
+    np.testing.assert_allclose(few_tables, tables, rtol=1e-5, atol=1e-6 * expected.max())
+    # ... and the pipeline in a job of many (every jittered capture a layout of its own)
+    monkeypatch.setattr(_engine, "OPERATOR_MAX_BUILDS", 0)
+    many = list(_engine.reconstruct_many(meas, config, params, operator=operator))
+    assert len(built) == 2 and {p for *_, p in many} == {"pipeline"}
+    np.testing.assert_allclose(many[0][1], tables, rtol=0, atol=2e-3 * expected.max())
+
+
+def test_small_builds_count_the_layouts_below_min_group():
+    """What a job's small layouts would cost in builds: layouts below ``min_group`` (done ones
+    included), one each, a two-stage entry ``TWO_STAGE_BUILD_COST``; ``None`` (no operator
+    applies) and the big layouts count nothing."""
+    config = aj.preset("recommended", "iso102")
+    assert config.linear
+    layouts = _engine.Layouts(["a", "b", None], Counter({"big": 40, "a": 1, "b": 3, None: 7}))
+    assert _engine.small_builds(layouts, config, 32) == 2
+    assert _engine.small_builds(layouts, config, 1) == 0  # none is small
+    two = aj.Config.recommended(budget="aniso204")
+    assert _engine.small_builds(layouts, two, 32) == 2 * _engine.TWO_STAGE_BUILD_COST
+
+
+def test_a_two_stage_setting_builds_fewer_small_layouts():
+    """``--model aniso``'s two-stage entries (34 MB, ~1 s each) count
+    ``TWO_STAGE_BUILD_COST`` builds each: a job builds them for fewer small layouts; more go
+    through the pipeline."""
+    config = aj.Config.recommended(budget="aniso204")  # filip2012 on log samples: two stages
+    assert not config.linear
+    n = _engine.OPERATOR_MAX_BUILDS // _engine.TWO_STAGE_BUILD_COST
+    meas = [_meas(NAMES[k % len(NAMES)], "aniso204", jitter_deg=0.5, seed=k) for k in range(n + 1)]
+    assert all(_engine.operator_applies(config, m) for m in meas)
+    assert len({_engine.layout_key(m) for m in meas}) == n + 1  # a layout each
+
+    def kinds(job):
+        plan = _engine.plan_job(job, config)
+        return Counter(g["kind"] for g in plan.values() for _ in g["members"])
+
+    assert kinds(meas[:n]) == {"operator": n}
+    assert kinds(meas) == {"pipeline": n + 1}
 
 
 def test_a_resumed_group_gets_the_batch_rows_and_bits_of_the_whole_run():
@@ -141,12 +180,12 @@ def test_two_stage_rule_takes_the_operator():
             np.testing.assert_allclose(table, want, rtol=0, atol=5e-4 * want.max())
 
 
-def _folder(tmp_path, n=5):
+def _folder(tmp_path, n=5, **kw):
     src = tmp_path / "in"
     src.mkdir()
     for k in range(n):
         s = aj.simulate_capture(
-            materials.get_material(NAMES[k % len(NAMES)]), budget="iso102", noise=0.01, seed=k
+            materials.get_material(NAMES[k % len(NAMES)]), budget="iso102", noise=0.01, seed=k, **kw
         )
         io.write_samples_csv(src / f"m{k}.csv", s)
     return src
@@ -157,13 +196,15 @@ def _folder(tmp_path, n=5):
 ISO = ["--model", "iso"]
 
 
-def test_folder_resume_redoes_only_what_is_missing_or_torn(tmp_path, capsys):
+@pytest.mark.parametrize("engine", ["operator", "pipeline"])
+def test_folder_resume_redoes_only_what_is_missing_or_torn(tmp_path, capsys, monkeypatch, engine):
     src, out = _folder(tmp_path), tmp_path / "out"
+    if engine == "pipeline":  # a job of many small layouts: five files of one layout, too few
+        monkeypatch.setattr(_engine, "OPERATOR_MAX_BUILDS", 0)
     assert main(["reconstruct", str(src), "-o", str(out), "-q", *ISO]) == 0
     first = {p.name: p.read_bytes() for p in out.iterdir()}
     record = json.loads((tmp_path / "out.model.json").read_text())
-    # five files of one layout: fewer than OPERATOR_MIN_GROUP, so the pipeline
-    assert len(record["inputs"]) == 5 and {e["engine"] for e in record["inputs"]} == {"pipeline"}
+    assert len(record["inputs"]) == 5 and {e["engine"] for e in record["inputs"]} == {engine}
     (out / "m1.npz").unlink()
     (out / "m3.npz").write_bytes(first["m3.npz"][:100])  # torn
     capsys.readouterr()
@@ -179,11 +220,44 @@ def test_folder_resume_redoes_only_what_is_missing_or_torn(tmp_path, capsys):
     assert "all 5 tables are complete" in capsys.readouterr().out
 
 
+def test_a_folder_of_few_layouts_builds_their_operators_and_resume_keeps_the_decision(
+    tmp_path, capsys, monkeypatch
+):
+    """A folder's small layouts get operators where the whole block's are few, the pipeline
+    where they are many (jittered captures: a layout each); a resumed run keeps the
+    interrupted run's decision even when what is left would be few (the same bits)."""
+    src = _folder(tmp_path, 4, jitter_deg=0.5)
+    run = ["reconstruct", str(src), "-q", *ISO]
+
+    def engines(out):
+        record = json.loads((out.parent / (out.name + ".model.json")).read_text())
+        return Counter(e["engine"] for e in record["inputs"])
+
+    few = tmp_path / "few"
+    assert main([*run, "-o", str(few)]) == 0
+    assert engines(few) == {"operator": 4}  # four layouts of one file each: built
+    monkeypatch.setattr(_engine, "OPERATOR_MAX_BUILDS", 3)
+    many = tmp_path / "many"
+    assert main([*run, "-o", str(many)]) == 0
+    assert engines(many) == {"pipeline": 4}
+    whole = {p.name: p.read_bytes() for p in many.iterdir()}
+    for name in ("m0.npz", "m2.npz"):
+        (many / name).unlink()
+    monkeypatch.setattr(_engine, "OPERATOR_MAX_BUILDS", 2)  # two left: few, yet as recorded
+    capsys.readouterr()
+    assert main([*run, "-o", str(many), "--resume"]) == 0
+    assert "wrote 2 tables, 2 kept (--resume)" in capsys.readouterr().out
+    assert engines(many) == {"pipeline": 4}
+    assert {p.name: p.read_bytes() for p in many.iterdir()} == whole
+
+
 def test_interrupted_folder_keeps_finished_tables_and_resumes_to_the_same_result(
     tmp_path, monkeypatch
 ):
     src = _folder(tmp_path)
-    # batches of 2 in every run (XLA's rounding depends on the batch shape, not on the partners)
+    # the pipeline (as for a job of many small layouts), in batches of 2 in every run (XLA's
+    # rounding depends on the batch shape, not on the partners)
+    monkeypatch.setattr(_engine, "OPERATOR_MAX_BUILDS", 0)
     monkeypatch.setattr(_engine, "PIPELINE_BATCH", 2)
     whole = tmp_path / "whole"
     assert main(["reconstruct", str(src), "-o", str(whole), "-q", *ISO]) == 0

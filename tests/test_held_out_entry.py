@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import abrdf_jax as aj
-from abrdf_jax import _cache, materials, select
+from abrdf_jax import _cache, _engine, materials, select
 from abrdf_jax.select import _held_out_entry as H
 
 NAMES = ("ward-brushed-steel", "ggx-aniso-metal", "ashikhmin-satin", "ggx-plastic")
@@ -100,7 +100,14 @@ def test_entry_selections_make_the_same_choices_and_use_the_store(captures, tmp_
         assert a.errors == pytest.approx(b.errors, rel=0, nan_ok=True)  # read back exactly
         for n, e in one.errors.items():
             assert a.errors[n] == pytest.approx(e, rel=1e-4, nan_ok=True)
-    # fewer inputs of the layout than min_group: left to the JAX path
+    # fewer inputs of the layout than min_group: an entry where the call has few such layouts
+    # (the store's, nothing built), left to the JAX path where it has many
+    (alone,) = H.entry_selections(
+        captures[:1], store=store, warn=warnings.append, min_group=2, **kw
+    )
+    assert not builds and alone.name == first[0].name
+    assert alone.errors == pytest.approx(first[0].errors, rel=1e-6)  # one row, not two: rounding
+    monkeypatch.setattr(_engine, "OPERATOR_MAX_BUILDS", 0)
     assert H.entry_selections(
         captures[:1], store=store, warn=warnings.append, min_group=2, **kw
     ) == [None]

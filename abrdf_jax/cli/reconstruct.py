@@ -390,11 +390,12 @@ def _reconstruct_folder(blocks, job: tuple, args, caches, forced) -> int:
 
     from .. import io
     from .._arrays import check_finite
-    from .._engine import job_keys, plan_job, reconstruct_many
+    from .._engine import reconstruct_many
 
     n_files, out, place, resumed, settings = job
     out.mkdir(exist_ok=True)
     kept = common.kept_batches(resumed, place)
+    decided = common.kept_small(resumed, place, common.BLOCK)  # as the interrupted run did
     failed: list[str] = []
     done = [common.compact(c) for c in resumed]  # records of the outputs --resume kept
     paths, models, budgets = {"operator": 0, "pipeline": 0}, [], set()
@@ -422,28 +423,13 @@ def _reconstruct_folder(blocks, job: tuple, args, caches, forced) -> int:
             bar.set_description("reconstruct")
             models += [c["record"]["model"] for c in choices]
             budgets |= {c["config"].budget for c in choices}
-            block = place[str(items[0].path)] // common.BLOCK  # blocks of the whole job
-            groups: dict[tuple, list[int]] = {}
-            for k, (item, choice) in enumerate(zip(items, choices)):
-                key = (item.budget, item.alpha, choice["config"])  # what one call must share
-                groups.setdefault(key, []).append(k)
-            for (_, _, config), members in groups.items():
+            jobs = common.block_jobs(
+                items, choices, place, kept, decided, block=common.BLOCK,
+                slices=common.measurements_for,
+            )  # fmt: skip
+            for config, members, meas, job in jobs:
                 params = choices[members[0]]["params"]
-                meas = [common.measurements_for(items[k], config) for k in members]
                 common.warn_guard(items[members[0]].path, meas[0], config, params, args.params)
-                job = dict(
-                    done=[
-                        d
-                        for d in kept.get(common.settings_key(choices[members[0]]["record"]), ())
-                        if d.order // common.BLOCK == block
-                    ]
-                )
-                job["order"] = [place[str(items[k].path)] for k in members]
-                job["plan"] = plan_job(meas, config, **job)  # one plan: the record's, the run's
-                for k, keys in zip(members, job_keys(meas, config, **job)):
-                    choices[k]["record"]["batch"] = (
-                        keys  # what a --resume run reads (common.kept_batches)
-                    )
                 for idx, tables, path in reconstruct_many(
                     meas,
                     config,

@@ -28,7 +28,7 @@ from .._names import LOG_SAMPLES, LOG_SUBSPACE
 from .._folds import fold_slots, log_residual
 from .._host_eps import sample_eps
 from .._operator_entry import check_layout
-from .._engine import OPERATOR_MIN_GROUP
+from .. import _engine
 from .._rules import AFFINE, combine
 from .._smoothing import smooth_compact, smoothing_from_json, smoothing_to_json
 from .._spikes import cap_samples
@@ -38,8 +38,10 @@ from ._learned_entry import cached_entry as learned_entry
 from ._learned_entry import learned_model
 
 #: Inputs of one layout (α, candidates) that make a held-out entry worth building in a call of
-#: several: the reconstruction operators' threshold; a single file passes 1.
-MIN_GROUP = OPERATOR_MIN_GROUP
+#: several with many layouts: the reconstruction operators' threshold and rule
+#: (``abrdf_jax._engine.plan_job``: a call of few layouts builds an entry for each); a
+#: single file passes 1.
+MIN_GROUP = _engine.OPERATOR_MIN_GROUP
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -339,7 +341,8 @@ def entry_selections(
     """:func:`abrdf_jax.select.select_model` (``candidates="auto"``) of grouped measurements
     ``items`` (``(meas, alpha_deg)`` pairs) wherever it needs no JAX: one candidate left (as
     :func:`~abrdf_jax.select.quick_selection`), or candidates of :func:`entry_plan` on a layout shared by
-    ``min_group`` inputs or more, scored by held-out entries (:class:`HeldOutEntry`, from
+    ``min_group`` inputs or more (or on any layout of a call of few,
+    :data:`abrdf_jax._engine.OPERATOR_MAX_BUILDS`), scored by held-out entries (:class:`HeldOutEntry`, from
     ``store``). ``None`` where the caller must run the JAX path
     (:func:`~abrdf_jax.select.select_models`). ``where``: each input's name, put before the
     message of an :class:`~abrdf_jax.InputError` of its plan; ``reports``: each input's
@@ -366,8 +369,11 @@ def entry_selections(
         if out[i] is None and entry_plan(p):
             key = (layout_key(p.meas), p.alpha, tuple(p.configs))
             groups.setdefault(key, []).append(i)
+    # the reconstruction operators' rule (abrdf_jax._engine.plan_job): the small groups too
+    # where they are few
+    small = sum(len(m) < min_group for m in groups.values()) <= _engine.OPERATOR_MAX_BUILDS
     for members in groups.values():
-        if len(members) < min_group:
+        if len(members) < min_group and not small:
             continue
         p0 = plans[members[0]]
         ys = np.stack([np.asarray(plans[i].meas.y) for i in members])

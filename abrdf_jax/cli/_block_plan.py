@@ -1,0 +1,50 @@
+"""A folder run's plan of one block of inputs (``reconstruct DIR``): the inputs grouped by
+setting, and each setting's :func:`abrdf_jax._engine.plan_job`.
+
+Whether layouts shared by fewer than ``OPERATOR_MIN_GROUP`` inputs get operators of their own
+(``plan_job``'s ``small``) is decided once for the whole block, over every setting in it: a
+folder of a few files, whatever models they get, builds each its operator (a rerun loads them),
+and a jittered folder (a layout a file) goes through the pipeline. A resumed run takes the
+decision the interrupted run recorded (``batch.small`` of its kept entries), so its tables
+get the uninterrupted run's paths and bits.
+"""
+
+from __future__ import annotations
+
+
+def block_jobs(
+    items, choices, place: dict, kept: dict, decided: dict, *, block: int, slices
+) -> list[tuple]:
+    """``[(config, members, meas, job)]``: per setting of the block's ``items`` (with their
+    ``choices``), the members' indices, their slices, and the keywords of
+    :func:`abrdf_jax._engine.reconstruct_many` (``done``, ``order``, ``plan``); each choice's
+    record gets its ``batch`` entry (what ``--resume`` reads). ``place``: each input's place in
+    the whole job (by its path's text); ``kept``: the kept tables
+    (``common.kept_batches``); ``decided``: the recorded ``small`` decisions by block
+    (``common.kept_small``); ``block``: files a block (``common.BLOCK``); ``slices(item,
+    config)``: an input's slices for a setting (``common.measurements_for``)."""
+    from .._engine import OPERATOR_MAX_BUILDS, job_keys, job_layouts, plan_job, small_builds
+    from ._resume import settings_key
+
+    at = place[str(items[0].path)] // block  # blocks of the whole job
+    groups: dict[tuple, list[int]] = {}
+    for k, (item, choice) in enumerate(zip(items, choices)):
+        key = (item.budget, item.alpha, choice["config"])  # what one call must share
+        groups.setdefault(key, []).append(k)
+    jobs = []  # per setting: its measurements and the job's layouts (done included)
+    for (_, _, config), members in groups.items():
+        meas = [slices(items[k], config) for k in members]
+        setting = settings_key(choices[members[0]]["record"])
+        done = [d for d in kept.get(setting, ()) if d.order // block == at]
+        job = dict(done=done, order=[place[str(items[k].path)] for k in members])
+        jobs.append((config, members, meas, job, job_layouts(meas, config, done)))
+    small = decided.get(at)
+    if small is None:
+        small = OPERATOR_MAX_BUILDS >= sum(small_builds(j[4], j[0]) for j in jobs)
+    out = []
+    for config, members, meas, job, layouts in jobs:
+        job["plan"] = plan_job(meas, config, layouts=layouts, small=small, **job)  # one plan:
+        for k, keys in zip(members, job_keys(meas, config, **job)):  # the record's and the run's
+            choices[k]["record"]["batch"] = {**keys, "small": small}
+        out.append((config, members, meas, job))
+    return out
