@@ -58,16 +58,14 @@ OPERATOR_BATCH, PIPELINE_BATCH = 256, 32
 OPERATOR_MIN_GROUP = 32
 #: A job builds an operator for each layout below :data:`OPERATOR_MIN_GROUP` too while they
 #: cost at most this many single-stage builds (:func:`small_builds`): a few numpy builds cost
-#: less than the pipeline's JAX start and compilation (seconds, once per setting), and a rerun
-#: loads them from the store. Scratch, 2026-12-07 (docs/notes.md): 16 jittered aniso204 files
-#: (``--model iso``, a layout each) 4.2 s cold / 1.1 s warm with 16 builds against 8.0 / 4.9 s
-#: through the pipeline; a folder of two anisotropic files (``--model auto``) 1.15 / 0.37 s
-#: against 20.9 / 6.4 s.
+#: less than the pipeline's JAX start and compilation (seconds, once per setting and call), and
+#: a rerun loads them from the store. Chosen on scratch timings of jittered folders of 4–16
+#: files, cold and warm (docs/notes.md, 2026-12-07); ``python -m benchmarks.cli`` times a
+#: folder of 8 aniso204 files whose models are small layouts.
 OPERATOR_MAX_BUILDS = 16
-#: What one two-stage entry (``--model aniso``: 6561 × 1296 float32, 34 MB in the store, ~1 s)
-#: counts against :data:`OPERATOR_MAX_BUILDS`: 4 jittered files 5.4 s cold / 1.5 s warm with
-#: their builds against 9.0 / 4.4 s through the pipeline, 16 of them 16.8 / 5.0 s (and 520 MB of
-#: store) against 10.8 / 6.1 s (scratch, as above).
+#: What one two-stage entry (``--model aniso``: 6561 × 1296 float32, 34 MB in the store)
+#: counts against :data:`OPERATOR_MAX_BUILDS`: it takes several times a single-stage build's
+#: time and space (scratch, as above).
 TWO_STAGE_BUILD_COST = 4
 
 
