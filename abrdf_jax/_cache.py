@@ -41,7 +41,7 @@ from .io._atomic import atomic_write, write_cause
 CACHE_ENV = "ABRDF_JAX_CACHE_DIR"
 NO_CACHE_ENV = "ABRDF_JAX_NO_CACHE"
 #: Version of the operator entry format and key; bump it when either changes meaning.
-CACHE_FORMAT = 2
+CACHE_FORMAT = 3
 #: ``cache_dir("off")``: no cache.
 OFF = "off"
 OPERATORS = "operators"
@@ -208,7 +208,7 @@ def operator_key(
 class OperatorStore:
     """Operator entries on disk, ``folder / "operators" / f"{key}.npz"``; never fatal.
 
-    An entry file holds the arrays, its own key, :data:`CACHE_FORMAT` and a sha256 of the arrays;
+    An entry file holds the arrays, its own key, :data:`CACHE_FORMAT` and a CRC-32C of the arrays;
     :meth:`load` checks all three (and the shapes), so a truncated, corrupt or misplaced entry is
     a warning, is removed when possible, and reads as a miss.
     """
@@ -274,7 +274,7 @@ class OperatorStore:
             "key": key,
             "format": CACHE_FORMAT,
             "kind": entry.KIND,
-            "sha256": digest(arrays),
+            "crc32c": digest(arrays),
             **entry.meta(),
             "version": package_version(),
         }
@@ -317,7 +317,7 @@ def _check_entry(key: str, arrays: dict[str, np.ndarray], meta: dict, kind) -> s
         return f"stored under another key ({str(meta.get('key'))[:12]}...)"
     if meta.get("kind", OperatorEntry.KIND) != kind.KIND:
         return f"of another kind ({meta.get('kind')!r}, expected {kind.KIND!r})"
-    if meta.get("sha256") != digest(arrays):
+    if meta.get("crc32c") != digest(arrays):
         return "corrupt (its checksum does not match)"
     return kind.check(arrays, meta)
 

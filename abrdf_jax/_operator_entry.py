@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import hashlib
 
 import numpy as np
 
@@ -105,8 +104,12 @@ class OperatorEntry:
         def rows(v):  # every material and channel is a row: one GEMM, as _operator
             return np.ascontiguousarray(np.transpose(v, (0, 2, 1))).reshape(b * c, v.shape[1])
 
-        out = (rows(x if xc is None else xc) @ self.matrix.T).reshape(b, c, q)
-        if xc is not None and self.keep.size:
+        picked = self._picked if xc is not None and self.keep.size else None
+        if picked is not None:  # kept rows that read one value each (a two-stage entry's)
+            out = _picked_rows(picked, rows(xc), rows(x), q).reshape(b, c, q)
+        else:
+            out = (rows(x if xc is None else xc) @ self.matrix.T).reshape(b, c, q)
+        if xc is not None and self.keep.size and picked is None:
             kept, runs = self._kept
             fix = (rows(x - xc) @ kept.T).reshape(b, c, -1)
             if runs is None:
@@ -128,9 +131,21 @@ class OperatorEntry:
         keep = np.asarray(self.keep)
         if np.unique(keep).size != keep.size:
             return self.matrix[keep], None
-        cuts = [0, *(np.flatnonzero(np.diff(keep) != 1) + 1).tolist(), keep.size]
-        runs = [(int(keep[a]), int(keep[a]) + (z - a), a) for a, z in zip(cuts[:-1], cuts[1:])]
-        return self.matrix[keep], runs
+        return self.matrix[keep], _runs(keep)
+
+    @functools.cached_property
+    def _picked(self) -> tuple | None:
+        """Where every kept row is one-hot with weight 1 (a two-stage entry's: the restored
+        subspace value at a centre that is a grid pair, ``_operator.keep_centres``), the
+        product need not run over them: ``(columns the kept rows pick, the other rows'
+        matrix (copied once), the other rows' runs, the kept rows' runs)``; else ``None``."""
+        keep = np.asarray(self.keep)
+        kept, runs = self._kept
+        hot = kept != 0
+        if runs is None or not (np.all(hot.sum(axis=1) == 1) and np.all(kept[hot] == 1)):
+            return None
+        rest = np.setdiff1d(np.arange(self.matrix.shape[0]), keep)
+        return np.argmax(hot, axis=1), self.matrix[rest], _runs(rest), runs
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The arrays by name (what the cache stores)."""
@@ -193,6 +208,29 @@ class OperatorEntry:
         return None
 
 
+def _runs(rows: np.ndarray) -> list[tuple[int, int, int]]:
+    """Distinct increasing ``rows`` as runs of consecutive rows ``(first, stop, offset)``."""
+    cuts = [0, *(np.flatnonzero(np.diff(rows) != 1) + 1).tolist(), rows.size]
+    return [(int(rows[a]), int(rows[a]) + (z - a), a) for a, z in zip(cuts[:-1], cuts[1:])]
+
+
+def _picked_rows(picked: tuple, capped: np.ndarray, restored: np.ndarray, q: int) -> np.ndarray:
+    """The ``(n, q)`` product of :meth:`OperatorEntry.apply_compact` where the kept rows are
+    one-hot (``OperatorEntry._picked``): the other rows' product on the ``capped`` features, the
+    kept rows the ``restored`` (uncapped) features they pick, as the JAX operator sets them
+    (a fifth fewer rows in the product for a two-stage entry, and no product for the kept
+    rows' correction)."""
+    cols, rest, rest_runs, kept_runs = picked
+    part = capped @ rest.T
+    out = np.empty((capped.shape[0], q), np.float32)
+    for first, stop, at in rest_runs:
+        out[:, first:stop] = part[:, at : at + stop - first]
+    values = restored[:, cols]
+    for first, stop, at in kept_runs:
+        out[:, first:stop] = values[:, at : at + stop - first]
+    return out
+
+
 def check_layout(arrays: dict[str, np.ndarray], n_in: int) -> str | None:
     """The template's layout arrays (``index``, ``t``, ``count``) of an entry reading ``n_in``
     valid samples: consistent shapes and an index inside the slices (``None``: fine)."""
@@ -209,10 +247,15 @@ def check_layout(arrays: dict[str, np.ndarray], n_in: int) -> str | None:
 
 
 def digest(arrays: dict[str, np.ndarray]) -> str:
-    """sha256 (hex) of named arrays: names, dtypes, shapes and bytes."""
-    h = hashlib.sha256()
+    """CRC-32C (hex) of named arrays: names, dtypes, shapes and bytes. The store's check on
+    load against a truncated or corrupted file (the BTF store's algorithm,
+    ``abrdf_jax.btf._checksum``: the processor's CRC instruction on the arrays in place, where
+    sha256 was a large part of loading a 34 MB two-stage entry)."""
+    import crc32c
+
+    value = 0
     for name in sorted(arrays):
         a = np.ascontiguousarray(arrays[name])
-        h.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
+        value = crc32c.crc32c(f"{name}:{a.dtype.str}:{a.shape};".encode(), value)
+        value = crc32c.crc32c(memoryview(a).cast("B"), value)
+    return f"{value:08x}"

@@ -95,6 +95,42 @@ def test_kept_rows_run_by_run_equal_the_indexed_update():
         assert (e._kept[1] is None) == (len(set(keep)) < len(keep))
 
 
+def test_one_hot_kept_rows_are_picked_not_multiplied():
+    """Kept rows that are one-hot with weight 1 (a two-stage entry's: a centre that is a grid
+    pair) are not multiplied: ``apply_compact`` runs the product over the other rows only and
+    sets the kept rows to the uncapped features they pick, as the JAX operator sets them."""
+    import dataclasses
+
+    from abrdf_jax._host_eps import sample_eps
+    from abrdf_jax._spikes import cap_samples
+
+    base = _synthetic(3)
+    rng = np.random.default_rng(5)
+    keep = np.array([3, 4, 5, 90, 91, 6000, 6560], np.int64)
+    cols = rng.integers(0, base.n_inputs, keep.size)
+    matrix = base.matrix.copy()
+    matrix[keep] = 0.0
+    matrix[keep, cols] = 1.0
+    e = dataclasses.replace(base, matrix=matrix, keep=keep, spike_cap=(0.93, 0.5))
+    assert e._picked is not None
+    x = rng.lognormal(-2, 1.5, (5, e.n_inputs, 3)).astype(np.float32)
+    x[:, cols[0]] *= 40  # a spike the cap cuts, read by a kept row
+    eps = sample_eps(x, e.log_eps, axis=1)
+    z = np.log(np.maximum(x, np.float32(0)) + eps[:, None, :]).astype(np.float32)
+    zc = cap_samples(z, e.spike_cap, xp=np).astype(np.float32)
+    assert np.any(z[:, cols[0]] != zc[:, cols[0]])
+    rows = np.ascontiguousarray(np.transpose(zc, (0, 2, 1))).reshape(15, -1)
+    out = (rows @ matrix.T).reshape(5, 3, -1).transpose(0, 2, 1)  # every row, capped
+    out[:, keep] = z[:, cols]  # the kept rows: the uncapped values they pick
+    want = np.maximum(np.exp(out) - eps[:, None, :], 0).reshape(5, 81, 81, 3)
+    got = e.apply_compact(x)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=0)  # float32 products' rounding
+    np.testing.assert_array_equal(got.reshape(5, -1, 3)[:, keep], want.reshape(5, -1, 3)[:, keep])
+    # a kept row of two weights: the product and its correction, as before
+    matrix[keep[0], (cols[0] + 1) % e.n_inputs] = 0.5
+    assert dataclasses.replace(e, matrix=matrix)._picked is None
+
+
 def _same(a: OperatorEntry, b: OperatorEntry) -> bool:
     return all(np.array_equal(x, y) for x, y in zip(a.arrays().values(), b.arrays().values())) and (
         (a.log_samples, a.log_eps) == (b.log_samples, b.log_eps)
