@@ -167,7 +167,13 @@ def config_doc(config) -> dict:
 
 
 def operator_key(
-    config, params, meas, *, build_dtype: str = BUILD_DTYPE, extra: dict | None = None
+    config,
+    params,
+    meas,
+    *,
+    build_dtype: str = BUILD_DTYPE,
+    extra: dict | None = None,
+    centres: bool = False,
 ) -> str:
     """The cache key of the operator built for ``config``, ``params`` and ``meas``'s layout.
 
@@ -176,12 +182,20 @@ def operator_key(
     matrix's rounding), the entry dtype and the build dtype, every :class:`Config` field, the
     parameter values (α, widths, λ) and the layout (:func:`abrdf_jax._grouping.layout_key`, and
     the slice parameters' dtype), and ``extra`` (what else an entry of
-    another kind depends on, canonical JSON). No JAX is imported.
+    another kind depends on, canonical JSON). ``centres``: the key of a two-stage entry's
+    second stage, which depends on the elevation pairs and the centres' layout but not on where
+    the samples lie nor on α (:func:`cached_entry`). No JAX is imported.
     """
     t = np.asarray(meas.t)
     count = np.asarray(meas.count).astype(np.int64)
     if t.ndim != 2 or count.shape != (t.shape[0],):
         raise InputError(f"operator_key needs one measurement's layout, got t of shape {t.shape}")
+    names = ("widths", "reg") if centres else ("alpha", "widths", "reg")
+    if centres:
+        pairs = [[float(v) for v in p] for p in meas.pairs]
+        layout = {"centres": [pairs, meas.centre_azimuths]}
+    else:
+        layout = {"key": layout_key(meas), "t_dtype": t.dtype.name}
     doc = {
         "format": CACHE_FORMAT,
         "version": package_version(),
@@ -191,8 +205,8 @@ def operator_key(
         "dtype": "float32",
         "build_dtype": build_dtype,
         "config": config_doc(config),
-        "params": {n: _canon(getattr(params, n)) for n in ("alpha", "widths", "reg")},
-        "layout": {"key": layout_key(meas), "t_dtype": t.dtype.name},
+        "params": {n: _canon(getattr(params, n)) for n in names},
+        "layout": layout,
     }
     if extra is not None:
         doc["extra"] = extra
@@ -388,7 +402,7 @@ def build_entry(
     from ._host_build import host_matrix_or_none
     from ._names import LOG_SAMPLES
 
-    mode = nonlinear_mode(config)
+    mode = nonlinear_mode(config, meas)
     # in numpy: a cold call need not import JAX (_host_build)
     built = host_matrix_or_none(config, params, meas, mode) if build_dtype == "float64" else None
     if built is None:
@@ -453,12 +467,52 @@ def cached_entry(
     Raises:
         InputError: for nonlinear settings (see :func:`build_entry`).
     """
+    from ._centre_step import host_two_stage
+
     if store is None:
         return build_entry(meas, config, params, before_jax=before_build), False
-    key = operator_key(config, params, meas)
-    entry = store.load(key, warn)
-    if entry is not None and _fits(entry, meas):
-        return entry, True
-    entry = build_entry(meas, config, params, before_jax=before_build)
-    store.save(key, entry, warn)
-    return entry, False
+    shared = host_two_stage(config, meas)  # a second stage that any layout of its pairs reads
+    key = operator_key(config, params, meas, centres=shared)
+    memo = (str(store.folder), key)
+    entry = _SHARED.get(memo) if shared else None
+    hit = entry is not None
+    if entry is None:
+        entry = store.load(key, warn)
+        hit = entry is not None and (shared or _fits(entry, meas))
+    if not hit:
+        entry = build_entry(meas, config, params, before_jax=before_build)
+        store.save(key, entry, warn)
+    if shared:
+        _SHARED[memo] = entry
+        while len(_SHARED) > SHARED_ENTRIES:
+            _SHARED.pop(next(iter(_SHARED)))
+        entry = on_layout(entry, config, params, meas)
+    return entry, hit
+
+
+#: Two-stage entries kept in memory after a load or a build (by store folder and key): a folder
+#: of dense or jittered captures (a layout each) reads one shared second stage, loaded once.
+SHARED_ENTRIES = 2
+_SHARED: dict[tuple[str, str], OperatorEntry] = {}
+
+
+def on_layout(entry: OperatorEntry, config, params, meas) -> OperatorEntry:
+    """A two-stage ``entry`` (its matrix from the RBF centres, any sample layout's) for the
+    samples of ``meas``: its first stage (:class:`~abrdf_jax._centre_step.CentreStep`, with
+    ``params``' α) and layout arrays are ``meas``'s; the matrix, and the views of it that
+    applying it makes once (``OperatorEntry._kept``, ``._picked``), are shared."""
+    from ._centre_step import CentreStep
+    from ._host_build import sample_index, template_layout
+
+    t, count = template_layout(meas)
+    made = dataclasses.replace(
+        entry,
+        index=sample_index(t, count).astype(np.int64),
+        t=np.asarray(t, np.float32),
+        count=np.asarray(count, np.int32),
+        subspace=CentreStep.of(config, params, meas),
+    )
+    entry._picked  # noqa: B018 - made once on the shared entry, then handed on
+    for name in ("_kept", "_picked"):  # cached properties of the matrix and kept rows only
+        made.__dict__[name] = entry.__dict__[name]
+    return made

@@ -9,8 +9,11 @@ aniso``) the first map is affine in the slice terms with coefficients read off e
 slice extremes (:mod:`abrdf_jax._rules`), so it runs in numpy as the pipeline runs it in JAX
 (:func:`abrdf_jax._subspace.centre_subspaces` with ``xp=numpy``): the operator store holds such
 an operator as an entry (:class:`abrdf_jax._operator_entry.OperatorEntry` with a
-:class:`CentreStep`), and the command line applies it without importing JAX. Other nonlinear
-settings (a log after the rule, the linear value space's centre cap) stay on the pipeline.
+:class:`CentreStep`), and the command line applies it without importing JAX. A dense capture
+(hundreds or thousands of samples a slice, denser RBF centres) takes two stages with any affine
+rule: its second stage does not depend on where the samples lie, so one stored matrix serves
+every dense capture of the same elevation pairs and setting. Other nonlinear settings (a log
+after the rule, the linear value space's centre cap) stay on the pipeline.
 """
 
 from __future__ import annotations
@@ -24,18 +27,24 @@ from ._rules import AFFINE
 from ._subspace import RULES, centre_subspaces
 
 
-def host_two_stage(config) -> bool:
-    """Whether the operator store holds ``config``'s operator as a two-stage numpy entry: a
-    subspace rule that is affine in the slice terms but not linear in the samples (``filip2012``)
-    on the log of the samples (module docstring)."""
+def host_two_stage(config, meas=None) -> bool:
+    """Whether the operator store holds ``config``'s operator (on ``meas``'s layout, if given)
+    as a two-stage numpy entry: a subspace rule affine in the slice terms on the log of the
+    samples that is not linear in them (``filip2012``, module docstring), or any such rule on a
+    dense layout (``meas.centre_azimuths`` set: thousands of samples, whose one-stage matrix
+    would have a column per sample; its second stage is shared by every dense capture of the
+    same elevation pairs, ``abrdf_jax._cache.cached_entry``)."""
     rule = config.subspace_rule
-    return config.value_space == "logsamples" and rule in AFFINE and not RULES[rule].linear
+    if config.value_space != "logsamples" or rule not in AFFINE:
+        return False
+    dense = meas is not None and getattr(meas, "centre_azimuths", None) is not None
+    return dense or not RULES[rule].linear
 
 
-def nonlinear_mode(config) -> str:
-    """``compile_operator``'s ``nonlinear`` argument for ``config``'s operator: ``"two_stage"``
-    where :func:`host_two_stage` holds, else ``"raise"``."""
-    return "two_stage" if host_two_stage(config) else "raise"
+def nonlinear_mode(config, meas=None) -> str:
+    """``compile_operator``'s ``nonlinear`` argument for ``config``'s operator (on ``meas``'s
+    layout): ``"two_stage"`` where :func:`host_two_stage` holds, else ``"raise"``."""
+    return "two_stage" if host_two_stage(config, meas) else "raise"
 
 
 @dataclasses.dataclass(frozen=True)

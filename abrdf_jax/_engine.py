@@ -9,17 +9,18 @@ of its last member, whose tables are dropped).
 - **Operator groups**: settings that are linear in the (log) samples (a linear subspace rule
   and ``value_space`` ``"linear"`` or ``"logsamples"``) and a sparse centre layout are one
   matrix (:func:`~abrdf_jax.compile_operator`) per slice layout, built once per group, or
-  loaded from an operator store (``abrdf_jax._cache``) keyed by everything it depends on.
-  The operator reproduces :func:`~abrdf_jax.reconstruct` to float32 rounding
-  (``tests/test_operator.py``).
+  loaded from an operator store (``abrdf_jax._cache``) keyed by everything it depends on; an
+  affine rule on the log samples that is not linear (``--model aniso``), or any on a dense
+  capture, is two stages (:func:`operator_applies`). The operator reproduces
+  :func:`~abrdf_jax.reconstruct` to float32 rounding (``tests/test_operator.py``).
 - **Numpy maps** (the learned models, ``abrdf_jax._prior_operator.PriorModel``, and the
   bivariate model, ``abrdf_jax._bivariate.BivariateModel``, passed as ``config``;
   ``operator_only``): one map per slice layout, whatever the group's size, in batches of at
   most the job's group (they compile nothing: a capture whose layout no other file shares, as
   every jittered one, is one row, not a padded batch of 256).
-- **Pipeline groups**: everything else (nonlinear rules, the log after interpolation, dense
-  captures, whose RBF input is spike-capped) goes through :func:`~abrdf_jax.reconstruct_batch`
-  in padded batches; the slices are padded to the group's longest.
+- **Pipeline groups**: everything else (nonlinear rules on linear values, the log after
+  interpolation, the multiplicative rule) goes through :func:`~abrdf_jax.reconstruct_batch` in
+  padded batches; the slices are padded to the group's longest.
 
 The tables come back batch by batch (``yield``), so a caller can write each batch as soon as it
 is done and an interrupted run keeps what it finished.
@@ -75,6 +76,7 @@ class Layouts(NamedTuple):
 
     keys: list
     sizes: Counter
+    builds: dict  # layout key -> what its build is (layouts of one two-stage map share it)
 
 
 def job_layouts(meas: Sequence, config, done: Sequence["Done"] = ()) -> Layouts:
@@ -84,7 +86,11 @@ def job_layouts(meas: Sequence, config, done: Sequence["Done"] = ()) -> Layouts:
     keys = [key_of(m) if only or operator_applies(config, m) else None for m in meas]
     sizes = Counter(keys)
     sizes.update(Counter(d.layout for d in done if d.layout is not None))
-    return Layouts(keys, sizes)
+    builds = {key: key for key in sizes}
+    for m, key in zip(meas, keys):  # a two-stage map: one per pairs and centre layout
+        if key is not None and not only and host_two_stage(config, m):
+            builds[key] = (tuple(map(tuple, m.pairs)), m.centre_azimuths)
+    return Layouts(keys, sizes, builds)
 
 
 def small_builds(layouts: Layouts, config, min_group: int = OPERATOR_MIN_GROUP) -> int:
@@ -94,17 +100,18 @@ def small_builds(layouts: Layouts, config, min_group: int = OPERATOR_MIN_GROUP) 
     settings is at most :data:`OPERATOR_MAX_BUILDS`."""
     if getattr(config, "operator_only", False):
         return 0
-    n = sum(1 for k, size in layouts.sizes.items() if k is not None and size < min_group)
-    return n * (1 if config.linear else TWO_STAGE_BUILD_COST)
+    small = {k for k, size in layouts.sizes.items() if k is not None and size < min_group}
+    builds = {layouts.builds.get(k, k) for k in small}  # a shared two-stage map: built once
+    return sum(TWO_STAGE_BUILD_COST if isinstance(b, tuple) else 1 for b in builds)
 
 
 def operator_applies(config: Config, meas) -> bool:
     """Whether ``config`` on ``meas`` is an operator (:func:`~abrdf_jax.compile_operator`) that
     reproduces :func:`~abrdf_jax.reconstruct`: one matrix (a linear rule, no log after it:
-    :attr:`Config.linear`) or two stages whose first the operator store runs in numpy
-    (:func:`abrdf_jax._centre_step.host_two_stage`: ``--model aniso``), and no dense layout (whose
-    spike cap the pipeline applies and the operator does not). No JAX is imported."""
-    return (config.linear or host_two_stage(config)) and meas.centre_azimuths is None
+    :attr:`Config.linear`) on a sparse layout, or two stages whose first the operator store
+    runs in numpy (:func:`abrdf_jax._centre_step.host_two_stage`: ``--model aniso``, and any
+    affine rule on the log of a dense capture's samples). No JAX is imported."""
+    return (config.linear and meas.centre_azimuths is None) or host_two_stage(config, meas)
 
 
 def as_jax(meas, params) -> tuple["Measurements", "Params"]:
@@ -193,7 +200,7 @@ def _plan(meas, layouts: Layouts, min_group, small, done, order) -> dict[str, di
     longest slices)}}`` (:func:`plan_job`)."""
     done = list(done or ())
     order = list(range(len(meas))) if order is None else list(order)
-    keys, sizes = layouts
+    keys, sizes = layouts.keys, layouts.sizes
     plan: dict[str, dict] = {}
     for k, (m, key) in enumerate(zip(meas, keys)):
         fast = key is not None and (small or sizes[key] >= min_group)
@@ -297,7 +304,8 @@ def reconstruct_many(
 
         def operator(config, params, template):
             template, params = as_jax(template, params)
-            return compile_operator(config, params, template, nonlinear=nonlinear_mode(config))
+            mode = nonlinear_mode(config, template)
+            return compile_operator(config, params, template, nonlinear=mode)
 
     if plan is None:
         plan = plan_job(meas, config, min_group=min_group, done=done, order=order)

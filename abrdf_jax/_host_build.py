@@ -74,8 +74,9 @@ def build_stage(config, template, nonlinear: str = "raise") -> str:
         )
     rule_linear = get_rule(config.subspace_rule).linear
     log_subspace = config.value_space in LOG_SUBSPACE
-    if rule_linear and not log_subspace:
-        return "single"
+    dense = getattr(template, "centre_azimuths", None) is not None
+    if rule_linear and not log_subspace and not (dense and nonlinear == "two_stage"):
+        return "single"  # (a dense layout asked for two stages takes them: its many samples)
     if nonlinear == "raise":
         why = (
             f"rule={config.subspace_rule!r} is not linear in the samples"

@@ -427,6 +427,53 @@ def test_two_stage_entry_round_trip_and_check(built, tmp_path):
     assert "inconsistent" in OperatorEntry.check(narrow, meta)
 
 
+def test_a_two_stage_entry_serves_every_layout_of_its_pairs(tmp_path):
+    """The second stage of a two-stage entry (the matrix from the RBF centres) does not depend
+    on where the samples lie nor on α: its key leaves them out, and a capture with other angles
+    reads the stored entry with its own first stage and layout (no build), to the float64
+    pipeline's tables within the two-stage bound."""
+    import abrdf_jax as aj
+    from abrdf_jax import materials
+
+    config = aj.preset("recommended", "aniso204")
+    store, built = OperatorStore(tmp_path), []
+    real = _cache.build_entry
+
+    def counted(*a, **k):
+        built.append(1)
+        return real(*a, **k)
+
+    meas, params = [], []
+    for k, (name, alpha) in enumerate((("ggx-plastic", 15.0), ("ward-brushed-steel", 17.0))):
+        s = aj.simulate_capture(
+            materials.get_material(name), alpha_deg=alpha, jitter_deg=0.4, seed=k
+        )
+        p = aj.Params.default(config, alpha_deg=alpha)
+        meas.append(aj.group_slices(s, alpha, dtype=np.float64)[0])
+        params.append(p.astype(np.float64))
+    keys = [operator_key(config, p, m, centres=True) for p, m in zip(params, meas)]
+    assert keys[0] == keys[1] != operator_key(config, params[0], meas[0])
+    _cache._SHARED.clear()
+    try:
+        import unittest.mock as mock
+
+        with mock.patch.object(_cache, "build_entry", counted):
+            first, hit0 = cached_entry(store, meas[0], config, params[0])
+            _cache._SHARED.clear()  # the second reads the store, not the memory
+            second, hit1 = cached_entry(store, meas[1], config, params[1])
+    finally:
+        _cache._SHARED.clear()
+    assert (hit0, hit1, len(built)) == (False, True, 1)
+    assert second.matrix is not first.matrix and np.array_equal(second.matrix, first.matrix)
+    assert second.t.shape == np.shape(meas[1].t) and second.subspace.alpha == pytest.approx(
+        np.deg2rad(17.0)
+    )
+    for m, p, e in zip(meas, params, (first, second)):
+        want = np.asarray(aj.reconstruct(m, config, p))
+        got = e.apply(np.asarray(m.y, np.float32))
+        assert np.max(np.abs(got - want)) <= APPLY_BOUND["aniso-filip2012-two-stage"] * want.max()
+
+
 def test_key_follows_what_the_matrix_depends_on(built, monkeypatch):
     import abrdf_jax as aj
 

@@ -134,6 +134,42 @@ def test_model_aniso_runs_in_numpy(tmp_path):
     assert_cli_table(io.read_table(tmp_path / "rec.npz"), s, config, params, atol=3e-5)
 
 
+def test_dense_captures_share_one_stored_second_stage(tmp_path):
+    """A dense capture (denser RBF centres) runs in two stages in numpy with any affine rule
+    (here ``--model iso``'s linear one): no JAX, cold or warm; the second stage does not depend
+    on where the samples lie, so a second capture with other angles (another layout, another
+    α) reads the stored one and builds nothing; each table is the float64 pipeline's to float32
+    rounding."""
+    import abrdf_jax as aj
+    from abrdf_jax import io, materials
+
+    runs = []
+    for k, name in enumerate(("ggx-plastic", "rough-fabric")):
+        s = aj.simulate_capture(
+            materials.get_material(name), budget="iso102", per_slice=60, jitter_deg=0.3,
+            noise=0.01, seed=k,
+        )  # fmt: skip
+        io.write_samples_csv(tmp_path / f"m{k}.csv", s)
+        argv = ["reconstruct", f"m{k}.csv", "-o", f"r{k}.npz", "--model", "iso"]
+        runs.append((s, [*argv, "--cache-dir", "c", "-q"]))
+    inodes = []
+    for _, argv in runs:  # one process each: the second reads the store, not a memory
+        report, err = _run([(argv, 0)], tmp_path)
+        (_, code, jax_loaded), *_ = report
+        assert code == 0 and not jax_loaded, (report, err)
+        (entry,) = (tmp_path / "c" / "operators").glob("*.npz")  # one, shared
+        inodes.append(entry.stat().st_ino)
+    assert inodes[0] == inodes[1]  # read and touched, not written again (a save renames anew)
+    config = aj.preset("recommended", "iso102")
+    for k, (s, _) in enumerate(runs):
+        record = json.loads((tmp_path / f"r{k}.model.json").read_text())
+        assert record["engine"] == "operator"
+        params = aj.Params.default(config, alpha_deg=record["measurement"]["alpha_deg"])
+        meas, _ = aj.group_slices(s, params.alpha_deg)
+        assert meas.centre_azimuths is not None  # dense: the denser centre layout
+        assert_cli_table(io.read_table(tmp_path / f"r{k}.npz"), s, config, params, atol=1e-4)
+
+
 def test_materials_listing_imports_no_jax(tmp_path):
     report, err = _run([(["materials"], 0)], tmp_path)
     assert report[0][1] == 0, err

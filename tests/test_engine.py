@@ -58,34 +58,31 @@ def test_operator_groups_match_the_pipeline_and_ignore_the_batch_size(monkeypatc
 
 def test_small_builds_count_the_layouts_below_min_group():
     """What a job's small layouts would cost in builds: layouts below ``min_group`` (done ones
-    included), one each, a two-stage entry ``TWO_STAGE_BUILD_COST``; ``None`` (no operator
-    applies) and the big layouts count nothing."""
+    included), one each; a two-stage map (shared by every layout of its pairs and centres)
+    ``TWO_STAGE_BUILD_COST`` once; ``None`` (no operator applies) and big layouts nothing."""
     config = aj.preset("recommended", "iso102")
-    assert config.linear
-    layouts = _engine.Layouts(["a", "b", None], Counter({"big": 40, "a": 1, "b": 3, None: 7}))
+    sizes = Counter({"big": 40, "a": 1, "b": 3, None: 7})
+    layouts = _engine.Layouts(["a", "b", None], sizes, {k: k for k in sizes})
     assert _engine.small_builds(layouts, config, 32) == 2
     assert _engine.small_builds(layouts, config, 1) == 0  # none is small
-    two = aj.Config.recommended(budget="aniso204")
-    assert _engine.small_builds(layouts, two, 32) == 2 * _engine.TWO_STAGE_BUILD_COST
+    shared = ((30.0, 30.0),), None
+    two = _engine.Layouts(["a", "b"], sizes, {"a": shared, "b": shared, "big": shared})
+    assert _engine.small_builds(two, config, 32) == _engine.TWO_STAGE_BUILD_COST
 
 
-def test_a_two_stage_setting_builds_fewer_small_layouts():
-    """``--model aniso``'s two-stage entries (34 MB, ~1 s each) count
-    ``TWO_STAGE_BUILD_COST`` builds each: a job builds them for fewer small layouts; more go
-    through the pipeline."""
+def test_two_stage_layouts_share_one_build():
+    """``--model aniso``'s two-stage map does not depend on where the samples lie: jittered
+    captures (a layout each) of one set of pairs are one build, so a job of more of them than
+    ``OPERATOR_MAX_BUILDS`` still gets operators."""
     config = aj.Config.recommended(budget="aniso204")  # filip2012 on log samples: two stages
     assert not config.linear
-    n = _engine.OPERATOR_MAX_BUILDS // _engine.TWO_STAGE_BUILD_COST
-    meas = [_meas(NAMES[k % len(NAMES)], "aniso204", jitter_deg=0.5, seed=k) for k in range(n + 1)]
-    assert all(_engine.operator_applies(config, m) for m in meas)
-    assert len({_engine.layout_key(m) for m in meas}) == n + 1  # a layout each
-
-    def kinds(job):
-        plan = _engine.plan_job(job, config)
-        return Counter(g["kind"] for g in plan.values() for _ in g["members"])
-
-    assert kinds(meas[:n]) == {"operator": n}
-    assert kinds(meas) == {"pipeline": n + 1}
+    n = _engine.OPERATOR_MAX_BUILDS + 1
+    meas = [_meas(NAMES[k % len(NAMES)], "aniso204", jitter_deg=0.5, seed=k) for k in range(n)]
+    layouts = _engine.job_layouts(meas, config)
+    assert len(set(layouts.keys)) == n and len(set(layouts.builds.values())) == 1
+    assert _engine.small_builds(layouts, config) == _engine.TWO_STAGE_BUILD_COST
+    plan = _engine.plan_job(meas, config, layouts=layouts)
+    assert {g["kind"] for g in plan.values()} == {"operator"} and len(plan) == n
 
 
 def test_a_resumed_group_gets_the_batch_rows_and_bits_of_the_whole_run():
