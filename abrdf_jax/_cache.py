@@ -486,7 +486,7 @@ def cached_entry(
         _SHARED[memo] = entry
         while len(_SHARED) > SHARED_ENTRIES:
             _SHARED.pop(next(iter(_SHARED)))
-        entry = on_layout(entry, config, params, meas)
+        entry = entry.for_layout(config, params, meas)
     return entry, hit
 
 
@@ -494,25 +494,3 @@ def cached_entry(
 #: of dense or jittered captures (a layout each) reads one shared second stage, loaded once.
 SHARED_ENTRIES = 2
 _SHARED: dict[tuple[str, str], OperatorEntry] = {}
-
-
-def on_layout(entry: OperatorEntry, config, params, meas) -> OperatorEntry:
-    """A two-stage ``entry`` (its matrix from the RBF centres, any sample layout's) for the
-    samples of ``meas``: its first stage (:class:`~abrdf_jax._centre_step.CentreStep`, with
-    ``params``' α) and layout arrays are ``meas``'s; the matrix, and the views of it that
-    applying it makes once (``OperatorEntry._kept``, ``._picked``), are shared."""
-    from ._centre_step import CentreStep
-    from ._host_build import sample_index, template_layout
-
-    t, count = template_layout(meas)
-    made = dataclasses.replace(
-        entry,
-        index=sample_index(t, count).astype(np.int64),
-        t=np.asarray(t, np.float32),
-        count=np.asarray(count, np.int32),
-        subspace=CentreStep.of(config, params, meas),
-    )
-    entry._picked  # noqa: B018 - made once on the shared entry, then handed on
-    for name in ("_kept", "_picked"):  # cached properties of the matrix and kept rows only
-        made.__dict__[name] = entry.__dict__[name]
-    return made

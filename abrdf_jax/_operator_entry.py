@@ -147,6 +147,26 @@ class OperatorEntry:
         rest = np.setdiff1d(np.arange(self.matrix.shape[0]), keep)
         return np.argmax(hot, axis=1), self.matrix[rest], _runs(rest), runs
 
+    def for_layout(self, config, params, meas) -> "OperatorEntry":
+        """This two-stage entry (its matrix from the RBF centres, any sample layout's) for the
+        samples of ``meas``: its first stage (:class:`CentreStep`, with ``params``' α) and
+        layout arrays are ``meas``'s; the matrix, and the views of it that applying it makes
+        once (``_kept``, ``_picked``), are shared (``abrdf_jax._cache.cached_entry``)."""
+        from ._host_build import sample_index, template_layout
+
+        t, count = template_layout(meas)
+        made = dataclasses.replace(
+            self,
+            index=sample_index(t, count).astype(np.int64),
+            t=np.asarray(t, np.float32),
+            count=np.asarray(count, np.int32),
+            subspace=CentreStep.of(config, params, meas),
+        )
+        self._picked  # noqa: B018 - made once here, then handed on
+        for name in ("_kept", "_picked"):  # cached properties of the matrix and kept rows only
+            made.__dict__[name] = self.__dict__[name]
+        return made
+
     def arrays(self) -> dict[str, np.ndarray]:
         """The arrays by name (what the cache stores)."""
         return {name: getattr(self, name) for name in self.ARRAYS}
