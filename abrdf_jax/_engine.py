@@ -265,6 +265,7 @@ def reconstruct_many(
     done: Sequence[Done] = (),
     order: Sequence[int] | None = None,
     plan: dict[str, dict] | None = None,
+    host: bool = False,
 ) -> Iterator[tuple[list[int], np.ndarray, str]]:
     """Reconstruct measurements that share ``config`` and ``params`` (module docstring).
 
@@ -287,6 +288,11 @@ def reconstruct_many(
             uninterrupted run over all of them, and gets the same bits.
         plan: :func:`plan_job` of the same ``meas``, ``config``, ``min_group``, ``done`` and
             ``order``, if made already (e.g. for :func:`job_keys`).
+        host: ``operator`` returns numpy maps that compile nothing (the command line's stored
+            entries): an operator group's batches are then no larger than the job's group
+            (one file's call computes one row, not a batch of copies; still the same shape
+            in a resumed run), as a learned model's are; else every batch has ``batch``
+            rows (one compiled shape).
 
     Yields:
         ``(indices, tables, path)``: positions in ``meas``, their ``(len(indices), 81, 81, 3)``
@@ -314,7 +320,7 @@ def reconstruct_many(
         if g["kind"] == "operator":
             op = operator(config, params, meas[members[0]])
             size = batch or OPERATOR_BATCH
-            if only:  # a numpy map compiles nothing: no padding beyond the job's group
+            if only or host:  # a numpy map compiles nothing: no padding beyond the job's group
                 size = min(size, g["size"])
             for chunk, padded, rows in _batches(members, slots, size):
                 y = np.stack([np.asarray(meas[k].y) for k in padded])

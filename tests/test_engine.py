@@ -56,6 +56,38 @@ def test_operator_groups_match_the_pipeline_and_ignore_the_batch_size(monkeypatc
     np.testing.assert_allclose(many[0][1], tables, rtol=0, atol=2e-3 * expected.max())
 
 
+def test_host_operators_are_not_padded_beyond_the_jobs_group():
+    """``host=True`` (the command line's numpy entries, which compile nothing): a group's
+    batches have at most the whole job's group rows (one file: one row, not a batch of 256
+    copies; a resumed run the same shape); else every batch has ``batch`` rows."""
+    from abrdf_jax import _cache
+    from abrdf_jax._config import default_values
+
+    config = aj.preset("recommended", "iso102")
+    params = default_values(config, 15.0)
+    meas = [_meas(n, noise=0.01, seed=k) for k, n in enumerate(NAMES[:3])]  # one layout
+    entry, _ = _cache.cached_entry(None, meas[0], config, params)
+    rows = []
+
+    def operator(c, p, template):
+        def apply(y):
+            rows.append(len(y))
+            return entry.apply(y)
+
+        return apply
+
+    run = dict(operator=operator, min_group=1)
+    one = list(_engine.reconstruct_many(meas[:1], config, params, host=True, **run))
+    assert rows == [1] and one[0][1].shape == (1, 81, 81, 3)
+    rows.clear()
+    three = list(_engine.reconstruct_many(meas, config, params, host=True, batch=2, **run))
+    assert rows == [2, 2] and [i for i, _, _ in three] == [[0, 1], [2]]
+    rows.clear()
+    list(_engine.reconstruct_many(meas[:1], config, params, **run))
+    assert rows == [_engine.OPERATOR_BATCH]
+    np.testing.assert_allclose(one[0][1][0], three[0][1][0], rtol=1e-5)
+
+
 def test_small_builds_count_the_layouts_below_min_group():
     """What a job's small layouts would cost in builds: layouts below ``min_group`` (done ones
     included), one each; a two-stage map (shared by every layout of its pairs and centres)

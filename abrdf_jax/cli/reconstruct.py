@@ -356,8 +356,9 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, cache
     meas = common.measurements_for(item, config)
     common.warn_guard(item.path, meas, config, params, args.params)
     ((_, tables, engine),) = reconstruct_many(
-        [meas], config, params, operator=caches.operator, min_group=1, before_jax=caches.numerics
-    )
+        [meas], config, params, operator=caches.operator, min_group=1,
+        before_jax=caches.numerics, host=True,
+    )  # fmt: skip
     table = np.asarray(tables[0])
     check_finite(table, str(item.path))
     common.announce_replace(out)
@@ -436,6 +437,7 @@ def _reconstruct_folder(blocks, job: tuple, args, caches, forced) -> int:
                     params,
                     operator=caches.operator,
                     before_jax=caches.numerics,
+                    host=True,
                     **job,
                 ):
                     paths[path] += len(idx)
