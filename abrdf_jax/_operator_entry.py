@@ -140,6 +140,8 @@ class OperatorEntry:
         product need not run over them: ``(columns the kept rows pick, the other rows'
         matrix (copied once), the other rows' runs, the kept rows' runs)``; else ``None``."""
         keep = np.asarray(self.keep)
+        if keep.size == 0:  # off the UBO rings no centre is a grid pair: nothing is kept
+            return None
         kept, runs = self._kept
         hot = kept != 0
         if runs is None or not (np.all(hot.sum(axis=1) == 1) and np.all(kept[hot] == 1)):
@@ -164,7 +166,8 @@ class OperatorEntry:
         )
         self._picked  # noqa: B018 - made once here, then handed on
         for name in ("_kept", "_picked"):  # cached properties of the matrix and kept rows only
-            made.__dict__[name] = self.__dict__[name]
+            if name in self.__dict__:
+                made.__dict__[name] = self.__dict__[name]
         return made
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -230,6 +233,8 @@ class OperatorEntry:
 
 def _runs(rows: np.ndarray) -> list[tuple[int, int, int]]:
     """Distinct increasing ``rows`` as runs of consecutive rows ``(first, stop, offset)``."""
+    if rows.size == 0:
+        return []
     cuts = [0, *(np.flatnonzero(np.diff(rows) != 1) + 1).tolist(), rows.size]
     return [(int(rows[a]), int(rows[a]) + (z - a), a) for a, z in zip(cuts[:-1], cuts[1:])]
 

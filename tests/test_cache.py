@@ -474,6 +474,35 @@ def test_a_two_stage_entry_serves_every_layout_of_its_pairs(tmp_path):
         assert np.max(np.abs(got - want)) <= APPLY_BOUND["aniso-filip2012-two-stage"] * want.max()
 
 
+def test_a_shared_two_stage_entry_off_the_ubo_rings_keeps_no_rows(tmp_path):
+    """Off the UBO rings no RBF centre is a grid pair: the shared two-stage entry has no kept
+    rows, and handing it to another capture's layout works as for any other (a folder of
+    off-ring captures with 0.5° jitter crashed there: found by a scratch stress run)."""
+    import abrdf_jax as aj
+    from abrdf_jax import materials
+
+    config = aj.preset("recommended", "aniso204")
+    pairs = ((35.0, 35.0), (35.0, 70.0), (70.0, 35.0), (70.0, 70.0))
+    store = OperatorStore(tmp_path)
+    _cache._SHARED.clear()
+    try:
+        for k, name in enumerate(("ggx-aniso-metal", "ward-brushed-steel")):
+            s = aj.simulate_capture(
+                materials.get_material(name), pairs=pairs, jitter_deg=0.5, seed=k
+            )
+            params = aj.Params.default(config).astype(np.float64)
+            meas = aj.group_slices(s, 15.0, pairs=pairs, dtype=np.float64)[0]
+            entry, hit = cached_entry(store, meas, config, params)
+            assert hit == (k == 1) and entry.keep.size == 0 and entry._picked is None
+            want = np.asarray(aj.reconstruct(meas, config, params))
+            got = entry.apply(np.asarray(meas.y, np.float32))
+            assert (
+                np.max(np.abs(got - want)) <= APPLY_BOUND["aniso-filip2012-two-stage"] * want.max()
+            )
+    finally:
+        _cache._SHARED.clear()
+
+
 def test_key_follows_what_the_matrix_depends_on(built, monkeypatch):
     import abrdf_jax as aj
 
