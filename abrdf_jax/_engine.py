@@ -157,6 +157,8 @@ class Done(NamedTuple):
     group: str  # group_id of the group it was reconstructed in
     order: int  # its place in the whole job
     width: int  # its slices' length (t.shape[-1])
+    # whether its block gave small layouts operators (plan_job's ``small``; None: not recorded)
+    small: bool | None = None
 
 
 def group_id(group: tuple) -> str:

@@ -104,12 +104,12 @@ class OperatorEntry:
         def rows(v):  # every material and channel is a row: one GEMM, as _operator
             return np.ascontiguousarray(np.transpose(v, (0, 2, 1))).reshape(b * c, v.shape[1])
 
-        picked = self._picked if xc is not None and self.keep.size else None
+        picked = None if xc is None else self._picked
         if picked is not None:  # kept rows that read one value each (a two-stage entry's)
             out = _picked_rows(picked, rows(xc), rows(x), q).reshape(b, c, q)
         else:
             out = (rows(x if xc is None else xc) @ self.matrix.T).reshape(b, c, q)
-        if xc is not None and self.keep.size and picked is None:
+        if picked is None and xc is not None and self.keep.size:
             kept, runs = self._kept
             fix = (rows(x - xc) @ kept.T).reshape(b, c, -1)
             if runs is None:
@@ -272,15 +272,14 @@ def check_layout(arrays: dict[str, np.ndarray], n_in: int) -> str | None:
 
 
 def digest(arrays: dict[str, np.ndarray]) -> str:
-    """CRC-32C (hex) of named arrays: names, dtypes, shapes and bytes. The store's check on
-    load against a truncated or corrupted file (the BTF store's algorithm,
-    ``abrdf_jax.btf._checksum``: the processor's CRC instruction on the arrays in place, where
-    sha256 was a large part of loading a 34 MB two-stage entry)."""
-    import crc32c
+    """CRC-32C (hex) of named arrays: names, dtypes, shapes and bytes, read in place. The
+    store's check on load against a truncated or corrupted file: the BTF store's checksum
+    (``abrdf_jax.btf._checksum``; sha256 over a copy was a large part of loading a 34 MB
+    two-stage entry)."""
+    from .btf._checksum import CHECKSUM, checksum
 
-    value = 0
+    parts = []
     for name in sorted(arrays):
         a = np.ascontiguousarray(arrays[name])
-        value = crc32c.crc32c(f"{name}:{a.dtype.str}:{a.shape};".encode(), value)
-        value = crc32c.crc32c(memoryview(a).cast("B"), value)
-    return f"{value:08x}"
+        parts += [f"{name}:{a.dtype.str}:{a.shape};".encode(), memoryview(a).cast("B")]
+    return f"{checksum(*parts)[CHECKSUM]:08x}"

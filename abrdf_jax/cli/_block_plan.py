@@ -12,16 +12,14 @@ get the uninterrupted run's paths and bits.
 from __future__ import annotations
 
 
-def block_jobs(
-    items, choices, place: dict, kept: dict, decided: dict, *, block: int, slices
-) -> list[tuple]:
+def block_jobs(items, choices, place: dict, kept: dict, *, block: int, slices) -> list[tuple]:
     """``[(config, members, meas, job)]``: per setting of the block's ``items`` (with their
     ``choices``), the members' indices, their slices, and the keywords of
     :func:`abrdf_jax._engine.reconstruct_many` (``done``, ``order``, ``plan``); each choice's
     record gets its ``batch`` entry (what ``--resume`` reads). ``place``: each input's place in
-    the whole job (by its path's text); ``kept``: the kept tables
-    (``common.kept_batches``); ``decided``: the recorded ``small`` decisions by block
-    (``common.kept_small``); ``block``: files a block (``common.BLOCK``); ``slices(item,
+    the whole job (by its path's text); ``kept``: the kept tables (``common.kept_batches``,
+    whose ``small`` says how the interrupted run decided); ``block``: files a block
+    (``common.BLOCK``); ``slices(item,
     config)``: an input's slices for a setting (``common.measurements_for``)."""
     from .._engine import OPERATOR_MAX_BUILDS, job_keys, job_layouts, plan_job, small_builds
     from ._resume import settings_key
@@ -38,7 +36,9 @@ def block_jobs(
         done = [d for d in kept.get(setting, ()) if d.order // block == at]
         job = dict(done=done, order=[place[str(items[k].path)] for k in members])
         jobs.append((config, members, meas, job, job_layouts(meas, config, done)))
-    small = decided.get(at)
+    # the interrupted run's decision, where its kept tables of this block recorded it
+    kept_here = (d for ds in kept.values() for d in ds if d.order // block == at)
+    small = next((d.small for d in kept_here if d.small is not None), None)
     if small is None:
         small = OPERATOR_MAX_BUILDS >= sum(small_builds(j[4], j[0]) for j in jobs)
     out = []

@@ -475,7 +475,7 @@ from ._learned import (  # noqa: E402, F401
 
 # The caches of a run (``--cache-dir``): their own module, used through this one
 from ._caches import CACHE_DIR_HELP, Caches, compilation_cache  # noqa: E402, F401
-from ._resume import kept_batches, kept_small, resumable, settings_key  # noqa: E402, F401
+from ._resume import kept_batches, resumable, settings_key  # noqa: E402, F401
 
 # A folder block's settings and plans (reconstruct DIR): its own module, used through this one
 from ._block_plan import block_jobs  # noqa: E402, F401

@@ -54,22 +54,9 @@ def kept_batches(kept: list[dict], place: dict[str, int]) -> dict[str, list]:
         rec = choice["record"]
         b = rec.get("batch")
         if isinstance(b, dict) and rec.get("input") in place:
+            small = b.get("small") if isinstance(b.get("small"), bool) else None
             done = Done(
-                b.get("layout"), b.get("group"), place[rec["input"]], int(b.get("width", 0))
+                b.get("layout"), b.get("group"), place[rec["input"]], int(b.get("width", 0)), small
             )
             out.setdefault(settings_key(rec), []).append(done)
-    return out
-
-
-def kept_small(kept: list[dict], place: dict[str, int], block_size: int) -> dict[int, bool]:
-    """``{block: small}``: whether the uninterrupted run gave the small layouts of each block
-    (of ``block_size`` files) their own operators (``abrdf_jax._engine.plan_job``'s ``small``,
-    decided over the whole block, done files included), as the kept tables' records say, so that
-    a resumed run decides as it did (records written before that say nothing)."""
-    out: dict[int, bool] = {}
-    for choice in kept:
-        rec = choice["record"]
-        b = rec.get("batch")
-        if isinstance(b, dict) and isinstance(b.get("small"), bool) and rec.get("input") in place:
-            out[place[rec["input"]] // block_size] = b["small"]
     return out

@@ -396,7 +396,6 @@ def _reconstruct_folder(blocks, job: tuple, args, caches, forced) -> int:
     n_files, out, place, resumed, settings = job
     out.mkdir(exist_ok=True)
     kept = common.kept_batches(resumed, place)
-    decided = common.kept_small(resumed, place, common.BLOCK)  # as the interrupted run did
     failed: list[str] = []
     done = [common.compact(c) for c in resumed]  # records of the outputs --resume kept
     paths, models, budgets = {"operator": 0, "pipeline": 0}, [], set()
@@ -425,7 +424,7 @@ def _reconstruct_folder(blocks, job: tuple, args, caches, forced) -> int:
             models += [c["record"]["model"] for c in choices]
             budgets |= {c["config"].budget for c in choices}
             jobs = common.block_jobs(
-                items, choices, place, kept, decided, block=common.BLOCK,
+                items, choices, place, kept, block=common.BLOCK,
                 slices=common.measurements_for,
             )  # fmt: skip
             for config, members, meas, job in jobs:
