@@ -233,16 +233,24 @@ def from_log(lin, eps, cos_dst, xp=np):
 
 def _values(matrix, x, cos_src, cos_dst, log_eps: float) -> np.ndarray:
     """The model's map on the samples' values ``x`` ``(B, n, C)``: :func:`log_brdf`, the log
-    BRDF through ``matrix`` ``(q, n)``, :func:`from_log`; float32 ``(B, q, C)``.
+    BRDF through ``matrix`` ``(q, n)``, :func:`from_log`; float32 ``(B, q, C)``, C-contiguous.
 
     The samples' log in float64, the product and what follows in float32 (as the RBF operator:
     a row of the map has an absolute sum of a few units, so its rounding stays near 1e-6 of the
-    log), all B·C columns in one product: the cost of a folder's large batches."""
+    log), all B·C rows in one product: the cost of a folder's large batches. The product is
+    material-major, ``(B·C, n) @ (n, q)``, so each table is one contiguous block: a
+    direction-major product (``(q, n) @ (n, B·C)``) left every table strided across the
+    batch, and the finiteness check and each table's write gathered it again (ten times
+    the cost of this layout's final in-cache transpose; docs/notes.md, 28th session)."""
     b, n, c = x.shape
     z, eps = log_brdf(x, cos_src, log_eps)
-    columns = np.ascontiguousarray(z.astype(np.float32).transpose(1, 0, 2)).reshape(n, b * c)
-    lin = (np.asarray(matrix, np.float32) @ columns).reshape(-1, b, c).transpose(1, 0, 2)
-    return from_log(lin, eps.astype(np.float32), cos_dst.astype(np.float32))
+    rows = np.ascontiguousarray(z.astype(np.float32).transpose(0, 2, 1)).reshape(b * c, n)
+    lin = (rows @ np.asarray(matrix, np.float32).T).reshape(b, c, -1)  # (B, C, q)
+    np.exp(lin, out=lin)  # from_log, in place: (exp(lin) − ε) cos θi, clamped at 0
+    lin -= eps.astype(np.float32).transpose(0, 2, 1)
+    lin *= np.maximum(cos_dst, 0.0).astype(np.float32)
+    out = np.empty((b, lin.shape[-1], c), np.float32)
+    return np.maximum(lin.transpose(0, 2, 1), 0.0, out=out)
 
 
 def reconstruct_bivariate(
