@@ -141,6 +141,17 @@ TARGETS = (
         2.0,
         None,
     ),
+    *(
+        (
+            f"one dense aniso204 capture, {state} (beyond the issue's protocol file): "
+            "--model auto s / --model aniso s <= 2",
+            lambda r, st=state: _quotient(r, f"dense1_auto_{st}", f"dense1_aniso_{st}"),
+            "<=",
+            2.0,
+            None,
+        )
+        for state in ("warm", "cold")
+    ),
     (
         "every run exits as expected and writes every output (runs failing)",
         lambda r: len(_failed_runs(r)),

@@ -13,8 +13,9 @@ command forked straight from this process would inherit this process's RSS as it
   file ``python -m abrdf_jax.cli reconstruct m.csv -o m.npz`` cold (``ABRDF_JAX_CACHE_DIR`` a fresh
   empty folder) and warm (the same folder, the median of ``--repeats`` further calls), one
   aniso204 file with ``--model auto``, with ``--model aniso`` and with ``--model auto --prior
-  default`` (the learned models join the choice), one iso102 file with the last (cold and warm
-  each), 40 iso102 files one call each, two calls at a time (:mod:`benchmarks._parallel_calls`,
+  default`` (the learned models join the choice), one dense aniso204 capture (300 samples a
+  slice, 0.5° of encoder jitter: a continuous capture's) with ``--model auto`` and ``--model
+  aniso``, one iso102 file with the last (cold and warm each), 40 iso102 files one call each, two calls at a time (:mod:`benchmarks._parallel_calls`,
   what a shell loop with ``xargs -P 2`` does; warm), and folders
   ``reconstruct DIR -o OUT -q`` of 100 and 1000 iso102 files, 1000 aniso204 files and 200 iso102
   files with 0.5° of encoder jitter (:data:`JITTER_DEG`: each file's angles its own, as a real
@@ -126,16 +127,19 @@ def write_inputs(
     models: dict,
     names: list[str] | None = None,
     jitter_deg: float = 0.0,
+    per_slice: int | None = None,
 ) -> Path:
     """``n`` measurement CSV files in ``folder``: file ``i`` captures ``names[i % len(names)]``
-    (angles with ``jitter_deg`` of encoder error)."""
+    (angles with ``jitter_deg`` of encoder error; ``per_slice`` samples a slice, default the
+    budget's)."""
     names = names or list(models)
     folder.mkdir(parents=True)
     for i in range(n):
         name = names[i % len(names)]
         s = aj.simulate_capture(
-            models[name], budget=budget, noise=NOISE, seed=SEED + i, jitter_deg=jitter_deg
-        )
+            models[name], budget=budget, noise=NOISE, seed=SEED + i, jitter_deg=jitter_deg,
+            per_slice=per_slice,
+        )  # fmt: skip
         io.write_samples_csv(folder / f"{i:04d}-{name}.csv", s)
     return folder
 
@@ -166,6 +170,10 @@ def scale_peer(run: dict, files: int, startup: float) -> dict:
 #: The automatic choice with the default prior (RBF, prior only and fused compared by held-out
 #: errors; numpy entries when warm).
 PRIOR_AUTO = ["--model", "auto", "--prior", "default"]
+#: One dense capture of ``ANISO_MATERIAL`` (a continuous capture's slices: ``DENSE_PER_SLICE``
+#: samples a slice, :data:`JITTER_DEG` of encoder error) with these models.
+DENSE_PER_SLICE = 300
+SINGLE_DENSE = {"auto": ["--model", "auto"], "aniso": ["--model", "aniso"]}
 #: The single aniso204 file's runs: ``tag: extra arguments``.
 SINGLE_ANISO = {"auto": ["--model", "auto"], "aniso": ["--model", "aniso"], "prior": PRIOR_AUTO}
 
@@ -264,6 +272,9 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int, folder_repeat
     models = {n: materials.get_material(n) for n in materials.material_names()}
     one_iso = write_inputs(work / "one-iso102", "iso102", 1, models, [ISO_MATERIAL])
     one_aniso = write_inputs(work / "one-aniso204", "aniso204", 1, models, [ANISO_MATERIAL])
+    one_dense = write_inputs(
+        work / "one-dense", "aniso204", 1, models, [ANISO_MATERIAL], JITTER_DEG, DENSE_PER_SLICE
+    )
     folders = {
         key: write_inputs(work / key, budget, sizes[key], models, jitter_deg=jitter)
         for key, (budget, jitter) in FOLDERS.items()
@@ -322,6 +333,21 @@ def run_all(r: Runner, sizes: dict, peer_limit: int, repeats: int, folder_repeat
                 "files": 1,
                 "package": res[state],
                 "peer": peer_aniso,
+            }
+    log("one dense capture")
+    dense_csv = next(one_dense.glob("*.csv"))
+    peer_dense = peer_one(dense_csv)
+    for tag, extra in SINGLE_DENSE.items():
+        res = single_file(r, f"dense1_{tag}", dense_csv, extra, repeats)
+        for state in ("cold", "warm"):
+            what = (
+                f"one dense aniso204 capture ({DENSE_PER_SLICE} a slice, {JITTER_DEG:g} deg jitter)"
+            )
+            runs[f"dense1_{tag}_{state}"] = {
+                "what": f"{what}, {' '.join(extra)}, {state} cache",
+                "files": 1,
+                "package": res[state],
+                "peer": peer_dense,
             }
     log(f"iso102 files one call each, {PARALLEL} at a time")
     runs |= parallel_calls(r, folders["iso_small"], sizes["iso_parallel"])

@@ -160,6 +160,10 @@ def _fake_runs(**package_seconds):
         "aniso1_auto_warm": 1.0,
         "aniso1_aniso_cold": 2.0,
         "aniso1_aniso_warm": 0.6,
+        "dense1_auto_cold": 5.0,
+        "dense1_auto_warm": 0.5,
+        "dense1_aniso_cold": 3.5,
+        "dense1_aniso_warm": 0.3,
         "iso_large": 1.5,
         "iso_large_warm": 1.0,
         "aniso_large": 3.0,
@@ -178,13 +182,15 @@ def _fake_runs(**package_seconds):
 def test_targets_pass_and_fail():
     runs = _fake_runs()
     targets = check_targets(runs)
-    assert len(targets) == 13
+    assert len(targets) == 15
     assert all(t["pass"] for t in targets), [t for t in targets if not t["pass"]]
     assert runs["iso_large"]["ratio"] == pytest.approx(337.0 / 1.5)
     assert runs["iso_large"]["package"]["files_per_s"] == pytest.approx(1000 / 1.5)
     assert "1000 iso102 files" in targets[4]["target"] and "cold" in targets[4]["target"]
 
-    runs = _fake_runs(help=0.4, iso1_warm=0.8, iso_large=2.0, aniso1_auto_warm=1.3)
+    runs = _fake_runs(
+        help=0.4, iso1_warm=0.8, iso_large=2.0, aniso1_auto_warm=1.3, dense1_auto_warm=0.7
+    )
     runs["aniso_large"]["package"]["peak_rss_mib"] = 1500.0
     runs["input_error"]["package"]["ok"] = False
     del runs["aniso1_aniso_cold"]
@@ -198,6 +204,8 @@ def test_targets_pass_and_fail():
             "peak RSS of the 1000-file aniso204 run <= 1 GiB (MiB)",
             "one aniso204 file, warm: --model auto s / --model aniso s <= 2",
             "one aniso204 file, cold: --model auto s / --model aniso s <= 2",
+            "one dense aniso204 capture, warm (beyond the issue's protocol file): "
+            "--model auto s / --model aniso s <= 2",
             "every run exits as expected and writes every output (runs failing)",
         ]
     )
@@ -225,8 +233,8 @@ def test_markdown_of_fake_results():
     md = markdown(payload)
     assert md.count("| package |") == len(runs)
     assert md.count("| peer |") == 3  # the one-file peer run is shared: one row
-    assert "FAIL" not in md and md.count("PASS") == 13
-    assert len(pass_fail_lines(payload["targets"])) == 13
+    assert "FAIL" not in md and md.count("PASS") == 15
+    assert len(pass_fail_lines(payload["targets"])) == 15
 
 
 def test_timed_child_reports_the_command(tmp_path):

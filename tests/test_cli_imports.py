@@ -170,6 +170,29 @@ def test_dense_captures_share_one_stored_second_stage(tmp_path):
         assert_cli_table(io.read_table(tmp_path / f"r{k}.npz"), s, config, params, atol=1e-4)
 
 
+def test_a_dense_captures_automatic_choice_imports_no_jax(tmp_path):
+    """``--model auto`` on a dense anisotropic capture: the held-out fits in numpy
+    (``select._dense_held_out``) and the chosen model's two stages from the store, cold and
+    warm; the record names the choice and every candidate's held-out error."""
+    import abrdf_jax as aj
+    from abrdf_jax import io, materials
+
+    s = aj.simulate_capture(
+        materials.get_material("ggx-aniso-metal"), per_slice=60, jitter_deg=0.3, noise=0.01,
+        seed=3,
+    )  # fmt: skip
+    io.write_samples_csv(tmp_path / "m.csv", s)
+    argv = ["reconstruct", "m.csv", "-o", "r.npz", "--cache-dir", "c", "-q"]
+    report, err = _run([(argv, 0), (argv, 0)], tmp_path)  # cold, then warm
+    for _, code, jax_loaded in report:
+        assert code == 0 and not jax_loaded, (report, err)
+    record = json.loads((tmp_path / "r.model.json").read_text())
+    assert record["how"] == "auto" and record["engine"] == "operator"
+    errors = {c["name"]: c["held_out_log_rms"] for c in record["candidates"]}
+    assert record["model"] in errors and all(np.isfinite(e) for e in errors.values())
+    assert errors[record["model"]] <= (1 + record["tol"]) * min(errors.values())  # the rule
+
+
 def test_materials_listing_imports_no_jax(tmp_path):
     report, err = _run([(["materials"], 0)], tmp_path)
     assert report[0][1] == 0, err

@@ -308,17 +308,61 @@ def entry_plan(p) -> bool:
     """Whether a plan's candidates can be scored by held-out entries: every rule affine in the
     slice terms (:mod:`abrdf_jax._rules`), no log after the rule, a sparse centre layout, every
     diagonal slice measured (the learned candidates have entries of their own)."""
-    count = np.asarray(p.meas.count)
+    return p.meas.centre_azimuths is None and _affine_plan(p)
+
+
+def dense_plan(p) -> bool:
+    """Whether a plan's candidates are scored in numpy on a dense layout
+    (:mod:`abrdf_jax.select._dense_held_out`): :func:`entry_plan`'s rules on a dense centre
+    layout, without learned candidates."""
     return (
-        p.meas.centre_azimuths is None
-        and bool(np.all(count[1::2] > 0))
-        and all(
-            isinstance(c, Config)
-            and c.subspace_rule in AFFINE
-            and c.value_space not in LOG_SUBSPACE
-            for c in rbf_configs(p.configs).values()
-        )
+        p.meas.centre_azimuths is not None
+        and _affine_plan(p)
+        and len(rbf_configs(p.configs)) == len(p.configs)
     )
+
+
+def _affine_plan(p) -> bool:
+    count = np.asarray(p.meas.count)
+    return bool(np.all(count[1::2] > 0)) and all(
+        isinstance(c, Config) and c.subspace_rule in AFFINE and c.value_space not in LOG_SUBSPACE
+        for c in rbf_configs(p.configs).values()
+    )
+
+
+def dense_selections(plans, out, tol: float, k: int, store=None, warn=None) -> None:
+    """Fill ``out[i]`` (``None``: not chosen yet) for every plan of :func:`dense_plan`: the
+    plans of one elevation-pair and centre layout and candidate set share one RBF solve per
+    kernel group (:func:`abrdf_jax.select._dense_held_out.dense_errors`, its coefficient map
+    kept in ``store``); a group whose system stays singular is left to the JAX path (its guard
+    reports it)."""
+    from ._dense_held_out import dense_errors
+
+    groups: dict = {}
+    for i, p in enumerate(plans):
+        if out[i] is None and dense_plan(p):
+            pairs = tuple(tuple(float(v) for v in q) for q in p.meas.pairs)
+            key = (pairs, p.meas.centre_azimuths, tuple(p.configs))
+            groups.setdefault(key, []).append(i)
+    for members in groups.values():
+        errors = [{} for _ in members]
+        try:
+            for names, cfgs in entry_groups(rbf_configs(plans[members[0]].configs)):
+                found = dense_errors(
+                    [plans[i].meas for i in members],
+                    [np.asarray(plans[i].meas.y) for i in members],
+                    [plans[i].alpha for i in members],
+                    cfgs,
+                    k,
+                    store,
+                    warn,
+                )
+                for row, err in zip(errors, found):
+                    row.update({n: float(e) for n, e in zip(names, err)})
+        except np.linalg.LinAlgError:
+            continue
+        for i, err in zip(members, errors):
+            out[i] = finish(plans[i], err, tol, k, 0.0)
 
 
 def entry_selections(
@@ -389,5 +433,6 @@ def entry_selections(
                 row[name] = float(err)
         for i, err in zip(members, errors):
             out[i] = finish(plans[i], err, tol, k, 0.0)
+    dense_selections(plans, out, tol, k, store, warn)
     share = (time.perf_counter() - t0) / max(len(items), 1)
     return [None if s is None else dataclasses.replace(s, seconds=share) for s in out]

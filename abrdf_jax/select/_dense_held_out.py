@@ -1,0 +1,226 @@
+"""The held-out errors of model selection on dense captures, in numpy: ``--model auto`` of a
+continuous capture without JAX.
+
+A dense capture (hundreds or thousands of samples a slice, ``meas.centre_azimuths`` set) has
+its RBF at denser centres (2,304 for the protocol's pairs) and a layout of its own (every
+capture's encoder angles differ), so the held-out entries of sparse layouts
+(:mod:`abrdf_jax.select._held_out_entry`: a matrix per fold on the sample slots, built once per
+layout and stored) do not pay: their matrices would have a column per sample and serve one
+file. The fits are computed here instead, as the JAX path computes them
+(:func:`abrdf_jax.select._select._cv_core`), for the candidates the entries take (subspace
+rules affine in the slice terms, no log after the rule): per fold ``j`` the training samples'
+values (log with the fold's ε, slice smoothing and spike cap on the fold's own slices), every
+candidate rule's subspaces at the centres (:func:`abrdf_jax._subspace.centre_subspaces`), then
+*one* RBF solve for every fold, rule, channel and input, since the centres' system does not
+depend on where the samples lie (the same reason a dense capture's second stage is shared:
+:mod:`abrdf_jax._centre_step`), read at each fold's held-out directions.
+
+In float64: the errors equal the JAX path's run in float64 to 1e-8
+(tests/test_dense_held_out.py). The JAX path runs float32 by default, and its solve on 2,304
+centres is not accurate there: on a 300-a-slice capture of ``ggx-aniso-metal`` its errors were
+0.5–11 % above the float64 ones (the chosen model's the most, docs/notes.md), so a choice near
+the tolerance may differ from the one that path made; this one is the more accurate. One
+capture: 0.6 s against 4.4 s for the JAX path with warm caches. This module imports numpy only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .._config import Config, default_values, resolve_degree
+from .._coords import pair_coordinates
+from .._folds import fold_slots, gather, held_out_directions, log_residual
+from .._host_build import template_layout
+from .._host_eps import sample_eps
+from .._kernels import kernel_block
+from .._names import LOG_SAMPLES
+from .._grid import centre_count, centre_vectors
+from .._rbf_system import blocks, centre_stats, combine, coordinate_widths, host_guarded_solve
+from .._rbf_system import host_solve, poly
+from .._smoothing import smooth_compact
+from .._spikes import cap_samples
+from .._subspace import centre_subspaces
+
+
+def dense_errors(metas, ys, alphas_deg, cfgs, k: int, store=None, warn=None) -> np.ndarray:
+    """RMS held-out log errors ``(N, G)`` of the configurations ``cfgs`` (one kernel group and
+    slice interpolation, :func:`abrdf_jax.select._held_out_entry.entry_groups`) on ``N``
+    dense measurements.
+
+    Args:
+        metas: the grouped measurements (each its own layout; the same elevation pairs and
+            centre azimuths: one RBF system for all).
+        ys: each measurement's values ``(S, nmax, C)`` (its own ``nmax``).
+        alphas_deg: each measurement's slice offset α in degrees.
+        cfgs: the configurations, differing in the subspace rule only.
+        k: the number of folds (:func:`abrdf_jax._folds.fold_slots`).
+        store: an operator store (``abrdf_jax._cache``) that keeps the system's
+            :class:`CentreMap` (built on a miss); ``None``: one solve with the values instead.
+        warn: the store's warnings (a bad entry, an unwritable folder).
+
+    Raises:
+        numpy.linalg.LinAlgError: the RBF system stays singular after the guard (the caller
+            takes the JAX path, whose guard reports it).
+    """
+    cfg = cfgs[0]
+    pairs, azimuths = metas[0].pairs, metas[0].centre_azimuths
+    rules = tuple(c.subspace_rule for c in cfgs)
+    values = default_values(cfg, float(alphas_deg[0]), dtype="float64")
+    name, kernel = cfg.parameterization, cfg.kernel
+    xc = pair_coordinates(*centre_vectors(pairs, np.float64, azimuths, np), name, np)
+    widths = coordinate_widths(np.asarray(values.widths, np.float64), xc.shape[1], np)
+    degree = resolve_degree(kernel, cfg.degree)
+    shift, scale = centre_stats(xc, np)
+    folds = [_Folds(m, y, a, cfg, rules, k) for m, y, a in zip(metas, ys, alphas_deg)]
+    # every input's every fold, rule and channel: the columns of one solve
+    rhs = np.concatenate([f.centre_values for f in folds], axis=1)
+    reg = np.float64(np.asarray(values.reg))
+
+    def system():  # the centres' Gram matrix and tail: made only to solve or build
+        return (*blocks(xc, widths, kernel, max(degree, -1), shift, scale, np), reg)
+
+    if store is None:
+        coeffs, tail, _ = host_solve(*system(), rhs)
+    else:
+        coef = _stored_map(store, warn, cfg, values, metas[0], system).coef
+        n = xc.shape[0]
+        coeffs, tail = coef[:n] @ rhs, coef[n:] @ rhs
+    out, at = [], 0
+    for f in folds:
+        width = f.centre_values.shape[1]
+        xq = pair_coordinates(f.wi, f.wv, name, np)
+        kq = kernel_block(xq, xc, widths, kernel, np)
+        pq = poly(xq, shift, scale, degree, np) if degree >= 0 else None
+        pred = combine(kq, pq, coeffs[:, at : at + width], tail[:, at : at + width], np)
+        out.append(f.errors(pred))
+        at += width
+    return np.stack(out)
+
+
+class _Folds:
+    """One measurement's ``k`` folds: the centre values each fold's training samples give under
+    every rule (``centre_values`` ``(n_c, k · R · C)``) and its held-out samples' directions
+    ``wi``, ``wv`` ``(Σ_j q_j, 3)``, values and ε (module docstring)."""
+
+    def __init__(self, meas, y, alpha_deg: float, cfg: Config, rules: tuple, k: int):
+        t, count = template_layout(meas)
+        t = t.astype(np.float64)
+        s, nmax = t.shape
+        c = y.shape[-1]
+        alpha = np.deg2rad(np.float64(alpha_deg))
+        pairs = _pairs(meas)
+        flat = np.asarray(y, np.float64).reshape(s * nmax, c)
+        valid = (np.arange(nmax)[None, :] < count[:, None]).reshape(-1)
+        log_samples = cfg.value_space in LOG_SAMPLES
+        self.res_eps = sample_eps(flat[valid][None], Config().log_eps, axis=1)[0]  # (C,)
+        train, test = fold_slots(count, nmax, k)
+        vals, self.eps, self.held, self.sizes = [], [], [], []
+        wis, wvs = [], []
+        for j in range(k):
+            cols = np.flatnonzero(train[j].reshape(-1) >= 0)
+            x = flat[train[j].reshape(-1)[cols]][None]  # (1, n_train, C)
+            fold_t = np.where(train[j] >= 0, t.reshape(-1)[train[j]], 0.0)
+            fold_count = (train[j] >= 0).sum(-1)
+            eps = None
+            if log_samples:  # as HeldOutEntry.errors: the fold's ε, its own slices
+                eps = sample_eps(x, cfg.log_eps, axis=1)  # (1, C)
+                x = np.log(np.maximum(x, 0.0) + eps[:, None, :])
+                x = smooth_compact(cfg.slice_smoothing, x, cols, fold_t, fold_count, np)
+                if cfg.spike_cap:
+                    x = cap_samples(x, cfg.spike_cap, xp=np)
+            padded = np.zeros((s * nmax, c))
+            padded[cols] = x[0]
+            v = centre_subspaces(
+                fold_t, padded.reshape(s, nmax, c), fold_count, pairs, meas.centre_azimuths,
+                alpha, rules, cfg.interp, xp=np,
+            )  # (R, n_c, C)  # fmt: skip
+            vals.append(np.transpose(v, (1, 0, 2)).reshape(v.shape[1], -1))
+            rows = np.flatnonzero(test[j].reshape(-1) >= 0)
+            held_t = gather(t, test[j])
+            wi, wv = held_out_directions(held_t, pairs, alpha, np)
+            wis.append(wi[rows])
+            wvs.append(wv[rows])
+            self.held.append(flat[test[j].reshape(-1)[rows]])  # (q_j, C)
+            self.eps.append(None if eps is None else eps[0])
+            self.sizes.append(rows.size)
+        self.centre_values = np.concatenate(vals, axis=1)  # (n_c, k · R · C)
+        self.wi, self.wv = np.concatenate(wis), np.concatenate(wvs)
+        self.n_rules, self.k = len(rules), k
+
+    def errors(self, pred) -> np.ndarray:
+        """The RMS held-out log error ``(R,)`` of every rule from the RBF's values ``pred``
+        ``(Σ_j q_j, k · R · C)`` at every fold's held-out directions (a fold reads its own)."""
+        r_, c = self.n_rules, self.held[0].shape[-1]
+        total, n, at = np.zeros(r_), 0, 0
+        for j, (q, held, eps) in enumerate(zip(self.sizes, self.held, self.eps)):
+            mine = pred[at : at + q].reshape(q, self.k, r_, c)[:, j]  # (q, R, C)
+            if eps is not None:
+                mine = np.exp(mine) - eps[None, None, :]
+            res = log_residual(mine, held[:, None, :], self.res_eps, True, xp=np)
+            total += np.sum(np.square(res), axis=(0, 2))
+            n += q * c
+            at += q
+        return np.sqrt(total / max(n, 1))
+
+
+def _pairs(meas) -> tuple:
+    """The measurement's elevation pairs as a tuple of float pairs."""
+    return tuple(tuple(float(v) for v in p) for p in meas.pairs)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class CentreMap:
+    """The RBF's coefficients as a map of the values at one centre layout: ``coef`` ``(n + m,
+    n)`` float64, ``A⁻¹ [I; 0]`` of the system ``A`` (:mod:`abrdf_jax._rbf_system`, λ the
+    guard's), its ``m`` tail rows unscaled (as :func:`abrdf_jax._rbf_system.evaluate` reads
+    them). It depends on the elevation pairs, the centres' layout and the kernel's setting, not
+    on the samples: the operator store keeps one per setting, and a dense capture's held-out
+    fits are a product with it (the system's factorisation and its Gram matrix cost 0.4 s a
+    call otherwise, docs/notes.md)."""
+
+    coef: np.ndarray
+
+    KIND = "centre-map"
+    ARRAYS = ("coef",)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {"coef": self.coef}
+
+    def meta(self) -> dict:
+        return {}
+
+    @classmethod
+    def from_stored(cls, arrays: dict[str, np.ndarray], meta: dict) -> "CentreMap":
+        return cls(arrays["coef"])
+
+    @staticmethod
+    def check(arrays: dict[str, np.ndarray], meta: dict) -> str | None:
+        """What is wrong with stored arrays (``None``: nothing)."""
+        coef = arrays["coef"]
+        if coef.dtype != np.float64 or coef.ndim != 2 or coef.shape[0] < coef.shape[1]:
+            return "malformed (not a centre map)"
+        if not np.all(np.isfinite(coef)):
+            return "malformed (values not finite)"
+        return None
+
+
+def _stored_map(store, warn, cfg, values, meas, system) -> CentreMap:
+    """The :class:`CentreMap` of ``cfg``'s kernel setting on ``meas``'s centres from ``store``,
+    else built from ``system()`` (the blocks ``K``, ``P``, their scale and λ) and stored."""
+    from .. import _cache
+
+    key = _cache.operator_key(cfg, values, meas, centres=True, extra={"kind": CentreMap.KIND})
+    found = store.load(key, warn, kind=CentreMap)
+    n = centre_count(meas.pairs, meas.centre_azimuths)
+    if found is not None and found.coef.shape[1] == n:
+        return found
+    kk, p, sc, reg = system()
+    m = p.shape[1]
+    unit = np.concatenate([np.eye(n), np.zeros((m, n))]) if m else np.eye(n)
+    sol, _ = host_guarded_solve(kk, p, reg, unit)
+    sol[n:] *= sc
+    entry = CentreMap(np.ascontiguousarray(sol))
+    store.save(key, entry, warn)
+    return entry
