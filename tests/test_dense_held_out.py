@@ -81,20 +81,47 @@ def test_captures_of_one_pair_layout_share_one_solve(tmp_path):
 
 
 def test_entry_selections_choose_a_dense_capture_in_numpy(tmp_path):
-    """``--model auto``'s JAX-free choice takes dense captures (``dense_plan``): the same pick
-    as :func:`abrdf_jax.select.select_model` in float64, with its held-out errors."""
+    """``--model auto``'s JAX-free choice takes dense captures (``dense_plan``): the held-out
+    errors of the JAX path run in float64, and the tolerance rule's pick on them."""
     meas, alpha = _grouped("ggx-aniso-metal", 3, tmp_path)
     (sel,) = H.entry_selections(
         [(meas, alpha)], store=None, warn=print, tol=select.TOL, level=select.LEVEL,
         min_effect=select.MIN_EFFECT, min_group=1,
     )  # fmt: skip
     assert sel is not None  # chosen here, not left to the JAX path
+    configs = {n: select.CANDIDATES[n].config() for n in sel.errors}
+    assert set(configs) == set(select.DEFAULT_ANISO)
     with _cache.x64_scope(True):
-        want = select.select_model(_float64(meas), alpha_deg=alpha)
-    assert sel.name == want.name
-    assert set(sel.errors) == set(want.errors)
-    for name, e in want.errors.items():
+        want = select.held_out_errors(_float64(meas), configs, alpha_deg=alpha)
+    for name, e in want.items():
         assert sel.errors[name] == pytest.approx(e, rel=1e-8), name
+    assert sel.name == select.tolerance_choice(want, sel.ranks, select.TOL)[0]
+
+
+def test_select_model_and_select_models_score_dense_captures_in_numpy(tmp_path):
+    """The library's choice of a dense capture is the command line's: ``select_model`` and
+    ``select_models`` (a folder's, with a sparse capture beside the dense ones) give the same
+    errors as ``entry_selections``, in float64 whatever the measurement's dtype."""
+    dense = [_grouped("ggx-aniso-metal", 3, tmp_path), _grouped("ward-brushed-steel", 4, tmp_path)]
+    s = aj.simulate_capture(materials.get_material("ggx-aniso-metal"), noise=0.01, seed=5)
+    sparse = aj.group_slices(s)
+    sparse = (sparse[0], float(sparse[1]["alpha_deg"]))
+    kw = dict(tol=select.TOL, level=select.LEVEL, min_effect=select.MIN_EFFECT)
+    cli = H.entry_selections(dense, store=None, warn=print, min_group=1, **kw)
+    one = [select.select_model(m.to_measurements(), alpha_deg=a) for m, a in dense]
+    many = select.select_models(
+        [m.to_measurements() for m, _ in dense] + [sparse[0]],
+        alpha_deg=[a for _, a in dense] + [sparse[1]],
+    )
+    for c, o, b in zip(cli, one, many):
+        assert c.name == o.name == b.name
+        for name, e in c.errors.items():
+            assert o.errors[name] == pytest.approx(e, rel=1e-12), name
+            assert b.errors[name] == pytest.approx(e, rel=1e-12), name
+    # the sparse capture still takes the JAX path (float32): its own choice, as alone
+    alone = select.select_model(sparse[0], alpha_deg=sparse[1])
+    assert many[2].name == alone.name
+    assert many[2].errors == pytest.approx(alone.errors, rel=1e-4)
 
 
 def test_the_stored_coefficient_map_gives_the_same_errors(tmp_path):

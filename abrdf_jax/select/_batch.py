@@ -16,6 +16,7 @@ import numpy as np
 from .._params import Params
 from ._isotropy import LEVEL, MIN_EFFECT
 from ._choice import rbf_configs, with_prior
+from ._dense_held_out import dense_layout_plan, plan_errors
 from ._select import TOL, Selection, _finish, _plan, fold_data, group_configs, held_out_errors_batch
 
 #: Materials per held-out call (the last chunk of a group is padded: one compile per layout).
@@ -39,7 +40,9 @@ def select_models(
     """:func:`select_model` (``candidates="auto"``) for many measurements, with the held-out
     errors of every group of one fold layout, α and candidate list computed in one compiled,
     vmapped call (:func:`held_out_errors_batch`) instead of one call per material: the same
-    choices, errors equal to float rounding.
+    choices, errors equal to float rounding. Dense captures' candidates affine in the slice
+    terms are scored in numpy, float64, all captures of one pair layout at once
+    (:func:`abrdf_jax.select._dense_held_out.plan_errors`), as :func:`select_model` does.
 
     Args:
         measurements: :class:`Measurements` (or :class:`Samples`), one per material.
@@ -63,25 +66,22 @@ def select_models(
     fh = fused_of(prior, fused)
     if prior is not None:
         plans = [with_prior(p, fh is not None) for p in plans]
+    errors: dict[int, dict] = {}
+    dense = [i for i, p in enumerate(plans) if len(p.configs) > 1 and dense_layout_plan(p)]
+    for i, err in zip(dense, plan_errors([plans[i] for i in dense], k)):  # numpy, float64
+        if err is not None:
+            errors[i] = err
     groups: dict[tuple, list[int]] = {}
     for i, p in enumerate(plans):
-        if len(p.configs) > 1:
+        if len(p.configs) > 1 and (i not in errors or prior is not None):
             m = p.meas
             key = (m.pairs, m.has_axial, m.centre_azimuths, m.t.shape, tuple(np.asarray(m.count)))
             groups.setdefault((key, p.alpha, tuple(p.configs)), []).append(i)
-    errors: dict[int, dict] = {}
     for (_, alpha, _), members in groups.items():
         for start in range(0, len(members), BATCH):
             chunk = members[start : start + BATCH]
-            data = [fold_data(plans[i].meas, np.deg2rad(alpha), k) for i in chunk]
-            data += [data[-1]] * (BATCH - len(chunk))  # one shape: one compile per layout
-            stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *data)
-            for names, cfgs in group_configs(rbf_configs(plans[chunk[0]].configs)):
-                dtype = plans[chunk[0]].meas.y.dtype
-                params = Params.default(cfgs[0], alpha_deg=alpha, dtype=dtype)
-                errs = np.asarray(held_out_errors_batch(stacked, cfgs, params))
-                for row, i in zip(errs, chunk):
-                    errors.setdefault(i, {}).update({n: float(e) for n, e in zip(names, row)})
+            if not all(i in errors for i in chunk):  # (a dense capture's: made above)
+                _rbf_errors(plans, chunk, alpha, k, errors)
             if prior is not None:
                 _prior_errors(plans, chunk, alpha, k, prior, errors, fh)
             if on_done is not None:
@@ -91,6 +91,20 @@ def select_models(
     if on_done is not None:
         on_done(len(items) - sum(len(m) for m in groups.values()))
     return out
+
+
+def _rbf_errors(plans, chunk, alpha, k, errors) -> None:
+    """The RBF candidates' held-out errors of one chunk, in one padded batch per kernel group
+    (one compile per layout)."""
+    data = [fold_data(plans[i].meas, np.deg2rad(alpha), k) for i in chunk]
+    data += [data[-1]] * (BATCH - len(chunk))  # one shape: one compile per layout
+    stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *data)
+    for names, cfgs in group_configs(rbf_configs(plans[chunk[0]].configs)):
+        dtype = plans[chunk[0]].meas.y.dtype
+        params = Params.default(cfgs[0], alpha_deg=alpha, dtype=dtype)
+        errs = np.asarray(held_out_errors_batch(stacked, cfgs, params))
+        for row, i in zip(errs, chunk):
+            errors.setdefault(i, {}).update({n: float(e) for n, e in zip(names, row)})
 
 
 def _prior_errors(plans, chunk, alpha, k, prior, errors, fh=None) -> None:

@@ -353,3 +353,17 @@ def group_configs(configs: dict[str, Config]) -> list[tuple[tuple[str, ...], tup
     for name, cfg in configs.items():
         groups.setdefault(_group_key(cfg), []).append((name, cfg))
     return [(tuple(n for n, _ in g), tuple(c for _, c in g)) for g in groups.values()]
+
+
+def entry_groups(configs: dict) -> list[tuple[tuple[str, ...], tuple[Config, ...]]]:
+    """The named configurations in groups whose held-out fits are computed together in numpy
+    (a held-out entry of :mod:`abrdf_jax.select._held_out_entry`, or a dense capture's
+    :func:`abrdf_jax.select._dense_held_out.dense_errors` call): one RBF system
+    (:func:`~abrdf_jax.select.group_configs`) and one slice interpolation."""
+    out = []
+    for names, cfgs in group_configs(configs):
+        by_interp: dict = {}
+        for n, c in zip(names, cfgs):
+            by_interp.setdefault(c.interp, []).append((n, c))
+        out += [(tuple(n for n, _ in g), tuple(c for _, c in g)) for g in by_interp.values()]
+    return out

@@ -35,18 +35,76 @@ from .._folds import fold_slots, gather, held_out_directions, log_residual
 from .._host_build import template_layout
 from .._host_eps import sample_eps
 from .._kernels import kernel_block
-from .._names import LOG_SAMPLES
+from .._names import LOG_SAMPLES, LOG_SUBSPACE
 from .._grid import centre_count, centre_vectors
 from .._rbf_system import blocks, centre_stats, combine, coordinate_widths, host_guarded_solve
 from .._rbf_system import host_solve, poly
+from .._rules import AFFINE
 from .._smoothing import smooth_compact
 from .._spikes import cap_samples
 from .._subspace import centre_subspaces
+from ._choice import entry_groups, rbf_configs
+
+
+#: Captures per :func:`dense_errors` call of :func:`plan_errors` (a capture's right-hand sides
+#: are 2,304 × 48 float64 for the default anisotropic candidates: 0.9 MB).
+CHUNK = 64
+
+
+def affine_plan(p) -> bool:
+    """Whether a selection plan's RBF candidates are affine in the slice terms
+    (:mod:`abrdf_jax._rules`) with no log after the rule, every diagonal slice measured: the
+    candidates whose held-out fits numpy computes (here, and as the stored matrices of
+    :mod:`abrdf_jax.select._held_out_entry` on sparse layouts)."""
+    count = np.asarray(p.meas.count)
+    return bool(np.all(count[1::2] > 0)) and all(
+        isinstance(c, Config) and c.subspace_rule in AFFINE and c.value_space not in LOG_SUBSPACE
+        for c in rbf_configs(p.configs).values()
+    )
+
+
+def dense_layout_plan(p) -> bool:
+    """:func:`affine_plan` on a dense layout (``centre_azimuths`` set): :func:`plan_errors`."""
+    return p.meas.centre_azimuths is not None and affine_plan(p)
+
+
+def plan_errors(plans, k: int, store=None, warn=None) -> list[dict | None]:
+    """The RBF candidates' held-out errors ``{name: error}`` of every plan of
+    :func:`dense_layout_plan` (the learned candidates' are not here), by :func:`dense_errors`:
+    the plans of one elevation-pair and centre layout and candidate list share a solve (a stored
+    coefficient map with ``store``), :data:`CHUNK` captures a call; ``None`` for a group whose
+    RBF system stays singular after the guard (the JAX path then reports it)."""
+    groups: dict = {}
+    for i, p in enumerate(plans):
+        pairs = tuple(tuple(float(v) for v in q) for q in p.meas.pairs)
+        key = (pairs, p.meas.centre_azimuths, tuple(p.configs))
+        groups.setdefault(key, []).append(i)
+    out: list[dict | None] = [{} for _ in plans]
+    for members in groups.values():
+        try:
+            for names, cfgs in entry_groups(rbf_configs(plans[members[0]].configs)):
+                for at in range(0, len(members), CHUNK):
+                    part = members[at : at + CHUNK]
+                    found = dense_errors(
+                        [plans[i].meas for i in part],
+                        [np.asarray(plans[i].meas.y) for i in part],
+                        [plans[i].alpha for i in part],
+                        cfgs,
+                        k,
+                        store,
+                        warn,
+                    )
+                    for i, err in zip(part, found):
+                        out[i].update({n: float(e) for n, e in zip(names, err)})
+        except np.linalg.LinAlgError:
+            for i in members:
+                out[i] = None
+    return out
 
 
 def dense_errors(metas, ys, alphas_deg, cfgs, k: int, store=None, warn=None) -> np.ndarray:
     """RMS held-out log errors ``(N, G)`` of the configurations ``cfgs`` (one kernel group and
-    slice interpolation, :func:`abrdf_jax.select._held_out_entry.entry_groups`) on ``N``
+    slice interpolation, :func:`abrdf_jax.select._choice.entry_groups`) on ``N``
     dense measurements.
 
     Args:

@@ -24,7 +24,7 @@ import numpy as np
 
 from .._config import Config, default_values
 from .._errors import InputError
-from .._names import LOG_SAMPLES, LOG_SUBSPACE
+from .._names import LOG_SAMPLES
 from .._folds import fold_slots, log_residual
 from .._host_eps import sample_eps
 from .._operator_entry import check_layout
@@ -33,7 +33,8 @@ from .._rules import AFFINE, combine
 from .._smoothing import smooth_compact, smoothing_from_json, smoothing_to_json
 from .._spikes import cap_samples
 from ._candidates import LEARNED
-from ._choice import finish, group_configs, plan, rbf_configs, with_prior
+from ._dense_held_out import affine_plan, dense_layout_plan, plan_errors
+from ._choice import entry_groups, finish, plan, rbf_configs, with_prior
 from ._learned_entry import cached_entry as learned_entry
 from ._learned_entry import learned_model
 
@@ -292,76 +293,28 @@ def cached_entry(store, meas, alpha_deg, names, cfgs, k, warn, before_build=None
     return entry
 
 
-def entry_groups(configs: dict) -> list[tuple[tuple[str, ...], tuple[Config, ...]]]:
-    """The named configurations in groups that share one held-out entry: one RBF system
-    (:func:`~abrdf_jax.select.group_configs`) and one slice interpolation."""
-    out = []
-    for names, cfgs in group_configs(configs):
-        by_interp: dict = {}
-        for n, c in zip(names, cfgs):
-            by_interp.setdefault(c.interp, []).append((n, c))
-        out += [(tuple(n for n, _ in g), tuple(c for _, c in g)) for g in by_interp.values()]
-    return out
-
-
 def entry_plan(p) -> bool:
     """Whether a plan's candidates can be scored by held-out entries: every rule affine in the
     slice terms (:mod:`abrdf_jax._rules`), no log after the rule, a sparse centre layout, every
     diagonal slice measured (the learned candidates have entries of their own)."""
-    return p.meas.centre_azimuths is None and _affine_plan(p)
+    return p.meas.centre_azimuths is None and affine_plan(p)
 
 
 def dense_plan(p) -> bool:
     """Whether a plan's candidates are scored in numpy on a dense layout
-    (:mod:`abrdf_jax.select._dense_held_out`): :func:`entry_plan`'s rules on a dense centre
-    layout, without learned candidates."""
-    return (
-        p.meas.centre_azimuths is not None
-        and _affine_plan(p)
-        and len(rbf_configs(p.configs)) == len(p.configs)
-    )
-
-
-def _affine_plan(p) -> bool:
-    count = np.asarray(p.meas.count)
-    return bool(np.all(count[1::2] > 0)) and all(
-        isinstance(c, Config) and c.subspace_rule in AFFINE and c.value_space not in LOG_SUBSPACE
-        for c in rbf_configs(p.configs).values()
-    )
+    (:func:`abrdf_jax.select._dense_held_out.plan_errors`), here without learned candidates
+    (their entries are of sparse layouts)."""
+    return dense_layout_plan(p) and len(rbf_configs(p.configs)) == len(p.configs)
 
 
 def dense_selections(plans, out, tol: float, k: int, store=None, warn=None) -> None:
-    """Fill ``out[i]`` (``None``: not chosen yet) for every plan of :func:`dense_plan`: the
-    plans of one elevation-pair and centre layout and candidate set share one RBF solve per
-    kernel group (:func:`abrdf_jax.select._dense_held_out.dense_errors`, its coefficient map
-    kept in ``store``); a group whose system stays singular is left to the JAX path (its guard
+    """Fill ``out[i]`` (``None``: not chosen yet) for every plan of :func:`dense_plan`
+    (:func:`abrdf_jax.select._dense_held_out.plan_errors`, the coefficient maps kept in
+    ``store``); a group whose RBF system stays singular is left to the JAX path (its guard
     reports it)."""
-    from ._dense_held_out import dense_errors
-
-    groups: dict = {}
-    for i, p in enumerate(plans):
-        if out[i] is None and dense_plan(p):
-            pairs = tuple(tuple(float(v) for v in q) for q in p.meas.pairs)
-            key = (pairs, p.meas.centre_azimuths, tuple(p.configs))
-            groups.setdefault(key, []).append(i)
-    for members in groups.values():
-        errors = [{} for _ in members]
-        try:
-            for names, cfgs in entry_groups(rbf_configs(plans[members[0]].configs)):
-                found = dense_errors(
-                    [plans[i].meas for i in members],
-                    [np.asarray(plans[i].meas.y) for i in members],
-                    [plans[i].alpha for i in members],
-                    cfgs,
-                    k,
-                    store,
-                    warn,
-                )
-                for row, err in zip(errors, found):
-                    row.update({n: float(e) for n, e in zip(names, err)})
-        except np.linalg.LinAlgError:
-            continue
-        for i, err in zip(members, errors):
+    todo = [i for i, p in enumerate(plans) if out[i] is None and dense_plan(p)]
+    for i, err in zip(todo, plan_errors([plans[i] for i in todo], k, store, warn)):
+        if err is not None:
             out[i] = finish(plans[i], err, tol, k, 0.0)
 
 

@@ -61,6 +61,7 @@ from ._candidates import (  # noqa: F401 - re-exported: the candidates' public h
     candidate,
 )
 from ._isotropy import LEVEL, MIN_EFFECT
+from ._dense_held_out import dense_layout_plan, plan_errors
 from .._params import Config, Params
 from .._coords import pair_coordinates
 from .._folds import held_out_directions, log_rms, sample_folds
@@ -285,7 +286,11 @@ def select_model(
         samples: one material's measurement.
         candidates: ``"auto"`` (the isotropy test, then :data:`DEFAULT_ANISO` when the
             material is anisotropic), ``"kernels"`` (also the kernel families of
-            :data:`KERNEL_FAMILY`: one compilation each), or a tuple of candidate names.
+            :data:`KERNEL_FAMILY`: one compilation each), or a tuple of candidate names. On a
+            dense capture (``centre_azimuths`` set) the held-out errors of candidates affine in
+            the slice terms are computed in numpy in float64 whatever ``dtype``
+            (:mod:`abrdf_jax.select._dense_held_out`: the float32 solve on its 2,304 centres is
+            several per cent off), as the command line computes them.
         budget: force ``"iso102"`` or ``"aniso204"`` (no isotropy decision; candidates of other
             budgets are dropped).
         tol: relative tolerance of the rule (module docstring).
@@ -315,7 +320,11 @@ def select_model(
         plan = with_prior(plan, fh is not None)
     errors = None
     if len(plan.configs) > 1:
-        errors = held_out_errors(plan.meas, rbf_configs(plan.configs), alpha_deg=plan.alpha, k=k)
+        if dense_layout_plan(plan):  # numpy, float64 (select._dense_held_out): None if singular
+            (errors,) = plan_errors([plan], k)
+        if errors is None:
+            rbf = rbf_configs(plan.configs)
+            errors = held_out_errors(plan.meas, rbf, alpha_deg=plan.alpha, k=k)
         if prior is not None:
             from ._prior import prior_held_out_error
 
