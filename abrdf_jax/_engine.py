@@ -76,7 +76,7 @@ class Layouts(NamedTuple):
 
     keys: list
     sizes: Counter
-    builds: dict  # layout key -> what its build is (layouts of one two-stage map share it)
+    builds: dict  # layout key -> its build, ("layout", key) or ("two-stage", pairs, centres)
 
 
 def job_layouts(meas: Sequence, config, done: Sequence["Done"] = ()) -> Layouts:
@@ -86,23 +86,42 @@ def job_layouts(meas: Sequence, config, done: Sequence["Done"] = ()) -> Layouts:
     keys = [key_of(m) if only or operator_applies(config, m) else None for m in meas]
     sizes = Counter(keys)
     sizes.update(Counter(d.layout for d in done if d.layout is not None))
-    builds = {key: key for key in sizes}
+    builds = {key: ("layout", key) for key in sizes}
     for m, key in zip(meas, keys):  # a two-stage map: one per pairs and centre layout
         if key is not None and not only and host_two_stage(config, m):
-            builds[key] = (tuple(map(tuple, m.pairs)), m.centre_azimuths)
+            builds[key] = ("two-stage", tuple(map(tuple, m.pairs)), m.centre_azimuths)
     return Layouts(keys, sizes, builds)
 
 
-def small_builds(layouts: Layouts, config, min_group: int = OPERATOR_MIN_GROUP) -> int:
-    """What building an operator for each layout of ``layouts`` below ``min_group`` costs, in
-    single-stage builds (a two-stage entry counts :data:`TWO_STAGE_BUILD_COST`; a learned or
-    bivariate model's map is always built: 0). A job builds them while the sum over its
-    settings is at most :data:`OPERATOR_MAX_BUILDS`."""
+def small_build_set(
+    layouts: Layouts, config, min_group: int = OPERATOR_MIN_GROUP, alpha=None
+) -> set:
+    """The builds an operator for each layout of ``layouts`` below ``min_group`` takes, as
+    ``(kind, config, what)``: a two-stage map (``"two-stage"``) is one per setting, pairs and
+    centre layout whatever α and the samples' layout (its store key has neither), so the jobs
+    of one setting at several α (a folder of jittered or dense captures: each file its own α)
+    share it; a layout's own operator (``"layout"``) is its setting's at ``alpha``. A learned or
+    bivariate model's map is always built: none."""
     if getattr(config, "operator_only", False):
-        return 0
+        return set()
     small = {k for k, size in layouts.sizes.items() if k is not None and size < min_group}
-    builds = {layouts.builds.get(k, k) for k in small}  # a shared two-stage map: built once
-    return sum(TWO_STAGE_BUILD_COST if isinstance(b, tuple) else 1 for b in builds)
+    out = set()
+    for k in small:
+        kind, *what = layouts.builds.get(k, ("layout", k))
+        out.add((kind, config, tuple(what) if kind == "two-stage" else (alpha, *what)))
+    return out
+
+
+def build_cost(builds: set) -> int:
+    """What :func:`small_build_set`'s builds cost in single-stage builds (a two-stage entry
+    counts :data:`TWO_STAGE_BUILD_COST`). A job builds them while the cost over its settings is
+    at most :data:`OPERATOR_MAX_BUILDS`."""
+    return sum(TWO_STAGE_BUILD_COST if kind == "two-stage" else 1 for kind, _, _ in builds)
+
+
+def small_builds(layouts: Layouts, config, min_group: int = OPERATOR_MIN_GROUP) -> int:
+    """:func:`build_cost` of one job's :func:`small_build_set`."""
+    return build_cost(small_build_set(layouts, config, min_group))
 
 
 def operator_applies(config: Config, meas) -> bool:

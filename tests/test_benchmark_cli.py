@@ -97,6 +97,7 @@ def test_parse_args_modes():
         "aniso_large": 1000,
         "iso_jitter": 200,
         "aniso_few": 8,
+        "dense_few": 16,
         "iso_parallel": 40,
     }
     assert (full.peer_limit, full.repeats) == (cli.PEER_LIMIT["full"], cli.REPEATS["full"])

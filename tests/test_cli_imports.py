@@ -193,6 +193,32 @@ def test_a_dense_captures_automatic_choice_imports_no_jax(tmp_path):
     assert errors[record["model"]] <= (1 + record["tol"]) * min(errors.values())  # the rule
 
 
+def test_a_folder_of_jittered_captures_shares_one_two_stage_map(tmp_path):
+    """Each jittered capture has an α of its own, so each is a setting of its own in a folder
+    block; their two-stage map (``--model aniso``) does not depend on α, so the block counts it
+    once (``_engine.small_build_set``): five captures (five maps' worth if counted per
+    setting, over ``OPERATOR_MAX_BUILDS``) get operators, one stored map, no JAX."""
+    import abrdf_jax as aj
+    from abrdf_jax import _engine, io, materials
+
+    n = 5
+    assert n * _engine.TWO_STAGE_BUILD_COST > _engine.OPERATOR_MAX_BUILDS
+    (tmp_path / "in").mkdir()
+    for k in range(n):
+        s = aj.simulate_capture(
+            materials.get_material("ggx-aniso-metal"), jitter_deg=0.5, noise=0.01, seed=20 + k
+        )
+        io.write_samples_csv(tmp_path / "in" / f"m{k}.csv", s)
+    argv = ["reconstruct", "in", "-o", "out", "--model", "aniso", "--cache-dir", "c", "-q"]
+    report, err = _run([(argv, 0)], tmp_path)
+    (_, code, jax_loaded), *_ = report
+    assert code == 0 and not jax_loaded, (report, err)
+    records = json.loads((tmp_path / "out.model.json").read_text())["inputs"]
+    assert len({r["measurement"]["alpha_deg"] for r in records}) == n  # a setting each
+    assert all(r["engine"] == "operator" and r["batch"]["small"] for r in records)
+    assert len(list((tmp_path / "c" / "operators").glob("*.npz"))) == 1  # one shared map
+
+
 def test_materials_listing_imports_no_jax(tmp_path):
     report, err = _run([(["materials"], 0)], tmp_path)
     assert report[0][1] == 0, err

@@ -94,12 +94,19 @@ def test_small_builds_count_the_layouts_below_min_group():
     ``TWO_STAGE_BUILD_COST`` once; ``None`` (no operator applies) and big layouts nothing."""
     config = aj.preset("recommended", "iso102")
     sizes = Counter({"big": 40, "a": 1, "b": 3, None: 7})
-    layouts = _engine.Layouts(["a", "b", None], sizes, {k: k for k in sizes})
+    layouts = _engine.Layouts(["a", "b", None], sizes, {k: ("layout", k) for k in sizes})
     assert _engine.small_builds(layouts, config, 32) == 2
     assert _engine.small_builds(layouts, config, 1) == 0  # none is small
-    shared = ((30.0, 30.0),), None
+    shared = ("two-stage", ((30.0, 30.0),), None)
     two = _engine.Layouts(["a", "b"], sizes, {"a": shared, "b": shared, "big": shared})
     assert _engine.small_builds(two, config, 32) == _engine.TWO_STAGE_BUILD_COST
+    # jobs of one setting at two α: a shared map once, a layout's own operator per α
+    both = _engine.small_build_set(two, config, alpha=15.0)
+    both |= _engine.small_build_set(two, config, alpha=15.2)
+    assert _engine.build_cost(both) == _engine.TWO_STAGE_BUILD_COST
+    own = _engine.small_build_set(layouts, config, alpha=15.0)
+    own |= _engine.small_build_set(layouts, config, alpha=15.2)
+    assert _engine.build_cost(own) == 4
 
 
 def test_two_stage_layouts_share_one_build():
