@@ -31,7 +31,7 @@ def _float64(meas):
     """The JAX measurement of numpy slices in float64 (inside an ``x64_scope``)."""
     import jax.numpy as jnp
 
-    m = meas.to_measurements()
+    m = meas.to_measurements() if hasattr(meas, "to_measurements") else meas
     return m.replace(t=jnp.asarray(m.t, jnp.float64), y=jnp.asarray(m.y, jnp.float64))
 
 
@@ -122,6 +122,35 @@ def test_select_model_and_select_models_score_dense_captures_in_numpy(tmp_path):
     alone = select.select_model(sparse[0], alpha_deg=sparse[1])
     assert many[2].name == alone.name
     assert many[2].errors == pytest.approx(alone.errors, rel=1e-4)
+
+
+def test_a_folder_of_jittered_captures_is_chosen_by_direct_fits():
+    """More jittered sparse captures (a layout each) than the small-layout rule gives entries
+    (``OPERATOR_MAX_BUILDS``): the command line's choice scores them by the same direct fits
+    (``direct_plan``: one solve on the UBO centres), not in JAX; the errors are the JAX path's
+    in float64."""
+    from abrdf_jax import _engine
+
+    n = _engine.OPERATOR_MAX_BUILDS + 1
+    items = []
+    for k in range(n):
+        s = aj.simulate_capture(
+            materials.get_material("ggx-aniso-metal"), jitter_deg=0.5, noise=0.01, seed=40 + k
+        )
+        meas, info = aj.group_slices(s)
+        items.append((meas, float(info["alpha_deg"])))
+    sels = H.entry_selections(
+        items, store=None, warn=print, tol=select.TOL, level=select.LEVEL,
+        min_effect=select.MIN_EFFECT,
+    )  # fmt: skip
+    assert all(s is not None for s in sels)  # none left to the JAX path
+    meas, alpha = items[0]
+    configs = {n: select.CANDIDATES[n].config() for n in sels[0].errors}
+    assert len(configs) > 1 and meas.centre_azimuths is None  # a sparse layout, compared
+    with _cache.x64_scope(True):
+        want = select.held_out_errors(_float64(meas), configs, alpha_deg=alpha)
+    for name, e in want.items():
+        assert sels[0].errors[name] == pytest.approx(e, rel=1e-8), name
 
 
 def test_the_stored_coefficient_map_gives_the_same_errors(tmp_path):

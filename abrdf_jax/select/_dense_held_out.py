@@ -19,8 +19,13 @@ In float64: the errors equal the JAX path's run in float64 to 1e-8
 (tests/test_dense_held_out.py). The JAX path runs float32 by default, and its solve on 2,304
 centres is not accurate there: on a 300-a-slice capture of ``ggx-aniso-metal`` its errors were
 0.5–11 % above the float64 ones (the chosen model's the most, docs/notes.md), so a choice near
-the tolerance may differ from the one that path made; this one is the more accurate. One
-capture: 0.6 s against 4.4 s for the JAX path with warm caches. This module imports numpy only.
+the tolerance may differ from the one that path made; this one is the more accurate.
+
+The same fits serve, on the command line, every sparse layout no stored held-out entry serves:
+a folder of jittered captures (a layout each) beyond the small-layout rule
+(:func:`abrdf_jax.select._held_out_entry.direct_selections`; on the UBO centres the solve is
+the 1,296-centre system's, its map 14 MB): one shared map and a few milliseconds a capture,
+where the JAX path compiled per layout. This module imports numpy only.
 """
 
 from __future__ import annotations

@@ -33,7 +33,7 @@ from .._rules import AFFINE, combine
 from .._smoothing import smooth_compact, smoothing_from_json, smoothing_to_json
 from .._spikes import cap_samples
 from ._candidates import LEARNED
-from ._dense_held_out import affine_plan, dense_layout_plan, plan_errors
+from ._dense_held_out import affine_plan, plan_errors
 from ._choice import entry_groups, finish, plan, rbf_configs, with_prior
 from ._learned_entry import cached_entry as learned_entry
 from ._learned_entry import learned_model
@@ -300,19 +300,21 @@ def entry_plan(p) -> bool:
     return p.meas.centre_azimuths is None and affine_plan(p)
 
 
-def dense_plan(p) -> bool:
-    """Whether a plan's candidates are scored in numpy on a dense layout
-    (:func:`abrdf_jax.select._dense_held_out.plan_errors`), here without learned candidates
-    (their entries are of sparse layouts)."""
-    return dense_layout_plan(p) and len(rbf_configs(p.configs)) == len(p.configs)
+def direct_plan(p) -> bool:
+    """Whether the command line scores a plan's candidates by direct numpy fits
+    (:func:`abrdf_jax.select._dense_held_out.plan_errors`) when no held-out entry serves it: a
+    dense layout, or a sparse one whose group is too small for an entry (a folder of jittered
+    captures, a layout each); the rules of :func:`entry_plan`, without learned candidates
+    (their entries are of shared layouts)."""
+    return affine_plan(p) and len(rbf_configs(p.configs)) == len(p.configs)
 
 
-def dense_selections(plans, out, tol: float, k: int, store=None, warn=None) -> None:
-    """Fill ``out[i]`` (``None``: not chosen yet) for every plan of :func:`dense_plan`
-    (:func:`abrdf_jax.select._dense_held_out.plan_errors`, the coefficient maps kept in
-    ``store``); a group whose RBF system stays singular is left to the JAX path (its guard
-    reports it)."""
-    todo = [i for i, p in enumerate(plans) if out[i] is None and dense_plan(p)]
+def direct_selections(plans, out, tol: float, k: int, store=None, warn=None) -> None:
+    """Fill ``out[i]`` (``None``: not chosen yet) for every plan of :func:`direct_plan`
+    (:func:`abrdf_jax.select._dense_held_out.plan_errors`: the plans of one pair and centre
+    layout share one RBF solve, the coefficient map kept in ``store``); a group whose RBF system
+    stays singular is left to the JAX path (its guard reports it)."""
+    todo = [i for i, p in enumerate(plans) if out[i] is None and direct_plan(p)]
     for i, err in zip(todo, plan_errors([plans[i] for i in todo], k, store, warn)):
         if err is not None:
             out[i] = finish(plans[i], err, tol, k, 0.0)
@@ -340,7 +342,9 @@ def entry_selections(
     :func:`~abrdf_jax.select.quick_selection`), or candidates of :func:`entry_plan` on a layout shared by
     ``min_group`` inputs or more (or on any layout of a call of few,
     :data:`abrdf_jax._engine.OPERATOR_MAX_BUILDS`), scored by held-out entries (:class:`HeldOutEntry`, from
-    ``store``). ``None`` where the caller must run the JAX path
+    ``store``); the other plans of those rules without learned candidates (dense layouts, and a
+    folder's layouts too small for an entry) by direct numpy fits (:func:`direct_selections`).
+    ``None`` where the caller must run the JAX path
     (:func:`~abrdf_jax.select.select_models`). ``where``: each input's name, put before the
     message of an :class:`~abrdf_jax.InputError` of its plan; ``reports``: each input's
     isotropy test with ``noise``, ``level`` and ``min_effect``, if made already
@@ -386,6 +390,6 @@ def entry_selections(
                 row[name] = float(err)
         for i, err in zip(members, errors):
             out[i] = finish(plans[i], err, tol, k, 0.0)
-    dense_selections(plans, out, tol, k, store, warn)
+    direct_selections(plans, out, tol, k, store, warn)  # dense layouts, and those left
     share = (time.perf_counter() - t0) / max(len(items), 1)
     return [None if s is None else dataclasses.replace(s, seconds=share) for s in out]
