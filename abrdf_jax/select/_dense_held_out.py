@@ -24,26 +24,26 @@ the tolerance may differ from the one that path made; this one is the more accur
 The same fits serve, on the command line, every sparse layout no stored held-out entry serves:
 a folder of jittered captures (a layout each) beyond the small-layout rule
 (:func:`abrdf_jax.select._held_out_entry.direct_selections`; on the UBO centres the solve is
-the 1,296-centre system's, its map 14 MB): one shared map and a few milliseconds a capture,
+the 1,296-centre system's, its map 1,311 × 1,296 float64): one shared map for the folder,
 where the JAX path compiled per layout. This module imports numpy only.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
 from .._config import Config, default_values, resolve_degree
 from .._coords import pair_coordinates
 from .._folds import fold_slots, gather, held_out_directions, log_residual
-from .._host_build import template_layout
+from .._host_build import sample_index, template_layout
 from .._host_eps import sample_eps
 from .._kernels import kernel_block
 from .._names import LOG_SAMPLES, LOG_SUBSPACE
 from .._grid import centre_count, centre_vectors
-from .._rbf_system import blocks, centre_stats, combine, coordinate_widths, host_guarded_solve
-from .._rbf_system import host_solve, poly
+from .._rbf_system import blocks, centre_stats, combine, coordinate_widths, host_solve, poly
 from .._rules import AFFINE
 from .._smoothing import smooth_compact
 from .._spikes import cap_samples
@@ -51,8 +51,8 @@ from .._subspace import centre_subspaces
 from ._choice import entry_groups, rbf_configs
 
 
-#: Captures per :func:`dense_errors` call of :func:`plan_errors` (a capture's right-hand sides
-#: are 2,304 × 48 float64 for the default anisotropic candidates: 0.9 MB).
+#: Captures whose fits :func:`dense_errors` makes at once (a capture's right-hand sides are
+#: 2,304 × 48 float64 for the default anisotropic candidates: 0.9 MB).
 CHUNK = 64
 
 
@@ -77,30 +77,27 @@ def plan_errors(plans, k: int, store=None, warn=None) -> list[dict | None]:
     """The RBF candidates' held-out errors ``{name: error}`` of every plan of
     :func:`dense_layout_plan` (the learned candidates' are not here), by :func:`dense_errors`:
     the plans of one elevation-pair and centre layout and candidate list share a solve (a stored
-    coefficient map with ``store``), :data:`CHUNK` captures a call; ``None`` for a group whose
+    coefficient map with ``store``); ``None`` for a group whose
     RBF system stays singular after the guard (the JAX path then reports it)."""
     groups: dict = {}
     for i, p in enumerate(plans):
-        pairs = tuple(tuple(float(v) for v in q) for q in p.meas.pairs)
-        key = (pairs, p.meas.centre_azimuths, tuple(p.configs))
+        key = (_pairs(p.meas), p.meas.centre_azimuths, tuple(p.configs))
         groups.setdefault(key, []).append(i)
     out: list[dict | None] = [{} for _ in plans]
     for members in groups.values():
         try:
             for names, cfgs in entry_groups(rbf_configs(plans[members[0]].configs)):
-                for at in range(0, len(members), CHUNK):
-                    part = members[at : at + CHUNK]
-                    found = dense_errors(
-                        [plans[i].meas for i in part],
-                        [np.asarray(plans[i].meas.y) for i in part],
-                        [plans[i].alpha for i in part],
-                        cfgs,
-                        k,
-                        store,
-                        warn,
-                    )
-                    for i, err in zip(part, found):
-                        out[i].update({n: float(e) for n, e in zip(names, err)})
+                found = dense_errors(
+                    [plans[i].meas for i in members],
+                    [np.asarray(plans[i].meas.y) for i in members],
+                    [plans[i].alpha for i in members],
+                    cfgs,
+                    k,
+                    store,
+                    warn,
+                )
+                for i, err in zip(members, found):
+                    out[i].update({n: float(e) for n, e in zip(names, err)})
         except np.linalg.LinAlgError:
             for i in members:
                 out[i] = None
@@ -136,30 +133,58 @@ def dense_errors(metas, ys, alphas_deg, cfgs, k: int, store=None, warn=None) -> 
     widths = coordinate_widths(np.asarray(values.widths, np.float64), xc.shape[1], np)
     degree = resolve_degree(kernel, cfg.degree)
     shift, scale = centre_stats(xc, np)
-    folds = [_Folds(m, y, a, cfg, rules, k) for m, y, a in zip(metas, ys, alphas_deg)]
-    # every input's every fold, rule and channel: the columns of one solve
-    rhs = np.concatenate([f.centre_values for f in folds], axis=1)
     reg = np.float64(np.asarray(values.reg))
 
-    def system():  # the centres' Gram matrix and tail: made only to solve or build
+    @functools.cache
+    def system():  # the centres' Gram matrix and tail: made once, only to solve or build
         return (*blocks(xc, widths, kernel, max(degree, -1), shift, scale, np), reg)
 
-    if store is None:
-        coeffs, tail, _ = host_solve(*system(), rhs)
-    else:
-        coef = _stored_map(store, warn, cfg, values, metas[0], system).coef
-        n = xc.shape[0]
-        coeffs, tail = coef[:n] @ rhs, coef[n:] @ rhs
-    out, at = [], 0
-    for f in folds:
-        width = f.centre_values.shape[1]
-        xq = pair_coordinates(f.wi, f.wv, name, np)
-        kq = kernel_block(xq, xc, widths, kernel, np)
-        pq = poly(xq, shift, scale, degree, np) if degree >= 0 else None
-        pred = combine(kq, pq, coeffs[:, at : at + width], tail[:, at : at + width], np)
-        out.append(f.errors(pred))
-        at += width
+    coef = None if store is None else _stored_map(store, warn, cfg, values, metas[0], system)
+    out = []
+    for at in range(0, len(metas), CHUNK):
+        part = slice(at, at + CHUNK)
+        folds = [
+            _Folds(m, y, a, cfg, rules, k)
+            for m, y, a in zip(metas[part], ys[part], alphas_deg[part])
+        ]
+        # every input's every fold, rule and channel: the columns of one solve
+        rhs = np.concatenate([f.centre_values for f in folds], axis=1)
+        if coef is None:
+            coeffs, tail, _ = host_solve(*system(), rhs)
+        else:
+            n = xc.shape[0]
+            coeffs, tail = coef.coef[:n] @ rhs, coef.coef[n:] @ rhs
+        col = 0
+        for f in folds:
+            width = f.centre_values.shape[1]
+            xq = pair_coordinates(f.wi, f.wv, name, np)
+            kq = kernel_block(xq, xc, widths, kernel, np)
+            pq = poly(xq, shift, scale, degree, np) if degree >= 0 else None
+            pred = combine(kq, pq, coeffs[:, col : col + width], tail[:, col : col + width], np)
+            out.append(f.errors(pred))
+            col += width
     return np.stack(out)
+
+
+def fold_layout(t, train_j) -> tuple:
+    """Fold ``j``'s training layout: the flat slots ``cols`` of its training samples in its own
+    padded layout, its slice positions ``(S, nmax)`` (0 where a slice ends) and counts."""
+    cols = np.flatnonzero(train_j.reshape(-1) >= 0)
+    return cols, np.where(train_j >= 0, t.reshape(-1)[train_j], 0), (train_j >= 0).sum(-1)
+
+
+def log_training_values(x, layout, log_eps: float, smoothing, cap):
+    """A fold's training values ``x`` ``(B, n_train, C)`` as the log-sample value space fits
+    them (``abrdf_jax._pipeline``'s fit inputs): the log with the fold's own ε, the slice
+    smoothing on the fold's slices (``layout``: :func:`fold_layout`) and the spike cap;
+    ``(values, ε (B, C))``. The held-out entries' errors and the direct fits share it."""
+    eps = sample_eps(x, log_eps, axis=1)
+    x = np.log(np.maximum(x, 0.0) + eps[:, None, :])
+    if smoothing is not None:
+        x = smooth_compact(smoothing, x, *layout, np)
+    if cap:
+        x = cap_samples(x, cap, xp=np)
+    return x, eps
 
 
 class _Folds:
@@ -175,24 +200,20 @@ class _Folds:
         alpha = np.deg2rad(np.float64(alpha_deg))
         pairs = _pairs(meas)
         flat = np.asarray(y, np.float64).reshape(s * nmax, c)
-        valid = (np.arange(nmax)[None, :] < count[:, None]).reshape(-1)
         log_samples = cfg.value_space in LOG_SAMPLES
-        self.res_eps = sample_eps(flat[valid][None], Config().log_eps, axis=1)[0]  # (C,)
+        valid = flat[sample_index(t, count)][None]
+        self.res_eps = sample_eps(valid, Config().log_eps, axis=1)[0]  # (C,)
         train, test = fold_slots(count, nmax, k)
         vals, self.eps, self.held, self.sizes = [], [], [], []
         wis, wvs = [], []
         for j in range(k):
-            cols = np.flatnonzero(train[j].reshape(-1) >= 0)
+            cols, fold_t, fold_count = fold_layout(t, train[j])
             x = flat[train[j].reshape(-1)[cols]][None]  # (1, n_train, C)
-            fold_t = np.where(train[j] >= 0, t.reshape(-1)[train[j]], 0.0)
-            fold_count = (train[j] >= 0).sum(-1)
             eps = None
-            if log_samples:  # as HeldOutEntry.errors: the fold's ε, its own slices
-                eps = sample_eps(x, cfg.log_eps, axis=1)  # (1, C)
-                x = np.log(np.maximum(x, 0.0) + eps[:, None, :])
-                x = smooth_compact(cfg.slice_smoothing, x, cols, fold_t, fold_count, np)
-                if cfg.spike_cap:
-                    x = cap_samples(x, cfg.spike_cap, xp=np)
+            if log_samples:
+                x, eps = log_training_values(
+                    x, (cols, fold_t, fold_count), cfg.log_eps, cfg.slice_smoothing, cfg.spike_cap
+                )
             padded = np.zeros((s * nmax, c))
             padded[cols] = x[0]
             v = centre_subspaces(
@@ -240,8 +261,7 @@ class CentreMap:
     guard's), its ``m`` tail rows unscaled (as :func:`abrdf_jax._rbf_system.evaluate` reads
     them). It depends on the elevation pairs, the centres' layout and the kernel's setting, not
     on the samples: the operator store keeps one per setting, and a dense capture's held-out
-    fits are a product with it (the system's factorisation and its Gram matrix cost 0.4 s a
-    call otherwise, docs/notes.md)."""
+    fits are a product with it, without the Gram matrix and the factorisation of a solve."""
 
     coef: np.ndarray
 
@@ -279,11 +299,7 @@ def _stored_map(store, warn, cfg, values, meas, system) -> CentreMap:
     n = centre_count(meas.pairs, meas.centre_azimuths)
     if found is not None and found.coef.shape[1] == n:
         return found
-    kk, p, sc, reg = system()
-    m = p.shape[1]
-    unit = np.concatenate([np.eye(n), np.zeros((m, n))]) if m else np.eye(n)
-    sol, _ = host_guarded_solve(kk, p, reg, unit)
-    sol[n:] *= sc
-    entry = CentreMap(np.ascontiguousarray(sol))
+    coeffs, tail, _ = host_solve(*system(), np.eye(n))  # A⁻¹ [I; 0], the tail unscaled
+    entry = CentreMap(np.ascontiguousarray(np.concatenate([coeffs, tail])))
     store.save(key, entry, warn)
     return entry

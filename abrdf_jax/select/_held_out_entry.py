@@ -30,10 +30,9 @@ from .._host_eps import sample_eps
 from .._operator_entry import check_layout
 from .. import _engine
 from .._rules import AFFINE, combine
-from .._smoothing import smooth_compact, smoothing_from_json, smoothing_to_json
-from .._spikes import cap_samples
+from .._smoothing import smoothing_from_json, smoothing_to_json
 from ._candidates import LEARNED
-from ._dense_held_out import affine_plan, plan_errors
+from ._dense_held_out import affine_plan, fold_layout, log_training_values, plan_errors
 from ._choice import entry_groups, finish, plan, rbf_configs, with_prior
 from ._learned_entry import cached_entry as learned_entry
 from ._learned_entry import learned_model
@@ -91,19 +90,15 @@ class HeldOutEntry:
         total = np.zeros((b, len(self.names)))
         n = 0
         for j in range(self.terms.shape[0]):
-            cols = np.flatnonzero(self.train[j].reshape(-1) >= 0)
+            layout = fold_layout(self.t, self.train[j])
+            cols = layout[0]
             rows = np.flatnonzero(self.test[j].reshape(-1) >= 0)
             x = flat[:, self.train[j].reshape(-1)[cols]]  # (B, n_train, C)
             eps = None
-            if self.log_samples:
-                eps = sample_eps(x, self.log_eps, axis=1)  # (B, C)
-                x = np.log(np.maximum(x, np.float32(0.0)) + eps[:, None, :])
-                if self.slice_smoothing is not None:  # on fold j's own slices
-                    fold_t = np.where(self.train[j] >= 0, self.t.reshape(-1)[self.train[j]], 0)
-                    fold_count = (self.train[j] >= 0).sum(-1)
-                    x = smooth_compact(self.slice_smoothing, x, cols, fold_t, fold_count, np)
-                if self.spike_cap:
-                    x = cap_samples(x, self.spike_cap, xp=np)
+            if self.log_samples:  # (B, C): the fold's ε, its own slices
+                x, eps = log_training_values(
+                    x, layout, self.log_eps, self.slice_smoothing, self.spike_cap
+                )
             m = self.terms[j][:, :, rows][..., cols]  # (P, 3, q_j, n_train)
             # one GEMM: (P·3·q_j, n_train) @ (n_train, B·C)
             terms = m.reshape(-1, cols.size) @ x.transpose(1, 0, 2).reshape(cols.size, -1)
