@@ -17,8 +17,8 @@ depend on where the samples lie (the same reason a dense capture's second stage 
 
 In float64: the errors equal the JAX path's run in float64 to 1e-8
 (tests/test_dense_held_out.py). The JAX path runs float32 by default, and its solve on 2,304
-centres is not accurate there: on a 300-a-slice capture of ``ggx-aniso-metal`` its errors were
-0.5–11 % above the float64 ones (the chosen model's the most, docs/notes.md), so a choice near
+centres is not accurate there (a scratch comparison on one 300-a-slice capture:
+docs/notes.md), so a choice near
 the tolerance may differ from the one that path made; this one is the more accurate.
 
 The same fits serve, on the command line, every sparse layout no stored held-out entry serves:
