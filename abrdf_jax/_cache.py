@@ -41,12 +41,15 @@ from .io._atomic import atomic_write, write_cause
 CACHE_ENV = "ABRDF_JAX_CACHE_DIR"
 NO_CACHE_ENV = "ABRDF_JAX_NO_CACHE"
 #: Version of the operator entry format and key; bump it when either changes meaning.
-CACHE_FORMAT = 3
+CACHE_FORMAT = 4
+#: The :class:`Config` fields that only a two-stage operator's first stage reads (the rule at
+#: the centres and the values it reads): not in its second stage's key (:func:`operator_key`).
+FIRST_STAGE = ("budget", "rule", "interp", "log_eps", "spike_cap", "slice_smoothing",
+               "slice_count", "pairs")  # fmt: skip
 #: ``cache_dir("off")``: no cache.
 OFF = "off"
 OPERATORS = "operators"
-#: Subfolder of the default prior (``abrdf_jax.prior.default_prior``), built on first use.
-PRIORS = "priors"
+PRIORS = "priors"  # the default prior's subfolder (abrdf_jax.prior.default_prior)
 #: Bound of ``operators/``: least recently used entries past it are removed on a save (an
 #: iso102 entry is about 2.7 MB, an aniso204 one 5.4 MB, a two-stage aniso204 one 34 MB).
 OPERATORS_MAX_BYTES = 1 << 30
@@ -73,9 +76,7 @@ __all__ = [
 ]
 
 
-# --------------------------------------------------------------------------------------------
-# Where the cache lives
-# --------------------------------------------------------------------------------------------
+# ---- Where the cache lives ----
 
 
 def cache_disabled(override: str | os.PathLike | None = None) -> str | None:
@@ -112,9 +113,7 @@ def cache_dir(override: str | os.PathLike | None = None) -> Path | None:
     return None if cache_disabled(override) else cache_location(override)
 
 
-# --------------------------------------------------------------------------------------------
-# The key: everything the matrix depends on
-# --------------------------------------------------------------------------------------------
+# ---- The key: everything the matrix depends on ----
 
 
 def _canon(value):
@@ -184,16 +183,19 @@ def operator_key(
     the slice parameters' dtype), and ``extra`` (what else an entry of
     another kind depends on, canonical JSON). ``centres``: the key of a two-stage entry's
     second stage, which depends on the elevation pairs and the centres' layout but not on where
-    the samples lie nor on α (:func:`cached_entry`). No JAX is imported.
+    the samples lie, on α nor on the :data:`FIRST_STAGE` settings (:func:`cached_entry`;
+    ``OperatorEntry.for_layout`` sets them). No JAX is imported.
     """
     t = np.asarray(meas.t)
     count = np.asarray(meas.count).astype(np.int64)
     if t.ndim != 2 or count.shape != (t.shape[0],):
         raise InputError(f"operator_key needs one measurement's layout, got t of shape {t.shape}")
     names = ("widths", "reg") if centres else ("alpha", "widths", "reg")
-    if centres:
+    settings = config_doc(config)
+    if centres:  # the second stage: no first-stage setting (one map for the rules, budgets)
         pairs = [[float(v) for v in p] for p in meas.pairs]
         layout = {"centres": [pairs, meas.centre_azimuths]}
+        settings = {n: v for n, v in settings.items() if n not in FIRST_STAGE}
     else:
         layout = {"key": layout_key(meas), "t_dtype": t.dtype.name}
     doc = {
@@ -204,7 +206,7 @@ def operator_key(
         "platforms": os.environ.get("JAX_PLATFORMS", ""),
         "dtype": "float32",
         "build_dtype": build_dtype,
-        "config": config_doc(config),
+        "config": settings,
         "params": {n: _canon(getattr(params, n)) for n in names},
         "layout": layout,
     }
@@ -214,9 +216,7 @@ def operator_key(
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-# --------------------------------------------------------------------------------------------
-# The store
-# --------------------------------------------------------------------------------------------
+# ---- The store ----
 
 
 class OperatorStore:
@@ -371,13 +371,11 @@ def clear_cache(folder: Path) -> None:
             shutil.rmtree(folder / name)
 
 
-# --------------------------------------------------------------------------------------------
-# Build, or load when cached
-# --------------------------------------------------------------------------------------------
+# ---- Build, or load when cached ----
 
 
 def build_entry(
-    meas, config, params, *, build_dtype: str = BUILD_DTYPE, before_jax=None
+    meas, config, params, *, build_dtype: str = BUILD_DTYPE, before_jax=None, two_stage=False
 ) -> OperatorEntry:
     """Build the operator of :func:`abrdf_jax.compile_operator` as a float32 entry.
 
@@ -391,7 +389,8 @@ def build_entry(
 
     A rule that is not linear in the samples but affine in the slice terms (``"filip2012"`` on
     the log of the samples, ``--model aniso``) is a two-stage entry: the rule per material in
-    numpy, then the matrix from the RBF centres (:mod:`abrdf_jax._centre_step`).
+    numpy, then the matrix from the RBF centres (:mod:`abrdf_jax._centre_step`); so is any
+    affine rule on the log of the samples with ``two_stage`` (:func:`cached_entry`).
 
     Raises:
         InputError: for settings that are not linear in the (log) samples, as
@@ -402,8 +401,7 @@ def build_entry(
     from ._host_build import host_matrix_or_none
     from ._names import LOG_SAMPLES
 
-    mode = nonlinear_mode(config, meas)
-    # in numpy: a cold call need not import JAX (_host_build)
+    mode = "two_stage" if two_stage else nonlinear_mode(config, meas)  # (numpy: no JAX)
     built = host_matrix_or_none(config, params, meas, mode) if build_dtype == "float64" else None
     if built is None:
         from ._operator import operator_matrix
@@ -457,31 +455,37 @@ def cached_entry(
     params,
     warn: Warn = default_warn,
     before_build: Callable[[], None] | None = None,
+    shared: bool = False,
 ) -> tuple[OperatorEntry, bool]:
     """The operator entry for ``(config, params, meas's layout)``: ``(entry, hit)``.
 
     Loaded from ``store`` when it holds a valid entry (``hit=True``); else built (in numpy;
-    ``before_build()`` before any JAX work, :func:`build_entry`) and saved. ``store=None``: always built. A store that cannot
-    be read or written gives a warning through ``warn`` and the built entry.
+    ``before_build()`` before any JAX work, :func:`build_entry`) and saved. ``store=None``:
+    always built. A store that cannot be read or written gives a warning through ``warn`` and
+    the built entry. A two-stage entry (``_centre_step.host_two_stage``, or any affine rule on
+    the log of the samples with ``shared``: a folder's many small layouts, ``_engine``) is
+    stored once per setting, pairs and centre layout, whatever the samples' layout and α, and
+    kept in memory (:data:`SHARED_ENTRIES`; without a store too) for the next layout.
 
     Raises:
         InputError: for nonlinear settings (see :func:`build_entry`).
     """
     from ._centre_step import host_two_stage
 
-    if store is None:
+    shared = shared or host_two_stage(config, meas)  # a second stage any layout of its pairs reads
+    if store is None and not shared:  # (no store: a shared entry is kept in memory only)
         return build_entry(meas, config, params, before_jax=before_build), False
-    shared = host_two_stage(config, meas)  # a second stage that any layout of its pairs reads
     key = operator_key(config, params, meas, centres=shared)
-    memo = (str(store.folder), key)
+    memo = ("" if store is None else str(store.folder), key)
     entry = _SHARED.get(memo) if shared else None
     hit = entry is not None
-    if entry is None:
+    if entry is None and store is not None:
         entry = store.load(key, warn)
         hit = entry is not None and (shared or _fits(entry, meas))
     if not hit:
-        entry = build_entry(meas, config, params, before_jax=before_build)
-        store.save(key, entry, warn)
+        entry = build_entry(meas, config, params, before_jax=before_build, two_stage=shared)
+        if store is not None:
+            store.save(key, entry, warn)
     if shared:
         _SHARED[memo] = entry
         while len(_SHARED) > SHARED_ENTRIES:

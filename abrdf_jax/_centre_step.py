@@ -34,11 +34,19 @@ def host_two_stage(config, meas=None) -> bool:
     dense layout (``meas.centre_azimuths`` set: thousands of samples, whose one-stage matrix
     would have a column per sample; its second stage is shared by every dense capture of the
     same elevation pairs, ``abrdf_jax._cache.cached_entry``)."""
-    rule = config.subspace_rule
-    if config.value_space != "logsamples" or rule not in AFFINE:
+    if not affine_on_log(config):
         return False
     dense = meas is not None and getattr(meas, "centre_azimuths", None) is not None
-    return dense or not RULES[rule].linear
+    return dense or not RULES[config.subspace_rule].linear
+
+
+def affine_on_log(config) -> bool:
+    """Whether ``config``'s reconstruction can take the two-stage numpy form on any layout: a
+    subspace rule affine in the slice terms (:data:`abrdf_jax._rules.AFFINE`) on the log of the
+    samples. Besides :func:`host_two_stage`'s settings, a folder's sample layouts that are too
+    many to build an operator each (jittered captures: a layout a file) take it
+    (:mod:`abrdf_jax._engine`): one second stage for all of them."""
+    return config.value_space == "logsamples" and config.subspace_rule in AFFINE
 
 
 def nonlinear_mode(config, meas=None) -> str:

@@ -12,14 +12,18 @@ of its last member, whose tables are dropped).
   loaded from an operator store (``abrdf_jax._cache``) keyed by everything it depends on; an
   affine rule on the log samples that is not linear (``--model aniso``), or any on a dense
   capture, is two stages (:func:`operator_applies`). The operator reproduces
-  :func:`~abrdf_jax.reconstruct` to float32 rounding (``tests/test_operator.py``).
+  :func:`~abrdf_jax.reconstruct` to float32 rounding (``tests/test_operator.py``). A job's
+  layouts that are too many to build an operator each (jittered captures: a layout a file) take
+  the two-stage form where the setting has it (an affine rule on the log of the samples): each
+  capture's subspaces at the RBF centres, then the one second stage of its setting and pairs.
 - **Numpy maps** (the learned models, ``abrdf_jax._prior_operator.PriorModel``, and the
   bivariate model, ``abrdf_jax._bivariate.BivariateModel``, passed as ``config``;
   ``operator_only``): one map per slice layout, whatever the group's size, in batches of at
   most the job's group (they compile nothing: a capture whose layout no other file shares, as
   every jittered one, is one row, not a padded batch of 256).
 - **Pipeline groups**: everything else (nonlinear rules on linear values, the log after
-  interpolation, the multiplicative rule) goes through :func:`~abrdf_jax.reconstruct_batch` in
+  interpolation, the multiplicative rule, and the many small layouts of a setting on linear
+  values) goes through :func:`~abrdf_jax.reconstruct_batch` in
   padded batches; the slices are padded to the group's longest.
 
 The tables come back batch by batch (``yield``), so a caller can write each batch as soon as it
@@ -35,7 +39,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from ._centre_step import host_two_stage, nonlinear_mode
+from ._centre_step import affine_on_log, host_two_stage, nonlinear_mode
 from ._config import Config
 from ._grouping import layout_key
 
@@ -50,8 +54,8 @@ if TYPE_CHECKING:  # JAX pytrees: the pipeline path makes them (importing JAX), 
 OPERATOR_BATCH, PIPELINE_BATCH = 256, 32
 #: A slice layout shared by this many measurements of a job or more gets an operator. Below
 #: it, a job whose small layouts would cost more than :data:`OPERATOR_MAX_BUILDS` builds
-#: (every jittered capture is a layout of its own, never seen again) sends them through the
-#: pipeline: building an operator costs an RBF solve with one right-hand side per sample,
+#: (every jittered capture is a layout of its own, never seen again) gives them the setting's
+#: shared two-stage form (an affine rule on the log of the samples), else the pipeline: building an operator costs an RBF solve with one right-hand side per sample,
 #: about as much as reconstructing dozens of materials in a batch (docs/notes.md, "Issue 13":
 #: 100 jittered files, one operator each, took 55 s and 257 MB of cache against 33 s through
 #: the pipeline). A caller with one measurement (``abrdf-jax reconstruct FILE``) passes
@@ -205,30 +209,44 @@ def plan_job(
     A layout is an operator group when the job holds at least ``min_group`` measurements of it
     (whichever of them are left to do), or when ``small``: layouts below ``min_group`` get
     operators too (default: where their :func:`small_builds` are at most
-    :data:`OPERATOR_MAX_BUILDS`; a caller with several settings sums them over the job)."""
+    :data:`OPERATOR_MAX_BUILDS`; a caller with several settings sums them over the job). Other
+    small layouts of a setting whose operator takes the two-stage form on any layout (an affine
+    rule on the log of the samples, :func:`abrdf_jax._centre_step.affine_on_log`) are operator
+    groups that read the setting's one second stage (``"shared"``: each capture's subspaces at
+    the RBF centres, then one matrix for all): a folder of jittered captures builds one map a
+    setting. The rest go through the pipeline."""
     if layouts is None:
         layouts = job_layouts(meas, config, done)
     if small is None:
         small = small_builds(layouts, config, min_group) <= OPERATOR_MAX_BUILDS
     only = getattr(config, "operator_only", False)  # a learned model's map: always built
-    return _plan(meas, layouts, min_group, small or only, done, order)
+    shared = not only and affine_on_log(config)
+    return _plan(meas, layouts, min_group, small or only, shared, done, order)
 
 
-def _plan(meas, layouts: Layouts, min_group, small, done, order) -> dict[str, dict]:
+def _plan(meas, layouts: Layouts, min_group, small, shared, done, order) -> dict[str, dict]:
     """The groups of the whole job (``meas`` and the measurements ``done`` before): ``{group_id:
     {"kind", "members" (indices into meas), "layouts" (their layout keys, ``None`` where no
     operator applies), "slots" (their places among the job's group), "width" (the group's
-    longest slices)}}`` (:func:`plan_job`)."""
+    longest slices), "shared" (an operator group that reads the setting's shared second
+    stage)}}`` (:func:`plan_job`)."""
     done = list(done or ())
     order = list(range(len(meas))) if order is None else list(order)
     keys, sizes = layouts.keys, layouts.sizes
     plan: dict[str, dict] = {}
     for k, (m, key) in enumerate(zip(meas, keys)):
         fast = key is not None and (small or sizes[key] >= min_group)
-        group = ("operator", key) if fast else ("pipeline", m.pairs, m.centre_azimuths)
+        if fast:
+            group = ("operator", key)
+        elif key is not None and shared:  # a layout of many: the shared second stage
+            group = ("shared", key)
+        else:
+            group = ("pipeline", m.pairs, m.centre_azimuths)
         g = plan.setdefault(
-            group_id(group), {"kind": group[0], "members": [], "layouts": [], "width": 0}
-        )
+            group_id(group),
+            {"kind": "operator" if group[0] == "shared" else group[0], "members": [],
+             "layouts": [], "width": 0, "shared": group[0] == "shared"},
+        )  # fmt: skip
         g["members"].append(k)
         g["layouts"].append(key)
         g["width"] = max(g["width"], int(np.shape(m.t)[-1]))
@@ -296,6 +314,8 @@ def reconstruct_many(
         operator: ``operator(config, params, template)`` returning a callable on stacked
             sample values ``(B, S, nmax, C)`` (e.g. one
             that looks in an operator store first); default :func:`~abrdf_jax.compile_operator`.
+            A group that reads its setting's shared second stage (:func:`plan_job`) calls it
+            with ``shared=True``: the operator's two-stage form.
         batch: materials per call (default ``OPERATOR_BATCH`` / ``PIPELINE_BATCH``).
         min_group: the fewest measurements of one slice layout that get an operator
             (:data:`OPERATOR_MIN_GROUP`) in a job whose smaller layouts would cost more
@@ -329,7 +349,11 @@ def reconstruct_many(
     elif operator is None:
         from ._operator import compile_operator
 
-        def operator(config, params, template):
+        def operator(config, params, template, shared=False):
+            if shared:  # numpy: the second stage built once for every layout (in memory)
+                from ._cache import cached_entry
+
+                return cached_entry(None, template, config, params, shared=True)[0].apply
             template, params = as_jax(template, params)
             mode = nonlinear_mode(config, template)
             return compile_operator(config, params, template, nonlinear=mode)
@@ -339,7 +363,8 @@ def reconstruct_many(
     for gid, g in plan.items():
         members, slots = g["members"], g["slots"]
         if g["kind"] == "operator":
-            op = operator(config, params, meas[members[0]])
+            shared = {"shared": True} if g["shared"] else {}  # the second stage of every layout
+            op = operator(config, params, meas[members[0]], **shared)
             size = batch or OPERATOR_BATCH
             if only or host:  # a numpy map compiles nothing: no padding beyond the job's group
                 size = min(size, g["size"])

@@ -203,9 +203,9 @@ def ring_azimuths_deg(theta_deg: float, azimuths: int | None = None) -> np.ndarr
     """Azimuths of the RBF centres on the ring at ``theta_deg``: the UBO ring's (24 uniform
     azimuths off the grid's rings), or ``azimuths`` uniform ones where the ring has fewer (a
     dense capture resolves more than the grid: :data:`abrdf_jax._grouping.DENSE_AZIMUTHS`)."""
-    n = 24
+    n, theta = 24, float(theta_deg)
     for t, m in zip(UBO_THETAS_DEG, UBO_COUNTS):
-        if np.isclose(t, theta_deg):
+        if abs(t - theta) <= 1e-8 + 1e-5 * abs(theta):  # numpy.isclose's test, without its cost
             n = m
     n = max(n, azimuths or 0)
     return np.arange(n) * 360.0 / n

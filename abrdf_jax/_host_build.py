@@ -75,8 +75,11 @@ def build_stage(config, template, nonlinear: str = "raise") -> str:
     rule_linear = get_rule(config.subspace_rule).linear
     log_subspace = config.value_space in LOG_SUBSPACE
     dense = getattr(template, "centre_azimuths", None) is not None
-    if rule_linear and not log_subspace and not (dense and nonlinear == "two_stage"):
-        return "single"  # (a dense layout asked for two stages takes them: its many samples)
+    asked = nonlinear == "two_stage" and (dense or config.value_space == "logsamples")
+    if rule_linear and not log_subspace and not asked:
+        # (asked for, a dense layout takes two stages, its many samples, and so does any on the
+        # log of the samples: a second stage that every layout of its pairs shares)
+        return "single"
     if nonlinear == "raise":
         why = (
             f"rule={config.subspace_rule!r} is not linear in the samples"

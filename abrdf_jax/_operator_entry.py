@@ -16,6 +16,7 @@ import numpy as np
 from ._centre_step import CentreStep
 from ._errors import InputError
 from ._host_eps import sample_eps
+from ._names import LOG_SAMPLES
 from ._smoothing import smooth_compact, smoothing_from_json, smoothing_to_json
 from ._spikes import cap_samples
 
@@ -150,10 +151,11 @@ class OperatorEntry:
         return np.argmax(hot, axis=1), self.matrix[rest], _runs(rest), runs
 
     def for_layout(self, config, params, meas) -> "OperatorEntry":
-        """This two-stage entry (its matrix from the RBF centres, any sample layout's) for the
-        samples of ``meas``: its first stage (:class:`CentreStep`, with ``params``' α) and
-        layout arrays are ``meas``'s; the matrix, and the views of it that applying it makes
-        once (``_kept``, ``_picked``), are shared (``abrdf_jax._cache.cached_entry``)."""
+        """This two-stage entry (its matrix from the RBF centres, any sample layout's and any
+        rule's) for the samples of ``meas`` and ``config``: its first stage (the values it
+        reads, :class:`CentreStep` with ``params``' α) and layout arrays are theirs; the matrix,
+        and the views of it that applying it makes once (``_kept``, ``_picked``), are shared
+        (``abrdf_jax._cache.cached_entry``)."""
         from ._host_build import sample_index, template_layout
 
         t, count = template_layout(meas)
@@ -162,6 +164,10 @@ class OperatorEntry:
             index=sample_index(t, count).astype(np.int64),
             t=np.asarray(t, np.float32),
             count=np.asarray(count, np.int32),
+            log_samples=config.value_space in LOG_SAMPLES,
+            log_eps=float(config.log_eps),
+            spike_cap=config.spike_cap,
+            slice_smoothing=config.slice_smoothing,
             subspace=CentreStep.of(config, params, meas),
         )
         self._picked  # noqa: B018 - made once here, then handed on

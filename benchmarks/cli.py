@@ -17,9 +17,10 @@ command forked straight from this process would inherit this process's RSS as it
   slice, 0.5° of encoder jitter: a continuous capture's) with ``--model auto`` and ``--model
   aniso``, one iso102 file with the last (cold and warm each), 40 iso102 files one call each, two calls at a time (:mod:`benchmarks._parallel_calls`,
   what a shell loop with ``xargs -P 2`` does; warm), and folders
-  ``reconstruct DIR -o OUT -q`` of 100 and 1000 iso102 files, 1000 aniso204 files and 200 iso102
-  files with 0.5° of encoder jitter (:data:`JITTER_DEG`: each file's angles its own, as a real
-  capture's, so each is a slice layout of its own: no map is shared), 8 aniso204 files (the
+  ``reconstruct DIR -o OUT -q`` of 100 and 1000 iso102 files, 1000 aniso204 files, 200 iso102
+  files and 200 aniso204 files with 0.5° of encoder jitter (:data:`JITTER_DEG`: each file's
+  angles its own, as a real capture's, so each is a slice layout of its own: no one-stage map
+  is shared), 8 aniso204 files (the
   built-in materials: ``--model auto`` gives them several models, each a small layout) and 16
   dense aniso204 captures (300 samples a slice, 0.5° jitter: a layout and an α each), each with a
   fresh cache (so compile is included, as the issue's targets say), then once more with the
@@ -65,10 +66,8 @@ from ._cli_runner import (
 from ._cli_report import check_targets, derive, markdown, pass_fail_lines
 from ._common import RESULTS, load_average, machine, write_json
 
-#: Seed of file ``i``'s capture: ``SEED + i``.
-SEED = 13
-#: Relative value noise of every capture (so that the files of a folder differ).
-NOISE = 0.01
+SEED = 13  # file i's capture's seed: SEED + i
+NOISE = 0.01  # relative value noise of every capture (so that the files of a folder differ)
 ISO_MATERIAL, ANISO_MATERIAL = "ggx-plastic", "ggx-aniso-metal"
 #: Folder sizes of each mode (each folder's budget and jitter: :data:`FOLDERS`), and the files
 #: of ``iso_small`` called one at a time, :data:`PARALLEL` calls at once (``iso_parallel``).
@@ -78,6 +77,7 @@ SIZES = {
         "iso_large": 1000,
         "aniso_large": 1000,
         "iso_jitter": 200,
+        "aniso_jitter": 200,
         "aniso_few": 8,
         "dense_few": 16,
         "iso_parallel": 40,
@@ -87,6 +87,7 @@ SIZES = {
         "iso_large": 50,
         "aniso_large": 50,
         "iso_jitter": 10,
+        "aniso_jitter": 10,
         "aniso_few": 8,
         "dense_few": 4,
         "iso_parallel": 10,
@@ -103,6 +104,7 @@ FOLDERS = {
     "iso_large": ("iso102", 0.0, None),
     "aniso_large": ("aniso204", 0.0, None),
     "iso_jitter": ("iso102", JITTER_DEG, None),
+    "aniso_jitter": ("aniso204", JITTER_DEG, None),  # several models: one shared second stage
     # a small folder of the 8 built-in materials: --model auto gives them several models, each
     # a layout of a few files (below OPERATOR_MIN_GROUP: built as operators, docs/cache.md)
     "aniso_few": ("aniso204", 0.0, None),

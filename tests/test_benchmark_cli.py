@@ -96,6 +96,7 @@ def test_parse_args_modes():
         "iso_large": 1000,
         "aniso_large": 1000,
         "iso_jitter": 200,
+        "aniso_jitter": 200,
         "aniso_few": 8,
         "dense_few": 16,
         "iso_parallel": 40,

@@ -474,6 +474,48 @@ def test_a_two_stage_entry_serves_every_layout_of_its_pairs(tmp_path):
         assert np.max(np.abs(got - want)) <= APPLY_BOUND["aniso-filip2012-two-stage"] * want.max()
 
 
+def test_one_second_stage_serves_every_affine_rule_and_budget(tmp_path):
+    """The second stage reads no first-stage setting (``_cache.FIRST_STAGE``: the rule, the
+    budget, the log's ε, the cap, the smoothing), so the recommended models of a jittered
+    folder (``--model auto``: iso, aniso-average, aniso-crossing, aniso) share one stored map;
+    each entry handed on (``for_layout``) takes its own model's first stage and matches the
+    float64 pipeline as a map built for that model alone."""
+    import abrdf_jax as aj
+    from abrdf_jax import materials
+
+    s = aj.simulate_capture(materials.get_material("ward-brushed-steel"), jitter_deg=0.4, seed=3)
+    configs = [
+        aj.preset("recommended", "iso102"),
+        aj.preset("recommended", "aniso204", rule="average"),
+        aj.preset("recommended", "aniso204", rule="crossing", log_eps=0.05),
+        aj.preset("recommended", "aniso204"),
+    ]
+    store, built = OperatorStore(tmp_path), []
+    real = _cache.build_entry
+    _cache._SHARED.clear()
+    try:
+        import unittest.mock as mock
+
+        def counted(*a, **k):
+            built.append(1)
+            return real(*a, **k)
+
+        with mock.patch.object(_cache, "build_entry", counted):
+            for config in configs:
+                p = aj.Params.default(config).astype(np.float64)
+                m = aj.group_slices(s, p.alpha_deg, dtype=np.float64)[0]
+                entry, _ = cached_entry(store, m, config, p, shared=True)
+                assert entry.subspace.rule == config.subspace_rule
+                assert entry.log_eps == config.log_eps
+                want = np.asarray(aj.reconstruct(m, config, p))
+                got = entry.apply(np.asarray(m.y, np.float32))
+                bound = APPLY_BOUND["aniso-filip2012-two-stage"]
+                assert np.max(np.abs(got - want)) <= bound * want.max(), config
+    finally:
+        _cache._SHARED.clear()
+    assert len(built) == 1 and len(list(store.folder.glob("*.npz"))) == 1
+
+
 def test_a_shared_two_stage_entry_off_the_ubo_rings_keeps_no_rows(tmp_path):
     """Off the UBO rings no RBF centre is a grid pair: the shared two-stage entry has no kept
     rows, and handing it to another capture's layout works as for any other (a folder of
@@ -533,7 +575,7 @@ def test_cached_entry_hit_miss_corrupt_version(built, tmp_path, monkeypatch):
     config, params, meas, entry = built["iso-operator"]
     builds = []
 
-    def build(m, c, p, before_jax=None):
+    def build(m, c, p, before_jax=None, two_stage=False):
         builds.append(1)
         return entry
 

@@ -219,6 +219,40 @@ def test_a_folder_of_jittered_captures_shares_one_two_stage_map(tmp_path):
     assert len(list((tmp_path / "c" / "operators").glob("*.npz"))) == 1  # one shared map
 
 
+def test_a_jittered_folder_beyond_the_small_layout_rule_shares_a_second_stage(tmp_path):
+    """More jittered captures than ``OPERATOR_MAX_BUILDS`` single-stage builds: a linear rule on
+    the log of the samples (``aniso-crossing``) takes the two-stage form, each capture's
+    subspaces at the RBF centres then one stored second stage for all of them
+    (``_engine.plan_job``), not the pipeline: no JAX, one stored map, and the tables match the
+    library's reconstruction (float64 here) to float32 rounding."""
+    import abrdf_jax as aj
+    from abrdf_jax import _engine, io, materials, select
+
+    n = _engine.OPERATOR_MAX_BUILDS + 1
+    (tmp_path / "in").mkdir()
+    names = ("ggx-aniso-metal", "ward-brushed-steel")
+    for k in range(n):
+        s = aj.simulate_capture(
+            materials.get_material(names[k % 2]), jitter_deg=0.5, noise=0.01, seed=40 + k
+        )
+        io.write_samples_csv(tmp_path / "in" / f"m{k:02d}.csv", s)
+    argv = ["reconstruct", "in", "-o", "out", "--model", "aniso-crossing", "--cache-dir", "c"]
+    report, err = _run([([*argv, "-q"], 0)], tmp_path)
+    (_, code, jax_loaded), *_ = report
+    assert code == 0 and not jax_loaded, (report, err)
+    records = json.loads((tmp_path / "out.model.json").read_text())["inputs"]
+    assert len(records) == n and all(r["engine"] == "operator" for r in records)
+    assert not any(r["batch"]["small"] for r in records)  # over the rule: no build a layout
+    assert len(list((tmp_path / "c" / "operators").glob("*.npz"))) == 1  # one shared map
+    config = select.CANDIDATES["aniso-crossing"].config()
+    for r in records[:3]:  # the float64 pipeline's tables to float32 rounding
+        name = Path(r["input"]).name
+        params = aj.Params.default(config, alpha_deg=r["measurement"]["alpha_deg"])
+        table = io.read_table(tmp_path / "out" / name.replace(".csv", ".npz"))
+        samples = io.read_samples_csv(tmp_path / "in" / name)
+        assert_cli_table(table, samples, config, params, atol=1e-4)
+
+
 def test_materials_listing_imports_no_jax(tmp_path):
     report, err = _run([(["materials"], 0)], tmp_path)
     assert report[0][1] == 0, err

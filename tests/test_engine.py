@@ -26,11 +26,12 @@ def test_operator_groups_match_the_pipeline_and_ignore_the_batch_size(monkeypatc
     meas = [_meas(n) for n in NAMES]
     assert all(_engine.operator_applies(config, m) for m in meas)
     assert len({_engine.layout_key(m) for m in meas}) == 1  # one template, one operator
-    built = []
+    built, shared = [], []
 
-    def operator(c, p, template):
+    def operator(c, p, template, **kw):
         built.append(template)
-        return aj.compile_operator(c, p, template)
+        shared.append(kw.get("shared", False))
+        return aj.compile_operator(c, p, template, nonlinear="two_stage" if shared[-1] else "raise")
 
     whole = list(
         _engine.reconstruct_many(meas, config, params, operator=operator, batch=8, min_group=1)
@@ -49,11 +50,42 @@ def test_operator_groups_match_the_pipeline_and_ignore_the_batch_size(monkeypatc
     assert len(built) == 2 and {p for *_, p in few} == {"operator"}
     few_tables = np.concatenate([t for _, t, _ in few])  # a batch of 256: BLAS's rounding
     np.testing.assert_allclose(few_tables, tables, rtol=1e-5, atol=1e-6 * expected.max())
-    # ... and the pipeline in a job of many (every jittered capture a layout of its own)
+    # ... and in a job of many (every jittered capture a layout of its own) the two-stage form,
+    # whose second stage every layout shares (an affine rule on the log of the samples)
     monkeypatch.setattr(_engine, "OPERATOR_MAX_BUILDS", 0)
     many = list(_engine.reconstruct_many(meas, config, params, operator=operator))
-    assert len(built) == 2 and {p for *_, p in many} == {"pipeline"}
+    assert len(built) == 3 and shared == [False, False, True]
+    assert {p for *_, p in many} == {"operator"}
     np.testing.assert_allclose(many[0][1], tables, rtol=0, atol=2e-3 * expected.max())
+    # ... the pipeline on linear values (no two-stage form there)
+    linear = aj.preset("recommended", "iso102", value_space="linear")
+    lparams = aj.Params.default(linear)
+    assert all(_engine.operator_applies(linear, m) for m in meas)
+    plain = list(_engine.reconstruct_many(meas, linear, lparams, operator=operator))
+    assert len(built) == 3 and {p for *_, p in plain} == {"pipeline"}
+
+
+def test_many_jittered_layouts_share_one_second_stage_without_a_store(monkeypatch):
+    """The library's default operators (no store): a job of more small layouts than
+    ``OPERATOR_MAX_BUILDS`` (jittered captures, a layout each) on the log of the samples reads
+    one second stage, built once in numpy and kept in memory, and matches the pipeline."""
+    from abrdf_jax import _cache
+
+    config = aj.preset("recommended", "aniso204", rule="crossing")
+    params = aj.Params.default(config)
+    meas = [_meas(n, "aniso204", jitter_deg=0.5, seed=k) for k, n in enumerate(NAMES[:3])]
+    assert len({_engine.layout_key(m) for m in meas}) == 3
+    monkeypatch.setattr(_engine, "OPERATOR_MAX_BUILDS", 2)
+    monkeypatch.setattr(_cache, "_SHARED", {})
+    builds = []
+    real = _cache.build_entry
+    monkeypatch.setattr(_cache, "build_entry", lambda *a, **k: builds.append(k) or real(*a, **k))
+    parts = list(_engine.reconstruct_many(meas, config, params))
+    assert {p for *_, p in parts} == {"operator"} and len(parts) == 3
+    assert len(builds) == 1 and builds[0]["two_stage"]  # one second stage for the three
+    for idx, tables, _ in parts:
+        want = np.asarray(aj.reconstruct(meas[idx[0]], config, params))
+        np.testing.assert_allclose(tables[0], want, rtol=0, atol=5e-4 * want.max())
 
 
 def test_host_operators_are_not_padded_beyond_the_jobs_group():
@@ -230,21 +262,26 @@ def _folder(tmp_path, n=5, **kw):
 #: The RBF's diagonal-only model, fixed: these tests are about the operator store and the
 #: pipeline's batches, which an automatic choice of an isotropic file (the bivariate model) skips.
 ISO = ["--model", "iso"]
+#: The same on linear values: its many small layouts take the pipeline (no two-stage form).
+ISO_LINEAR = ["--model", "iso-linear"]
 
 
-@pytest.mark.parametrize("engine", ["operator", "pipeline"])
+@pytest.mark.parametrize("engine", ["operator", "shared", "pipeline"])
 def test_folder_resume_redoes_only_what_is_missing_or_torn(tmp_path, capsys, monkeypatch, engine):
     src, out = _folder(tmp_path), tmp_path / "out"
-    if engine == "pipeline":  # a job of many small layouts: five files of one layout, too few
+    model = ISO_LINEAR if engine == "pipeline" else ISO
+    if engine != "operator":  # a job of many small layouts: five files of one layout, too few
         monkeypatch.setattr(_engine, "OPERATOR_MAX_BUILDS", 0)
-    assert main(["reconstruct", str(src), "-o", str(out), "-q", *ISO]) == 0
+    assert main(["reconstruct", str(src), "-o", str(out), "-q", *model]) == 0
     first = {p.name: p.read_bytes() for p in out.iterdir()}
     record = json.loads((tmp_path / "out.model.json").read_text())
-    assert len(record["inputs"]) == 5 and {e["engine"] for e in record["inputs"]} == {engine}
+    want = "pipeline" if engine == "pipeline" else "operator"  # the shared form is an operator
+    assert len(record["inputs"]) == 5 and {e["engine"] for e in record["inputs"]} == {want}
+    assert {e["batch"]["small"] for e in record["inputs"]} == {engine == "operator"}
     (out / "m1.npz").unlink()
     (out / "m3.npz").write_bytes(first["m3.npz"][:100])  # torn
     capsys.readouterr()
-    assert main(["reconstruct", str(src), "-o", str(out), "-q", "--resume", *ISO]) == 0
+    assert main(["reconstruct", str(src), "-o", str(out), "-q", "--resume", *model]) == 0
     text = capsys.readouterr().out
     assert "wrote 2 tables, 3 kept (--resume)" in text
     assert {p.name: p.read_bytes() for p in out.iterdir()} == first
@@ -252,7 +289,7 @@ def test_folder_resume_redoes_only_what_is_missing_or_torn(tmp_path, capsys, mon
     assert sorted(e["input"] for e in again["inputs"]) == sorted(
         e["input"] for e in record["inputs"]
     )
-    assert main(["reconstruct", str(src), "-o", str(out), "-q", "--resume", *ISO]) == 0
+    assert main(["reconstruct", str(src), "-o", str(out), "-q", "--resume", *model]) == 0
     assert "all 5 tables are complete" in capsys.readouterr().out
 
 
@@ -260,10 +297,11 @@ def test_a_folder_of_few_layouts_builds_their_operators_and_resume_keeps_the_dec
     tmp_path, capsys, monkeypatch
 ):
     """A folder's small layouts get operators where the whole block's are few, the pipeline
-    where they are many (jittered captures: a layout each); a resumed run keeps the
+    where they are many (jittered captures: a layout each) on linear values (on the log of the
+    samples they take the shared two-stage form, test below); a resumed run keeps the
     interrupted run's decision even when what is left would be few (the same bits)."""
     src = _folder(tmp_path, 4, jitter_deg=0.5)
-    run = ["reconstruct", str(src), "-q", *ISO]
+    run = ["reconstruct", str(src), "-q", *ISO_LINEAR]  # (no shared form)
 
     def engines(out):
         record = json.loads((out.parent / (out.name + ".model.json")).read_text())
@@ -296,7 +334,7 @@ def test_interrupted_folder_keeps_finished_tables_and_resumes_to_the_same_result
     monkeypatch.setattr(_engine, "OPERATOR_MAX_BUILDS", 0)
     monkeypatch.setattr(_engine, "PIPELINE_BATCH", 2)
     whole = tmp_path / "whole"
-    assert main(["reconstruct", str(src), "-o", str(whole), "-q", *ISO]) == 0
+    assert main(["reconstruct", str(src), "-o", str(whole), "-q", *ISO_LINEAR]) == 0
     real = _engine.reconstruct_many
 
     def killed_after_two_batches(meas, config, params, operator=None, **kw):
@@ -308,7 +346,7 @@ def test_interrupted_folder_keeps_finished_tables_and_resumes_to_the_same_result
     monkeypatch.setattr(_engine, "reconstruct_many", killed_after_two_batches)
     monkeypatch.setattr(reconstruct, "RECORD_EVERY", 0.0)  # the record after every batch
     out = tmp_path / "out"
-    assert main(["reconstruct", str(src), "-o", str(out), "-q", *ISO]) == 130
+    assert main(["reconstruct", str(src), "-o", str(out), "-q", *ISO_LINEAR]) == 130
     record = json.loads((tmp_path / "out.model.json").read_text())
     listed = {e["input"] for e in record["inputs"]}
     assert 0 < len(listed) < 5  # the finished batches, never a file that is not complete
@@ -317,7 +355,7 @@ def test_interrupted_folder_keeps_finished_tables_and_resumes_to_the_same_result
         assert table.shape == (81, 81, 3)
     assert not [p for p in out.iterdir() if p.suffix != ".npz"]  # no temporary file left
     monkeypatch.setattr(_engine, "reconstruct_many", real)
-    assert main(["reconstruct", str(src), "-o", str(out), "-q", "--resume", *ISO]) == 0
+    assert main(["reconstruct", str(src), "-o", str(out), "-q", "--resume", *ISO_LINEAR]) == 0
     for p in whole.iterdir():
         assert (out / p.name).read_bytes() == p.read_bytes()
 

@@ -50,15 +50,17 @@ class Caches:
             self._numerics = True
             _cache.enable_compilation_cache(self.folder, warn=self.warn)
 
-    def operator(self, config, params, template):
+    def operator(self, config, params, template, shared=False):
         """The operator of ``config``, ``params`` and ``template``'s layout
         (:mod:`abrdf_jax._engine`): from the store (no JAX), else built (a matrix built in
-        float64, stored as float32) and stored."""
+        float64, stored as float32) and stored; ``shared``: its two-stage form, whose second
+        stage every layout of the setting's pairs reads (``_cache.cached_entry``)."""
         from .. import _cache
 
         if getattr(config, "operator_only", False):  # the prior-only model's own entries
             return config.operator(params, template, self.store, self.warn, self.numerics)
         entry, _ = _cache.cached_entry(
-            self.store, template, config, params, self.warn, before_build=self.numerics
-        )
+            self.store, template, config, params, self.warn, before_build=self.numerics,
+            shared=shared,
+        )  # fmt: skip
         return entry.apply
