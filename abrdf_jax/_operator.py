@@ -24,7 +24,9 @@ batch of ``B`` materials is then one matrix product ``(6561, n_in) · (n_in, 3B)
 Settings that are not linear in the (log) samples — the rules ``"filip2012"`` and ``"log"``, or
 ``value_space="log"`` — raise :class:`InputError` unless ``nonlinear="two_stage"`` is asked for:
 then the subspace step runs per material (vmapped, the pipeline's function) and only the RBF
-step is a matrix, ``(6561, 1296)`` (13× the flops of the single-stage matrix for iso102).
+step is a matrix, ``(6561, 1296)`` (13× the flops of the single-stage matrix for iso102). A linear
+rule on ``"logsamples"`` (or on a dense layout) asked for two stages takes them too: the matrix
+then serves every slice layout of its pairs (the command line's shared form, ``_engine``).
 
 Validity: the operator reproduces :func:`reconstruct_batch` for measurements with the template's
 slice parameters and counts (checked on the host when the input is a concrete

@@ -79,6 +79,27 @@ def test_two_stage_covers_the_nonlinear_settings():
     )
 
 
+def test_a_linear_rule_on_log_samples_takes_two_stages_when_asked():
+    """``nonlinear="two_stage"`` on a linear rule on the log of the samples (the shared form of a
+    folder's many small layouts, ``abrdf_jax._engine``): two stages, the same tables as the
+    one-stage operator and the pipeline to rounding; on linear values the one stage stays."""
+    config = aj.Config.recommended("aniso204", rule="crossing")
+    params = aj.Params.default(config)
+    meas, stacked = _batch(config, params)
+    one = aj.compile_operator(config, params, meas[0])
+    two = aj.compile_operator(config, params, meas[0], nonlinear="two_stage")
+    assert (one.stage, two.stage) == ("single", "two_stage")
+    expected = aj.reconstruct_batch(meas, config, params)
+    for op in (one, two):
+        np.testing.assert_allclose(
+            op(stacked), expected, rtol=1e-7, atol=1e-9 * float(jnp.max(expected))
+        )
+    linear = aj.Config.recommended("aniso204", rule="crossing", value_space="linear")
+    lp = aj.Params.default(linear)
+    lmeas = _batch(linear, lp)[0]
+    assert aj.compile_operator(linear, lp, lmeas[0], nonlinear="two_stage").stage == "single"
+
+
 def test_new_values_do_not_recompile_and_bad_shapes_are_refused():
     config = aj.Config(budget="iso102", kernel="thin_plate_spline", value_space="logsamples")
     params = aj.Params.default(config)
