@@ -214,7 +214,9 @@ def plan_job(
     rule on the log of the samples, :func:`abrdf_jax._centre_step.affine_on_log`) are operator
     groups that read the setting's one second stage (``"shared"``: each capture's subspaces at
     the RBF centres, then one matrix for all): a folder of jittered captures builds one map a
-    setting. The rest go through the pipeline."""
+    setting (a map per elevation pairs: off the UBO rings the levels are rounded to
+    ``_grouping.LEVEL_STEP_DEG``, so one device's captures share them). The rest go through the
+    pipeline."""
     if layouts is None:
         layouts = job_layouts(meas, config, done)
     if small is None:

@@ -60,6 +60,9 @@ if TYPE_CHECKING:  # JAX pytrees: built from the numpy result only by group_slic
 PAIR_GAP_DEG = 2.5
 #: A level within this of a UBO ring takes the ring's elevation (degrees).
 RING_SNAP_DEG = 1.0
+#: A level off the rings is rounded to this step (degrees), so one device's captures share their
+#: pairs under encoder error (a folder, one RBF map: ``abrdf_jax._engine``); at most 0.125° off.
+LEVEL_STEP_DEG = 0.25
 #: Fewest samples that make an elevation pair (fewer: reported as stray, left out).
 MIN_PAIR_SAMPLES = 3
 #: Widest automatic slice tolerance (degrees).
@@ -87,7 +90,8 @@ def _levels(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         label[idx] = k
         c = float(np.median(theta[idx]))
         ring = min(UBO_THETAS_DEG, key=lambda r: abs(r - c))
-        centres.append(float(ring) if abs(ring - c) <= RING_SNAP_DEG else round(c, 2))
+        snap = abs(ring - c) <= RING_SNAP_DEG
+        centres.append(float(ring) if snap else round(c / LEVEL_STEP_DEG) * LEVEL_STEP_DEG)
     return np.asarray(centres), label
 
 

@@ -26,6 +26,14 @@ KINDS = ("axial", "diagonal")
 LUMA = (0.2126, 0.7152, 0.0722)
 
 
+def on_ubo_rings(pairs) -> bool:
+    """Whether every elevation of ``pairs`` (degrees) is a UBO ring's (a capture's levels within
+    ``_grouping.RING_SNAP_DEG`` of a ring take its elevation): captures of such pairs share them
+    whatever their encoder error, so a map of their centres serves a whole folder; a level off
+    the rings is the capture's own measured elevation (0.01°), a file's own."""
+    return all(float(v) in UBO_THETAS_DEG for pair in pairs for v in pair)
+
+
 def protocol_counts(budget: str) -> tuple[int, ...]:
     """Per-slice sample counts (axial, diagonal per pair) of a PROTOCOL budget."""
     if budget == "iso102":

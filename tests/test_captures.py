@@ -137,6 +137,24 @@ def test_elevations_off_the_ubo_rings_are_inferred_and_reconstructed(iso):
     assert de76(s, ref) < 1.5 * proto
 
 
+def test_jittered_captures_of_one_off_ring_device_share_their_pairs(iso):
+    """A level off the UBO rings is rounded to ``LEVEL_STEP_DEG``: captures of one device with
+    encoder error get the same pairs (a folder of them then shares one RBF map), and a level is
+    never moved by more than half a step."""
+    from abrdf_jax import _grouping
+
+    m, _ = iso
+    step = _grouping.LEVEL_STEP_DEG
+    pairs = [
+        aj.group_slices(aj.simulate_capture(m, pairs=OFF_UBO, jitter_deg=0.5, seed=k))[0].pairs
+        for k in range(6)
+    ]
+    assert len(set(pairs)) <= 2 and pairs.count(OFF_UBO) >= 4
+    for got in pairs:
+        for a, b in zip(np.ravel(got), np.ravel(OFF_UBO)):
+            assert abs(a - b) <= step and (a / step) == round(a / step)
+
+
 def test_extra_pairs_are_used_and_help(iso):
     m, ref = iso
     s = aj.simulate_capture(m, budget="iso102", pairs=EXTRA)

@@ -42,6 +42,7 @@ from .._host_build import sample_index, template_layout
 from .._host_eps import sample_eps
 from .._kernels import kernel_block
 from .._names import LOG_SAMPLES, LOG_SUBSPACE
+from .._protocol import on_ubo_rings
 from .._grid import centre_count, centre_vectors
 from .._rbf_system import blocks, centre_stats, combine, coordinate_widths, host_solve, poly
 from .._rules import AFFINE
@@ -54,6 +55,9 @@ from ._choice import entry_groups, rbf_configs
 #: Captures whose fits :func:`dense_errors` makes at once (a capture's right-hand sides are
 #: 2,304 × 48 float64 for the default anisotropic candidates: 0.9 MB).
 CHUNK = 64
+#: Captures of pairs off the UBO rings (a capture's own measured levels) that make a stored
+#: coefficient map worth building (it costs about three solves; below, one solve each).
+MAP_MIN_GROUP = 4
 
 
 def affine_plan(p) -> bool:
@@ -84,7 +88,10 @@ def plan_errors(plans, k: int, store=None, warn=None) -> list[dict | None]:
         key = (_pairs(p.meas), p.meas.centre_azimuths, tuple(p.configs))
         groups.setdefault(key, []).append(i)
     out: list[dict | None] = [{} for _ in plans]
-    for members in groups.values():
+    for (pairs, _, _), members in groups.items():
+        # a stored map serves pairs that other captures share (the UBO rings') or a group of
+        # several; else one solve with the values costs less (no map of a capture's own pairs)
+        keep = store if on_ubo_rings(pairs) or len(members) >= MAP_MIN_GROUP else None
         try:
             for names, cfgs in entry_groups(rbf_configs(plans[members[0]].configs)):
                 found = dense_errors(
@@ -93,7 +100,7 @@ def plan_errors(plans, k: int, store=None, warn=None) -> list[dict | None]:
                     [plans[i].alpha for i in members],
                     cfgs,
                     k,
-                    store,
+                    keep,
                     warn,
                 )
                 for i, err in zip(members, found):
