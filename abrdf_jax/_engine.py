@@ -55,7 +55,8 @@ OPERATOR_BATCH, PIPELINE_BATCH = 256, 32
 #: A slice layout shared by this many measurements of a job or more gets an operator. Below
 #: it, a job whose small layouts would cost more than :data:`OPERATOR_MAX_BUILDS` builds
 #: (every jittered capture is a layout of its own, never seen again) gives them the setting's
-#: shared two-stage form (an affine rule on the log of the samples), else the pipeline: building an operator costs an RBF solve with one right-hand side per sample,
+#: shared two-stage form (an affine rule on the log of the samples), else the pipeline:
+#: building an operator costs an RBF solve with one right-hand side per sample,
 #: about as much as reconstructing dozens of materials in a batch (docs/notes.md, "Issue 13":
 #: 100 jittered files, one operator each, took 55 s and 257 MB of cache against 33 s through
 #: the pipeline). A caller with one measurement (``abrdf-jax reconstruct FILE``) passes

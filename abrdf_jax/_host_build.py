@@ -22,6 +22,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ._centre_step import affine_on_log
 from ._coords import pair_coordinates
 from ._errors import InputError
 from ._folds import fold_slots, gather, held_out_directions
@@ -75,7 +76,7 @@ def build_stage(config, template, nonlinear: str = "raise") -> str:
     rule_linear = get_rule(config.subspace_rule).linear
     log_subspace = config.value_space in LOG_SUBSPACE
     dense = getattr(template, "centre_azimuths", None) is not None
-    asked = nonlinear == "two_stage" and (dense or config.value_space == "logsamples")
+    asked = nonlinear == "two_stage" and (dense or affine_on_log(config))
     if rule_linear and not log_subspace and not asked:
         # (asked for, a dense layout takes two stages, its many samples, and so does any on the
         # log of the samples: a second stage that every layout of its pairs shares)

@@ -28,9 +28,10 @@ LUMA = (0.2126, 0.7152, 0.0722)
 
 def on_ubo_rings(pairs) -> bool:
     """Whether every elevation of ``pairs`` (degrees) is a UBO ring's (a capture's levels within
-    ``_grouping.RING_SNAP_DEG`` of a ring take its elevation): captures of such pairs share them
-    whatever their encoder error, so a map of their centres serves a whole folder; a level off
-    the rings is the capture's own measured elevation (0.01°), a file's own."""
+    ``_grouping.RING_SNAP_DEG`` of a ring take its elevation): every capture near the rings has
+    such pairs, while a level off them is the capture's median rounded to
+    ``_grouping.LEVEL_STEP_DEG``, which one device's captures mostly share but a stray one may
+    not."""
     return all(float(v) in UBO_THETAS_DEG for pair in pairs for v in pair)
 
 

@@ -32,12 +32,7 @@ def block_jobs(items, choices, place: dict, kept: dict, *, block: int, slices) -
         groups.setdefault(key, []).append(k)
     jobs = []  # per setting: its measurements and the job's layouts (done included)
     builds: set = set()  # what the small layouts of every setting take (shared maps once)
-    # the settings of one model in turn (jittered captures: an α, so a setting, a file): each
-    # model's shared second stage is loaded once, not once a file (_cache.SHARED_ENTRIES)
-    first = {}
-    for key in groups:
-        first.setdefault(key[2], len(first))
-    for (_, alpha, config), members in sorted(groups.items(), key=lambda kv: first[kv[0][2]]):
+    for (_, alpha, config), members in groups.items():
         meas = [slices(items[k], config) for k in members]
         setting = settings_key(choices[members[0]]["record"])
         done = [d for d in kept.get(setting, ()) if d.order // block == at]

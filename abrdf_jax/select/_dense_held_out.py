@@ -55,8 +55,9 @@ from ._choice import entry_groups, rbf_configs
 #: Captures whose fits :func:`dense_errors` makes at once (a capture's right-hand sides are
 #: 2,304 × 48 float64 for the default anisotropic candidates: 0.9 MB).
 CHUNK = 64
-#: Captures of pairs off the UBO rings (a capture's own measured levels) that make a stored
-#: coefficient map worth building (it costs about three solves; below, one solve each).
+#: Captures of pairs off the UBO rings (``_protocol.on_ubo_rings``: a device's own levels, which
+#: a later call may not see again) that make a stored coefficient map worth building (it costs
+#: about three solves; below, one solve each).
 MAP_MIN_GROUP = 4
 
 
