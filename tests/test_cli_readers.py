@@ -254,3 +254,49 @@ def test_a_dead_reader_falls_back_to_reading_in_this_process(tmp_path, monkeypat
     assert [i.path for i in items] == files == [i.path for i in again]
     for a, b in zip(items, again):
         np.testing.assert_array_equal(np.asarray(a.meas.y), np.asarray(b.meas.y))
+
+
+IMPORTS_SCRIPT = r"""
+import contextlib, functools, sys
+from pathlib import Path
+from abrdf_jax.cli import _common, _readers
+
+assert "numpy" not in sys.modules  # as the command line before it reads a folder
+
+def imports_of(path):
+    before = set(sys.modules)
+    what = _readers.read_one(_common.plan, _common.warn_values, None, None, True, True, path)[0]
+    return what, sorted(set(sys.modules) - before)
+
+files = sorted(Path(sys.argv[1]).glob("*.csv"))
+bar = lambda: contextlib.nullcontext(type("B", (), {"update": lambda self, n: None})())
+for what, new in _readers.read_parallel(imports_of, files, 2, bar):
+    print(what, " ".join(new) or "-")
+"""
+
+
+def test_readers_inherit_what_they_import(tmp_path):
+    """The parent imports what a reader needs (``_readers.PRELOAD``) before it forks: a reader
+    imports no module of its own, whatever the capture (iso102, aniso204, jittered angles)."""
+    import subprocess
+    import sys
+
+    inputs = _folder(tmp_path / "in", n=3)
+    for k, budget in enumerate(("aniso204", "iso102")):
+        s = aj.simulate_capture(
+            materials.get_material("ggx-aniso-metal"), budget=budget, jitter_deg=0.5, seed=k
+        )
+        io.write_samples_csv(inputs / f"j{k}.csv", s)
+    io.write_samples_csv(
+        inputs / "a.csv", aj.simulate_capture(materials.get_material("ggx-aniso-metal"))
+    )
+    p = subprocess.run(
+        [sys.executable, "-c", IMPORTS_SCRIPT, str(inputs)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert len(lines) == 6, p.stdout
+    assert lines == ["ok -"] * 6, p.stdout

@@ -38,6 +38,12 @@ PARALLEL_MIN = 64
 MAX_READERS = 8
 #: The environment variable that sets the number of reader processes.
 READERS_ENV = "ABRDF_JAX_READERS"
+#: What a reader imports to read and plan a file (numpy, the CSV reader, the grouping;
+#: ``numpy.ma``, which ``numpy.median`` imports on its first call):
+#: imported by the parent before it forks, so that the readers inherit them. Each reader
+#: imported them itself on its first file (0.07 s of each reader's time, all readers at once,
+#: while the parent, which needs them later anyway, waited; docs/notes.md, 30th session).
+PRELOAD = ("numpy", "numpy.ma", "abrdf_jax.io._csv", "abrdf_jax._grouping", "abrdf_jax._arrays")
 
 
 def cores() -> int:
@@ -158,10 +164,13 @@ def read_parallel(work, files, n: int, make_bar) -> list | None:
     order; ``None`` when a reader died (killed by the system, say: the caller reads in its own
     process instead). ``make_bar()`` makes the progress bar, after the readers are forked (a
     bar may start a thread)."""
+    import importlib
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
 
+    for name in PRELOAD:  # inherited by the readers (PRELOAD)
+        importlib.import_module(name)
     chunk = max(1, min(64, len(files) // (4 * n)))
     ctx = multiprocessing.get_context("fork")
     with ProcessPoolExecutor(n, ctx, initializer=_orphan_guard, initargs=(os.getpid(),)) as pool:
