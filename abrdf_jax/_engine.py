@@ -98,18 +98,50 @@ def job_layouts(meas: Sequence, config, done: Sequence["Done"] = ()) -> Layouts:
     return Layouts(keys, sizes, builds)
 
 
+def lone_layouts(keys, done: Sequence["Done"] = ()) -> frozenset:
+    """The layout keys met once among ``keys`` (``None``: no operator) and the measurements
+    ``done`` before: a capture whose slice positions no other input shares (each jittered
+    capture's, never met again), whose own operator would serve it alone. Counted over every
+    setting of a folder's block, so that a protocol layout that two models share is not lone,
+    and with the kept inputs, so that a resumed run decides as the interrupted one."""
+    count = Counter(k for k in keys if k is not None)
+    count.update(d.layout for d in done if d.layout is not None)
+    return frozenset(k for k, n in count.items() if n == 1)
+
+
+def _goes_shared(layouts: Layouts, key, config, lone: frozenset) -> bool:
+    """Whether a small layout ``key`` takes the setting's shared second stage rather than an
+    operator of its own: a lone layout (:func:`lone_layouts`) of a single-stage build, under a
+    setting that has the shared form (an affine rule on the log of the samples)."""
+    return (
+        key in lone
+        and layouts.builds.get(key, ("layout",))[0] == "layout"
+        and not getattr(config, "operator_only", False)
+        and affine_on_log(config)
+    )
+
+
 def small_build_set(
-    layouts: Layouts, config, min_group: int = OPERATOR_MIN_GROUP, alpha=None
+    layouts: Layouts,
+    config,
+    min_group: int = OPERATOR_MIN_GROUP,
+    alpha=None,
+    lone: frozenset = frozenset(),
 ) -> set:
     """The builds an operator for each layout of ``layouts`` below ``min_group`` takes, as
     ``(kind, config, what)``: a two-stage map (``"two-stage"``) is one per setting, pairs and
     centre layout whatever α and the samples' layout (its store key has neither), so the jobs
     of one setting at several α (a folder of jittered or dense captures: each file its own α)
     share it; a layout's own operator (``"layout"``) is its setting's at ``alpha``. A learned or
-    bivariate model's map is always built: none."""
+    bivariate model's map is always built: none; a ``lone`` layout that takes the shared second
+    stage (:func:`_goes_shared`) builds nothing of its own: none."""
     if getattr(config, "operator_only", False):
         return set()
-    small = {k for k, size in layouts.sizes.items() if k is not None and size < min_group}
+    small = {
+        k
+        for k, size in layouts.sizes.items()
+        if k is not None and size < min_group and not _goes_shared(layouts, k, config, lone)
+    }
     out = set()
     for k in small:
         kind, *what = layouts.builds.get(k, ("layout", k))
@@ -200,6 +232,7 @@ def plan_job(
     order: Sequence[int] | None = None,
     layouts: Layouts | None = None,
     small: bool | None = None,
+    lone: frozenset = frozenset(),
 ) -> dict[str, dict]:
     """The plan of :func:`reconstruct_many` with these arguments (its groups, each with the
     layout key of its members), made once for both :func:`job_keys` and
@@ -216,18 +249,21 @@ def plan_job(
     groups that read the setting's one second stage (``"shared"``: each capture's subspaces at
     the RBF centres, then one matrix for all): a folder of jittered captures builds one map a
     setting (a map per elevation pairs: off the UBO rings the levels are rounded to
-    ``_grouping.LEVEL_STEP_DEG``, so one device's captures share them). The rest go through the
-    pipeline."""
+    ``_grouping.LEVEL_STEP_DEG``, so one device's captures share them). So do the ``lone``
+    layouts of such a setting even when ``small`` (:func:`lone_layouts`: a folder's jittered
+    captures, whose own operators would serve one file each and never again, while the shared
+    map serves the device's next folder too). The rest go through the pipeline."""
     if layouts is None:
         layouts = job_layouts(meas, config, done)
     if small is None:
         small = small_builds(layouts, config, min_group) <= OPERATOR_MAX_BUILDS
     only = getattr(config, "operator_only", False)  # a learned model's map: always built
     shared = not only and affine_on_log(config)
-    return _plan(meas, layouts, min_group, small or only, shared, done, order)
+    lone = frozenset(k for k in lone if _goes_shared(layouts, k, config, lone))
+    return _plan(meas, layouts, min_group, small or only, shared, done, order, lone)
 
 
-def _plan(meas, layouts: Layouts, min_group, small, shared, done, order) -> dict[str, dict]:
+def _plan(meas, layouts: Layouts, min_group, small, shared, done, order, lone) -> dict[str, dict]:
     """The groups of the whole job (``meas`` and the measurements ``done`` before): ``{group_id:
     {"kind", "members" (indices into meas), "layouts" (their layout keys, ``None`` where no
     operator applies), "slots" (their places among the job's group), "width" (the group's
@@ -238,7 +274,7 @@ def _plan(meas, layouts: Layouts, min_group, small, shared, done, order) -> dict
     keys, sizes = layouts.keys, layouts.sizes
     plan: dict[str, dict] = {}
     for k, (m, key) in enumerate(zip(meas, keys)):
-        fast = key is not None and (small or sizes[key] >= min_group)
+        fast = key is not None and (sizes[key] >= min_group or (small and key not in lone))
         if fast:
             group = ("operator", key)
         elif key is not None and shared:  # a layout of many: the shared second stage

@@ -242,7 +242,8 @@ def test_a_jittered_folder_beyond_the_small_layout_rule_shares_a_second_stage(tm
     assert code == 0 and not jax_loaded, (report, err)
     records = json.loads((tmp_path / "out.model.json").read_text())["inputs"]
     assert len(records) == n and all(r["engine"] == "operator" for r in records)
-    assert not any(r["batch"]["small"] for r in records)  # over the rule: no build a layout
+    shared = [_engine.group_id(("shared", r["batch"]["layout"])) for r in records]
+    assert [r["batch"]["group"] for r in records] == shared  # no build a layout (lone ones)
     assert len(list((tmp_path / "c" / "operators").glob("*.npz"))) == 1  # one shared map
     config = select.CANDIDATES["aniso-crossing"].config()
     for r in records[:3]:  # the float64 pipeline's tables to float32 rounding

@@ -88,6 +88,40 @@ def test_many_jittered_layouts_share_one_second_stage_without_a_store(monkeypatc
         np.testing.assert_allclose(tables[0], want, rtol=0, atol=5e-4 * want.max())
 
 
+def test_lone_layouts_take_the_shared_second_stage_within_the_small_layout_rule():
+    """A layout no other input of the block shares (``lone_layouts``: a jittered capture's,
+    counted with the inputs an interrupted run kept) reads its setting's shared second stage
+    even where the small-layout rule would build it an operator of its own, and costs no build;
+    a layout two inputs share keeps its operator; a setting without the shared form (linear
+    values) and a learned or bivariate map keep theirs."""
+    config = aj.preset("recommended", "aniso204", rule="crossing")
+    done = [_engine.Done("kept", "g", 0, 32), _engine.Done(None, "p", 1, 32)]
+    lone = _engine.lone_layouts(["a", "b", "b", None, "kept", "c"], done)
+    assert lone == {"a", "c"}  # "kept": once here, once kept: not lone
+    sizes = Counter({"a": 1, "b": 2})
+    layouts = _engine.Layouts(["a", "b", "b"], sizes, {k: ("layout", k) for k in sizes})
+    meas = [_meas(n, "aniso204") for n in NAMES[:3]]
+    plan = _engine.plan_job(meas, config, layouts=layouts, small=True, lone=lone)
+    kinds = {tuple(g["members"]): g["shared"] for g in plan.values()}
+    assert kinds == {(0,): True, (1, 2): False}
+    assert _engine.build_cost(_engine.small_build_set(layouts, config, lone=lone)) == 1
+    assert _engine.build_cost(_engine.small_build_set(layouts, config)) == 2
+    linear = aj.preset("recommended", "aniso204", rule="crossing", value_space="linear")
+    plan = _engine.plan_job(meas, linear, layouts=layouts, small=True, lone=lone)
+    assert not any(g["shared"] for g in plan.values()) and len(plan) == 2
+    from abrdf_jax._bivariate import BivariateModel
+
+    plan = _engine.plan_job(
+        meas, BivariateModel("aniso204"), layouts=layouts, small=True, lone=lone
+    )
+    assert not any(g["shared"] for g in plan.values())
+    # a two-stage layout (its map is the setting's already) keeps its group
+    two = ("two-stage", ((30.0, 30.0),), None)
+    staged = _engine.Layouts(["a", "b", "b"], sizes, {"a": two, "b": two})
+    plan = _engine.plan_job(meas, config, layouts=staged, small=True, lone=lone)
+    assert not any(g["shared"] for g in plan.values())
+
+
 def test_host_operators_are_not_padded_beyond_the_jobs_group():
     """``host=True`` (the command line's numpy entries, which compile nothing): a group's
     batches have at most the whole job's group rows (one file: one row, not a batch of 256
@@ -323,6 +357,38 @@ def test_a_folder_of_few_layouts_builds_their_operators_and_resume_keeps_the_dec
     assert "wrote 2 tables, 2 kept (--resume)" in capsys.readouterr().out
     assert engines(many) == {"pipeline": 4}
     assert {p.name: p.read_bytes() for p in many.iterdir()} == whole
+
+
+def test_a_folders_jittered_captures_share_a_second_stage_and_resume_keeps_it(tmp_path, capsys):
+    """Within the small-layout rule a folder's jittered captures (a layout each, never met again)
+    read their setting's shared second stage; its protocol captures (one layout, two files)
+    keep their own operator; the store holds one map each, not an operator a capture; a
+    resumed run gives the same bits (the lone layouts are counted with the kept files)."""
+    src = _folder(tmp_path, 3, jitter_deg=0.5)
+    for k in (3, 4):  # two protocol captures: one layout
+        s = aj.simulate_capture(materials.get_material(NAMES[k]), noise=0.01, seed=k)
+        io.write_samples_csv(src / f"m{k}.csv", s)
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    run = ["reconstruct", str(src), "-o", str(out), "-q", "--cache-dir", str(cache)]
+    run += ["--model", "iso"]
+    assert main(run) == 0
+    record = json.loads((tmp_path / "out.model.json").read_text())["inputs"]
+    shared = {
+        e["input"].rsplit("/", 1)[-1]: e["batch"]["group"]
+        == _engine.group_id(("shared", e["batch"]["layout"]))
+        for e in record
+    }
+    assert shared == {"m0.csv": True, "m1.csv": True, "m2.csv": True, "m3.csv": False,
+                      "m4.csv": False}  # fmt: skip
+    assert all(e["engine"] == "operator" and e["batch"]["small"] for e in record)
+    assert len(list((cache / "operators").glob("*.npz"))) == 2  # the shared map, one operator
+    whole = {p.name: p.read_bytes() for p in out.iterdir()}
+    for name in ("m1.npz", "m3.npz"):
+        (out / name).unlink()
+    capsys.readouterr()
+    assert main([*run, "--resume"]) == 0
+    assert "wrote 2 tables, 3 kept (--resume)" in capsys.readouterr().out
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == whole
 
 
 def test_interrupted_folder_keeps_finished_tables_and_resumes_to_the_same_result(

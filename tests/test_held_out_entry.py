@@ -102,17 +102,19 @@ def test_entry_selections_make_the_same_choices_and_use_the_store(captures, tmp_
             assert a.errors[n] == pytest.approx(e, rel=1e-4, nan_ok=True)
     # fewer inputs of the layout than min_group: an entry where the call has few such layouts
     # (the store's, nothing built), direct numpy fits where it has many (no entry, no JAX)
-    (alone,) = H.entry_selections(
-        captures[:1], store=store, warn=warnings.append, min_group=2, **kw
-    )
-    assert not builds and alone.name == first[0].name
-    assert alone.errors == pytest.approx(first[0].errors, rel=1e-6)  # one row, not two: rounding
+    two = H.entry_selections(captures[:2], store=store, warn=warnings.append, min_group=3, **kw)
+    assert not builds and [s.name for s in two] == [s.name for s in first[:2]]
+    assert two[0].errors == pytest.approx(first[0].errors, rel=1e-6)  # two rows, not four
     monkeypatch.setattr(_engine, "OPERATOR_MAX_BUILDS", 0)
-    (direct,) = H.entry_selections(
-        captures[:1], store=store, warn=warnings.append, min_group=2, **kw
-    )
-    assert not builds and direct.name == first[0].name
-    assert direct.errors == pytest.approx(first[0].errors, rel=1e-4)  # float64 vs the entry's
+    direct = H.entry_selections(captures[:2], store=store, warn=warnings.append, min_group=3, **kw)
+    assert not builds and [s.name for s in direct] == [s.name for s in first[:2]]
+    assert direct[0].errors == pytest.approx(first[0].errors, rel=1e-4)  # float64 vs the entry's
+    # ... and a lone layout (no other input has its slice positions: a jittered capture's) takes
+    # the direct fits even where the call has few small layouts: an entry would serve it alone
+    monkeypatch.setattr(_engine, "OPERATOR_MAX_BUILDS", 16)
+    (alone,) = H.entry_selections(captures[:1], store=None, warn=warnings.append, min_group=2, **kw)
+    assert not builds and alone.name == first[0].name
+    assert alone.errors == pytest.approx(direct[0].errors, rel=1e-9)  # the same float64 fits
 
 
 def test_a_corrupt_stored_entry_is_rebuilt(captures, tmp_path):

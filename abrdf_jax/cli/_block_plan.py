@@ -21,8 +21,8 @@ def block_jobs(items, choices, place: dict, kept: dict, *, block: int, slices) -
     whose ``small`` says how the interrupted run decided); ``block``: files a block
     (``common.BLOCK``); ``slices(item,
     config)``: an input's slices for a setting (``common.measurements_for``)."""
-    from .._engine import OPERATOR_MAX_BUILDS, build_cost, job_keys, job_layouts, plan_job
-    from .._engine import small_build_set
+    from .._engine import OPERATOR_MAX_BUILDS, build_cost, job_keys, job_layouts, lone_layouts
+    from .._engine import plan_job, small_build_set
     from ._resume import settings_key
 
     at = place[str(items[0].path)] // block  # blocks of the whole job
@@ -31,23 +31,26 @@ def block_jobs(items, choices, place: dict, kept: dict, *, block: int, slices) -
         key = (item.budget, item.alpha, choice["config"])  # what one call must share
         groups.setdefault(key, []).append(k)
     jobs = []  # per setting: its measurements and the job's layouts (done included)
-    builds: set = set()  # what the small layouts of every setting take (shared maps once)
     for (_, alpha, config), members in groups.items():
         meas = [slices(items[k], config) for k in members]
         setting = settings_key(choices[members[0]]["record"])
         done = [d for d in kept.get(setting, ()) if d.order // block == at]
         job = dict(done=done, order=[place[str(items[k].path)] for k in members])
-        layouts = job_layouts(meas, config, done)
-        builds |= small_build_set(layouts, config, alpha=alpha)
-        jobs.append((config, members, meas, job, layouts))
+        jobs.append((config, alpha, members, meas, job, job_layouts(meas, config, done)))
+    kept_here = [d for ds in kept.values() for d in ds if d.order // block == at]
+    # layouts no other input of the block (any setting, kept ones too) shares: jittered captures
+    lone = lone_layouts((k for *_, layouts in jobs for k in layouts.keys), kept_here)
+    builds: set = set()  # what the small layouts of every setting take (shared maps once)
+    for config, alpha, *_, layouts in jobs:
+        builds |= small_build_set(layouts, config, alpha=alpha, lone=lone)
     # the interrupted run's decision, where its kept tables of this block recorded it
-    kept_here = (d for ds in kept.values() for d in ds if d.order // block == at)
     small = next((d.small for d in kept_here if d.small is not None), None)
     if small is None:
         small = OPERATOR_MAX_BUILDS >= build_cost(builds)
     out = []
-    for config, members, meas, job, layouts in jobs:
-        job["plan"] = plan_job(meas, config, layouts=layouts, small=small, **job)  # one plan:
+    for config, _, members, meas, job, layouts in jobs:
+        plan = plan_job(meas, config, layouts=layouts, small=small, lone=lone, **job)
+        job["plan"] = plan  # one plan:
         for k, keys in zip(members, job_keys(meas, config, **job)):  # the record's and the run's
             choices[k]["record"]["batch"] = {**keys, "small": small}
         out.append((config, members, meas, job))

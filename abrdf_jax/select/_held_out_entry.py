@@ -366,10 +366,18 @@ def entry_selections(
             key = (layout_key(p.meas), p.alpha, tuple(p.configs))
             groups.setdefault(key, []).append(i)
     # the reconstruction operators' rule (abrdf_jax._engine.plan_job): the small groups too
-    # where they are few
-    small = sum(len(m) < min_group for m in groups.values()) <= _engine.OPERATOR_MAX_BUILDS
-    for members in groups.values():
-        if len(members) < min_group and not small:
+    # where they are few, but not a lone layout that the direct fits serve (a jittered
+    # capture's: an entry would serve it alone; _engine.lone_layouts)
+    lone = _engine.lone_layouts(key for key, _, _ in groups) if min_group > 1 else frozenset()
+    direct = {
+        g for g, m in groups.items() if g[0] in lone and len(m) == 1 and direct_plan(plans[m[0]])
+    }
+    small = (
+        sum(len(m) < min_group for g, m in groups.items() if g not in direct)
+        <= _engine.OPERATOR_MAX_BUILDS
+    )
+    for g, members in groups.items():
+        if len(members) < min_group and (not small or g in direct):
             continue
         p0 = plans[members[0]]
         ys = np.stack([np.asarray(plans[i].meas.y) for i in members])
