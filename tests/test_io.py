@@ -552,29 +552,20 @@ def test_write_tables_failure_keeps_old_and_leaves_no_temp(tmp_path, table, monk
     tables before it are complete, the error names the file, no temporary file remains."""
     import errno
 
-    import contextlib
-
-    from abrdf_jax.io import _tables, write_tables
+    from abrdf_jax.io import _atomic, write_tables
 
     paths = [tmp_path / f"t{k}.npz" for k in range(3)]
     paths[1].write_bytes(b"old")
-    real, calls = _tables.atomic_write, []
+    real, calls = _atomic._write_all, []
 
-    class HalfThenFull:
-        def __init__(self, f):
-            self.f = f
-
-        def write(self, data):
-            self.f.write(data[: len(data) // 2])
+    def full(fd, data):  # the second table: half, then the disk is full
+        calls.append(fd)
+        if len(calls) == 2:
+            real(fd, data[: len(data) // 2])
             raise OSError(errno.ENOSPC, "No space left on device")
+        real(fd, data)
 
-    @contextlib.contextmanager
-    def full(path, *args, **kw):  # the second table: half, then the disk is full
-        calls.append(path)
-        with real(path, *args, **kw) as f:
-            yield HalfThenFull(f) if len(calls) == 2 else f
-
-    monkeypatch.setattr(_tables, "atomic_write", full)
+    monkeypatch.setattr(_atomic, "_write_all", full)
     with _raises(paths[1], match="No space left on device .disk full."):
         write_tables(paths, [table] * 3)
     monkeypatch.undo()
@@ -583,6 +574,21 @@ def test_write_tables_failure_keeps_old_and_leaves_no_temp(tmp_path, table, monk
     assert _no_temp_files(tmp_path)
     with _raises(tmp_path / "nope" / "t.npz", match="does not exist"):
         write_tables([tmp_path / "nope" / "t.npz"], [table])
+    (tmp_path / "d.npz").mkdir()
+    with _raises(tmp_path / "d.npz", match="is a folder"):
+        write_tables([tmp_path / "d.npz"], [table])
+
+    def deny(prefix):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(_atomic, "_open_temp", deny)
+    with _raises(paths[2], match=r"folder .* is not writable \(Permission denied\)"):
+        write_tables(paths[2:], [table])
+    monkeypatch.undo()
+    write_tables(paths, [table] * 3)  # an existing table replaced, a str path too
+    write_tables([str(tmp_path / "s.npz")], [table])
+    assert all(read_table(p).tobytes() == table.tobytes() for p in [*paths, tmp_path / "s.npz"])
+    assert _no_temp_files(tmp_path)
 
 
 # ----------------------------------------------------------------------------- MERL

@@ -104,6 +104,52 @@ def atomic_write(
         _fsync_folder(folder)
 
 
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """:func:`atomic_write` of one bytes object with ``durable=False`` (renamed into place, no
+    ``fsync``), the same checks, errors and temporary files, in system calls on descriptors:
+    no Python file object and no path objects (a folder run writes thousands of tables: the
+    context manager cost 50 µs of Python each, under the interpreter lock its writer threads
+    share with the computation; docs/notes.md, thirtieth session).
+
+    Raises:
+        InputError: as :func:`atomic_write`.
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(path) or "."
+    if not os.path.isdir(folder):
+        raise InputError(f"cannot write {path}: folder {folder} does not exist")
+    if os.path.isdir(path):
+        raise InputError(f"cannot write {path}: it is a folder")
+    prefix = os.path.join(folder, f".{os.path.basename(path)}.{os.getpid()}.")
+    try:
+        fd, tmp = _open_temp(prefix)
+    except OSError as e:
+        raise InputError(
+            f"cannot write {path}: folder {folder} is not writable ({write_cause(e)})"
+        ) from e
+    try:
+        try:
+            _write_all(fd, data)
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except OSError as e:  # disk full, I/O error, the rename: name the file, not the temporary
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise write_error(path, e) from e
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    """Write all of ``data`` to the descriptor ``fd`` (a write may take part of it)."""
+    view, done = memoryview(data), 0
+    while done < len(view):
+        done += os.write(fd, view[done:])
+
+
 def _drop_cache(fd: int) -> None:
     """Advise the kernel to drop the (clean, just ``fsync``-ed) pages of ``fd``; a no-op where
     the platform lacks ``posix_fadvise`` or refuses (advice only)."""
@@ -126,7 +172,11 @@ def _create_temp(path: Path) -> tuple[int, str]:
     so a killed writer's file whose pid came back is skipped), created with mode ``0o666``
     less the umask: the permissions of an ordinary new file, in one system call (a folder run
     writes thousands: ``mkstemp``'s random names and an ``fchmod`` cost more than the write)."""
-    prefix = str(path.parent / temp_prefix(path))
+    return _open_temp(str(path.parent / temp_prefix(path)))
+
+
+def _open_temp(prefix: str) -> tuple[int, str]:
+    """:func:`_create_temp` of a name prefix (``FOLDER/.NAME.PID.``)."""
     while True:
         tmp = f"{prefix}{next(_NAMES):08x}{TEMP_SUFFIX}"
         try:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import _check_readable, atomic_write
+from ._atomic import _check_readable, atomic_write, atomic_write_bytes
 from .._errors import InputError, located
 from ._exr import read_rgb_exr, write_rgb_exr
 from ._npz import npz_bytes
@@ -180,7 +180,10 @@ def write_table(
     arr = check_table(table, f"cannot write {path}")
     if ext == ".npz":
         data = npz_bytes(NPZ_KEY, arr)  # stored, not deflated: docstring; built in memory
-        with atomic_write(path, "wb", durable=durable) as f:
+        if not durable:  # a folder run's (thousands): system calls, no file object
+            atomic_write_bytes(path, data)
+            return
+        with atomic_write(path, "wb") as f:
             f.write(data)
     else:
         write_rgb_exr(
