@@ -52,6 +52,9 @@ if TYPE_CHECKING:  # JAX pytrees: the pipeline path makes them (importing JAX), 
 #: 6561 x 3 floats a material, 20 MiB at 256); the general pipeline holds one RBF evaluation a
 #: material, so its batches are smaller.
 OPERATOR_BATCH, PIPELINE_BATCH = 256, 32
+#: Captures' rows whose shared second stage (:func:`plan_job`'s ``"shared"`` groups) one
+#: product computes (``OperatorEntry.apply_many``; 128 captures' first stages, 19 MB of tables).
+SHARED_ROWS = 128
 #: A slice layout shared by this many measurements of a job or more gets an operator. Below
 #: it, a job whose small layouts would cost more than :data:`OPERATOR_MAX_BUILDS` builds
 #: (every jittered capture is a layout of its own, never seen again) gives them the setting's
@@ -344,6 +347,7 @@ def reconstruct_many(
     order: Sequence[int] | None = None,
     plan: dict[str, dict] | None = None,
     host: bool = False,
+    stages: "SharedStages | None" = None,
 ) -> Iterator[tuple[list[int], np.ndarray, str]]:
     """Reconstruct measurements that share ``config`` and ``params`` (module docstring).
 
@@ -373,6 +377,10 @@ def reconstruct_many(
             (one file's call computes one row, not a batch of copies; still the same shape
             in a resumed run), as a learned model's are; else every batch has ``batch``
             rows (one compiled shape).
+        stages: a :class:`SharedStages` of the caller's, which keeps the batches of the
+            groups that read a shared second stage (their tables come from its ``flush``, not
+            from this generator: a folder's jittered captures, one call each, share one
+            product); default: this call's own, flushed before it ends.
 
     Yields:
         ``(indices, tables, path)``: positions in ``meas``, their ``(len(indices), 81, 81, 3)``
@@ -392,13 +400,15 @@ def reconstruct_many(
             if shared:  # numpy: the second stage built once for every layout (in memory)
                 from ._cache import cached_entry
 
-                return cached_entry(None, template, config, params, shared=True)[0].apply
+                return cached_entry(None, template, config, params, shared=True)[0]  # callable
             template, params = as_jax(template, params)
             mode = nonlinear_mode(config, template)
             return compile_operator(config, params, template, nonlinear=mode)
 
     if plan is None:
         plan = plan_job(meas, config, min_group=min_group, done=done, order=order)
+    own = stages is None  # else the caller's: it takes their tables from stages.flush()
+    stages = SharedStages() if own else stages
     for gid, g in plan.items():
         members, slots = g["members"], g["slots"]
         if g["kind"] == "operator":
@@ -409,6 +419,11 @@ def reconstruct_many(
                 size = min(size, g["size"])
             for chunk, padded, rows in _batches(members, slots, size):
                 y = np.stack([np.asarray(meas[k].y) for k in padded])
+                if g["shared"] and hasattr(op, "apply_many"):  # the second stage later
+                    stages.add(op, y, chunk, rows)
+                    if own and stages.full:
+                        yield from ((c, t, "operator") for _, c, t in stages.flush())
+                    continue
                 yield chunk, _rows(np.asarray(op(y)), rows), "operator"
         else:
             if before_jax is not None:
@@ -427,3 +442,52 @@ def reconstruct_many(
                 )
                 tables = np.asarray(reconstruct_batch(stack, config, jparams))
                 yield chunk, _rows(tables, rows), "pipeline"
+    if own:
+        yield from ((c, t, "operator") for _, c, t in stages.flush())
+
+
+class SharedStages:
+    """Batches of groups that read a setting's shared second stage (:func:`plan_job`'s
+    ``"shared"`` groups: a folder's jittered captures, a group and a call of
+    :func:`reconstruct_many` each, since each has its own α), kept until :data:`SHARED_ROWS`
+    captures wait, then their second stages in one product per matrix
+    (``OperatorEntry.apply_many``: the same bits as one product each, which read the whole
+    48 MB matrix for three rows). A caller that passes one to several calls (``stages=``) takes
+    their tables from :meth:`flush`, each with the ``tag`` it gave :meth:`tagged`."""
+
+    def __init__(self, rows: int | None = None):
+        self.rows, self._items = SHARED_ROWS if rows is None else rows, []
+
+    def add(self, entry, y, chunk, rows, tag=None) -> None:
+        """A batch: the group's entry, its stacked values, its members and kept rows."""
+        self._items.append((entry, y, chunk, rows, tag))
+
+    def tagged(self, tag) -> "_Tagged":
+        """What :func:`reconstruct_many` takes as ``stages``: this collector, its batches
+        tagged with ``tag`` (the caller's job)."""
+        return _Tagged(self, tag)
+
+    @property
+    def full(self) -> bool:
+        return sum(len(item[1]) for item in self._items) >= self.rows
+
+    def flush(self) -> Iterator[tuple[object, list[int], np.ndarray]]:
+        """``(tag, members, tables)`` of every batch waiting (then none waits)."""
+        by_matrix: dict[int, list] = {}
+        for item in self._items:
+            by_matrix.setdefault(id(item[0].matrix), []).append(item)
+        self._items.clear()
+        for items in by_matrix.values():
+            tables = items[0][0].apply_many([e for e, *_ in items], [i[1] for i in items])
+            for (_, _, chunk, rows, tag), t in zip(items, tables):
+                yield tag, chunk, _rows(t, rows)
+
+
+class _Tagged(NamedTuple):
+    """A :class:`SharedStages` whose batches carry one ``tag`` (:meth:`SharedStages.tagged`)."""
+
+    stages: SharedStages
+    tag: object
+
+    def add(self, entry, y, chunk, rows) -> None:
+        self.stages.add(entry, y, chunk, rows, self.tag)

@@ -76,19 +76,53 @@ class OperatorEntry:
         Raises:
             InputError: when ``y`` does not have the template's slice shape.
         """
+        (out,) = self.apply_many([self], [y])
+        return out
+
+    __call__ = apply
+
+    @staticmethod
+    def apply_many(entries, ys) -> list[np.ndarray]:
+        """``[e.apply(y) for e, y in zip(entries, ys)]`` with one matrix product for all: the
+        entries share one ``matrix`` (a setting's shared second stage read by many layouts,
+        :meth:`for_layout`), each with its own first stage. A capture's rows of the product do
+        not depend on the other rows (OpenBLAS computes each output row alike whatever the
+        rows beside it: ``tests/test_engine.py`` checks the tables bit for bit), while one
+        product per capture read the whole matrix (48 MB) for three rows."""
+        first = entries[0]
+        if any(e.matrix is not first.matrix or e.keep is not first.keep for e in entries):
+            raise ValueError("apply_many needs entries that share one matrix and kept rows")
+        parts = [e._features(e._compact(y)) for e, y in zip(entries, ys)]
+        rx = np.concatenate([r for r, _, _, _ in parts])
+        rxc = None if parts[0][1] is None else np.concatenate([r for _, r, _, _ in parts])
+        out = first._product(rx, rxc)
+        tables, at = [], 0
+        for e, y, (r, _, eps, shape) in zip(entries, ys, parts):
+            rows = out[at : at + r.shape[0]]
+            at += r.shape[0]
+            lead = np.shape(y)[:-3]
+            tables.append(_finish(rows, eps, shape).reshape(*lead, *GRID, shape[1]))
+        return tables
+
+    def apply_compact(self, x) -> np.ndarray:
+        """The same from the valid samples only, ``(B, n_in, C)`` → ``(B, 81, 81, C)``."""
+        rx, rxc, eps, shape = self._features(x)
+        return _finish(self._product(rx, rxc), eps, shape)
+
+    def _compact(self, y) -> np.ndarray:
+        """The valid samples ``(B, n_in, C)`` of stacked values ``(..., S, nmax, C)``."""
         y = np.asarray(y, np.float32)
         s, nmax = self.t.shape
         if y.ndim < 3 or y.shape[-3:-1] != (s, nmax):
             raise InputError(f"values must have shape (..., {s}, {nmax}, C), got {y.shape}")
-        lead, c = y.shape[:-3], y.shape[-1]
-        x = y.reshape(-1, s * nmax, c)[:, self.index, :]
-        return self.apply_compact(x).reshape(*lead, *GRID, c)
+        return y.reshape(-1, s * nmax, y.shape[-1])[:, self.index, :]
 
-    def apply_compact(self, x) -> np.ndarray:
-        """The same from the valid samples only, ``(B, n_in, C)`` → ``(B, 81, 81, C)``."""
+    def _features(self, x) -> tuple:
+        """What the matrix reads of the valid samples ``x`` ``(B, n_in, C)``: every material and
+        channel a row (``(B·C, n)``: one GEMM, as ``_operator``), the spike-capped rows
+        (``None`` without the cap), ``ε`` ``(B, C)`` (``None`` on linear values) and ``(B, C)``."""
         x = np.asarray(x, np.float32)
         b, _, c = x.shape
-        q = self.matrix.shape[0]
         eps = xc = None
         if self.log_samples:
             eps = sample_eps(x, self.log_eps, axis=1)  # (B, C)
@@ -102,27 +136,26 @@ class OperatorEntry:
             both = self.subspace(both, self.index, self.t, self.count)
             x, xc = (both, None) if xc is None else (both[:b], both[b:])
 
-        def rows(v):  # every material and channel is a row: one GEMM, as _operator
+        def rows(v):
             return np.ascontiguousarray(np.transpose(v, (0, 2, 1))).reshape(b * c, v.shape[1])
 
-        picked = None if xc is None else self._picked
+        return rows(x), None if xc is None else rows(xc), eps, (b, c)
+
+    def _product(self, rx, rxc) -> np.ndarray:
+        """The matrix on the rows of :meth:`_features` (``rxc``: the capped rows, whose kept
+        output rows take the uncapped values), ``(rows, 6561)`` float32."""
+        picked = None if rxc is None else self._picked
         if picked is not None:  # kept rows that read one value each (a two-stage entry's)
-            out = _picked_rows(picked, rows(xc), rows(x), q).reshape(b, c, q)
-        else:
-            out = (rows(x if xc is None else xc) @ self.matrix.T).reshape(b, c, q)
-        if picked is None and xc is not None and self.keep.size:
+            return _picked_rows(picked, rxc, rx, self.matrix.shape[0])
+        out = (rx if rxc is None else rxc) @ self.matrix.T
+        if rxc is not None and self.keep.size:
             kept, runs = self._kept
-            fix = (rows(x - xc) @ kept.T).reshape(b, c, -1)
+            fix = (rx - rxc) @ kept.T
             if runs is None:
-                out[:, :, self.keep] += fix
+                out[:, self.keep] += fix
             for first, stop, at in runs or ():  # in place, run by run: the same float32 sums
-                out[:, :, first:stop] += fix[:, :, at : at + stop - first]
-        if eps is not None:
-            np.exp(out, out=out)
-            out -= eps[:, :, None]
-        np.maximum(out, np.float32(0.0), out=out)
-        # channel last: one strided copy per channel (faster than one of the transposed array)
-        return np.stack([out[:, k] for k in range(c)], axis=-1).reshape(b, *GRID, c)
+                out[:, first:stop] += fix[:, at : at + stop - first]
+        return out
 
     @functools.cached_property
     def _kept(self) -> tuple[np.ndarray, list[tuple[int, int, int]] | None]:
@@ -235,6 +268,19 @@ class OperatorEntry:
         ):
             return "malformed (no value space)"
         return None
+
+
+def _finish(out: np.ndarray, eps, shape: tuple) -> np.ndarray:
+    """The tables ``(B, 81, 81, C)`` of the product's rows ``out`` ``(B·C, 6561)`` (in place):
+    ``exp(z) − ε`` on log samples (``eps`` ``(B, C)``), clamped at 0, channels last."""
+    b, c = shape
+    out = out.reshape(b, c, -1)
+    if eps is not None:
+        np.exp(out, out=out)
+        out -= eps[:, :, None]
+    np.maximum(out, np.float32(0.0), out=out)
+    # channel last: one strided copy per channel (faster than one of the transposed array)
+    return np.stack([out[:, k] for k in range(c)], axis=-1).reshape(b, *GRID, c)
 
 
 def _runs(rows: np.ndarray) -> list[tuple[int, int, int]]:

@@ -5,6 +5,7 @@ processes, and no JAX on import.
 Module level imports no JAX (the concurrent-writer test's spawned children import this file).
 """
 
+import dataclasses
 import json
 import multiprocessing
 import os
@@ -472,6 +473,37 @@ def test_a_two_stage_entry_serves_every_layout_of_its_pairs(tmp_path):
         want = np.asarray(aj.reconstruct(m, config, p))
         got = e.apply(np.asarray(m.y, np.float32))
         assert np.max(np.abs(got - want)) <= APPLY_BOUND["aniso-filip2012-two-stage"] * want.max()
+
+
+def test_entries_of_one_second_stage_apply_in_one_product(tmp_path):
+    """``OperatorEntry.apply_many``: the entries of one shared second stage (each capture its
+    own first stage, α and batch) give in one product the tables each gives alone, bit for
+    bit; entries of other matrices are refused."""
+    import abrdf_jax as aj
+    from abrdf_jax import materials
+    from abrdf_jax._operator_entry import OperatorEntry
+
+    config = aj.preset("recommended", "aniso204", rule="crossing")
+    entries, ys = [], []
+    _cache._SHARED.clear()
+    try:
+        for k, name in enumerate(("ggx-plastic", "ward-brushed-steel", "ggx-aniso-metal")):
+            s = aj.simulate_capture(materials.get_material(name), jitter_deg=0.5, seed=k)
+            m, info = aj.group_slices(s)
+            p = aj.Params.default(config, alpha_deg=info["alpha_deg"])
+            entries.append(cached_entry(None, m, config, p, shared=True)[0])
+            y = np.asarray(m.y, np.float32)
+            ys.append(np.stack([y, 2 * y])[: k + 1])  # batches of 1, 2, 2
+    finally:
+        _cache._SHARED.clear()
+    assert all(e.matrix is entries[0].matrix for e in entries)
+    together = OperatorEntry.apply_many(entries, ys)
+    for e, y, t in zip(entries, ys, together):
+        assert t.shape == (len(y), 81, 81, 3)
+        np.testing.assert_array_equal(t, e.apply(y))
+    other = dataclasses.replace(entries[1], matrix=entries[1].matrix.copy())
+    with pytest.raises(ValueError, match="share one matrix"):
+        OperatorEntry.apply_many([entries[0], other], ys[:2])
 
 
 def test_one_second_stage_serves_every_affine_rule_and_budget(tmp_path):

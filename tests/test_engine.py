@@ -391,6 +391,43 @@ def test_a_folders_jittered_captures_share_a_second_stage_and_resume_keeps_it(tm
     assert {p.name: p.read_bytes() for p in out.iterdir()} == whole
 
 
+def test_shared_second_stages_in_one_product_give_each_capture_its_own_bits(tmp_path, monkeypatch):
+    """A folder's jittered captures (a call of ``reconstruct_many`` each: its own α) wait in one
+    ``SharedStages`` and their second stages run as one product (``OperatorEntry.apply_many``):
+    the tables equal, bit for bit, those of one product a capture, and those of the library's
+    ``reconstruct_many`` (its own collector, its second stage built in memory) to float32
+    rounding."""
+    from abrdf_jax import _operator_entry
+
+    src = _folder(tmp_path, 4, jitter_deg=0.5)
+    calls = []
+    real = _operator_entry.OperatorEntry.apply_many
+
+    def counted(entries, ys):
+        calls.append(len(entries))
+        return real(entries, ys)
+
+    monkeypatch.setattr(_operator_entry.OperatorEntry, "apply_many", staticmethod(counted))
+    outs = []
+    for rows in (_engine.SHARED_ROWS, 1):
+        monkeypatch.setattr(_engine, "SHARED_ROWS", rows)
+        out = tmp_path / f"out{rows}"
+        argv = ["reconstruct", str(src), "-o", str(out), "-q", "--cache-dir", str(tmp_path / "c")]
+        assert main([*argv, "--model", "iso"]) == 0
+        outs.append({p.name: p.read_bytes() for p in out.iterdir()})
+    assert calls == [4, 1, 1, 1, 1]  # one product for the four, then one each
+    assert outs[0] == outs[1]
+    config = aj.preset("recommended", "iso102")
+    for k in range(4):
+        s = io.read_samples_csv(src / f"m{k}.csv")
+        meas, info = aj.group_slices(s)
+        params = aj.Params.default(config, alpha_deg=info["alpha_deg"])
+        plan = _engine.plan_job([meas], config, small=False)  # the shared form, no store
+        ((_, tables, _),) = _engine.reconstruct_many([meas], config, params, plan=plan)
+        table = io.read_table(tmp_path / f"out{_engine.SHARED_ROWS}" / f"m{k}.npz")
+        np.testing.assert_allclose(table, tables[0], rtol=2e-5, atol=1e-6 * table.max())
+
+
 def test_interrupted_folder_keeps_finished_tables_and_resumes_to_the_same_result(
     tmp_path, monkeypatch
 ):

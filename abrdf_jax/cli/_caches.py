@@ -63,4 +63,4 @@ class Caches:
             self.store, template, config, params, self.warn, before_build=self.numerics,
             shared=shared,
         )  # fmt: skip
-        return entry.apply
+        return entry  # callable; the shared ones' second stages batched (_engine)

@@ -391,7 +391,7 @@ def _reconstruct_folder(blocks, job: tuple, args, caches, forced) -> int:
 
     from .. import io
     from .._arrays import check_finite
-    from .._engine import reconstruct_many
+    from .._engine import SharedStages, reconstruct_many
 
     n_files, out, place, resumed, settings = job
     out.mkdir(exist_ok=True)
@@ -427,6 +427,36 @@ def _reconstruct_folder(blocks, job: tuple, args, caches, forced) -> int:
                 items, choices, place, kept, block=common.BLOCK,
                 slices=common.measurements_for,
             )  # fmt: skip
+            stages = SharedStages()  # jittered captures' second stages: one product
+
+            def take(members, idx, tables, path, items=items, targets=targets, choices=choices):
+                paths[path] += len(idx)
+                records, paths_, tables_ = [], [], []
+                finite = np.isfinite(tables).reshape(len(idx), -1).all(axis=1)  # one pass
+                for j, table, ok in zip(idx, tables, finite):
+                    k = members[j]
+                    try:
+                        if not ok:  # raises, naming the file and the first bad value
+                            check_finite(table, str(items[k].path))
+                    except InputError as e:  # never written; the other materials still are
+                        failed.append(str(e))
+                        continue
+                    paths_.append(targets[k])
+                    tables_.append(table)
+                    choices[k]["record"]["engine"] = path
+                    records.append(choices[k])
+                # atomic, not fsync-ed: --resume reads every table it keeps (docs/cache.md);
+                # a task per WRITE_CHUNK tables (a future per table cost more than its write)
+                futures = [
+                    pool.submit(
+                        io.write_tables, paths_[a : a + WRITE_CHUNK], tables_[a : a + WRITE_CHUNK]
+                    )
+                    for a in range(0, len(paths_), WRITE_CHUNK)
+                ]
+                settle()  # the previous batch's files are complete before the record names them
+                pending.append((futures, records))
+                bar.update(len(idx))
+
             for config, members, meas, job in jobs:
                 params = choices[members[0]]["params"]
                 common.warn_guard(items[members[0]].path, meas[0], config, params, args.params)
@@ -437,36 +467,15 @@ def _reconstruct_folder(blocks, job: tuple, args, caches, forced) -> int:
                     operator=caches.operator,
                     before_jax=caches.numerics,
                     host=True,
+                    stages=stages.tagged(members),
                     **job,
                 ):
-                    paths[path] += len(idx)
-                    records, paths_, tables_ = [], [], []
-                    finite = np.isfinite(tables).reshape(len(idx), -1).all(axis=1)  # one pass
-                    for j, table, ok in zip(idx, tables, finite):
-                        k = members[j]
-                        try:
-                            if not ok:  # raises, naming the file and the first bad value
-                                check_finite(table, str(items[k].path))
-                        except InputError as e:  # never written; the other materials still are
-                            failed.append(str(e))
-                            continue
-                        paths_.append(targets[k])
-                        tables_.append(table)
-                        choices[k]["record"]["engine"] = path
-                        records.append(choices[k])
-                    # atomic, not fsync-ed: --resume reads every table it keeps (docs/cache.md);
-                    # a task per WRITE_CHUNK tables (a future per table cost more than its write)
-                    futures = [
-                        pool.submit(
-                            io.write_tables,
-                            paths_[a : a + WRITE_CHUNK],
-                            tables_[a : a + WRITE_CHUNK],
-                        )
-                        for a in range(0, len(paths_), WRITE_CHUNK)
-                    ]
-                    settle()  # the previous batch's files are complete before the record names them
-                    pending.append((futures, records))
-                    bar.update(len(idx))
+                    take(members, idx, tables, path)
+                if stages.full:
+                    for tag, idx, tables in stages.flush():
+                        take(tag, idx, tables, "operator")
+            for tag, idx, tables in stages.flush():  # a block's members: its own indices
+                take(tag, idx, tables, "operator")
         settle(final=True)
     n = n_files + len(resumed)
     engines = ", ".join(f"{v} by the {k}" for k, v in paths.items() if v)
