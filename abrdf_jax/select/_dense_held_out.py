@@ -48,6 +48,7 @@ from .._rbf_system import blocks, centre_stats, combine, coordinate_widths, host
 from .._rules import AFFINE
 from .._smoothing import smooth_compact
 from .._spikes import cap_samples
+from .._centre_batch import centre_subspaces_many
 from .._subspace import centre_subspaces
 from ._choice import entry_groups, rbf_configs
 
@@ -155,6 +156,7 @@ def dense_errors(metas, ys, alphas_deg, cfgs, k: int, store=None, warn=None) -> 
             _Folds(m, y, a, cfg, rules, k)
             for m, y, a in zip(metas[part], ys[part], alphas_deg[part])
         ]
+        _set_centre_values(folds, pairs, azimuths, rules, cfg.interp)
         # every input's every fold, rule and channel: the columns of one solve
         rhs = np.concatenate([f.centre_values for f in folds], axis=1)
         if coef is None:
@@ -212,8 +214,8 @@ class _Folds:
         valid = flat[sample_index(t, count)][None]
         self.res_eps = sample_eps(valid, Config().log_eps, axis=1)[0]  # (C,)
         train, test = fold_slots(count, nmax, k)
-        vals, self.eps, self.held, self.sizes = [], [], [], []
-        wis, wvs = [], []
+        self.eps, self.held, self.sizes = [], [], []
+        wis, wvs, slices = [], [], []
         for j in range(k):
             cols, fold_t, fold_count = fold_layout(t, train[j])
             x = flat[train[j].reshape(-1)[cols]][None]  # (1, n_train, C)
@@ -224,11 +226,7 @@ class _Folds:
                 )
             padded = np.zeros((s * nmax, c))
             padded[cols] = x[0]
-            v = centre_subspaces(
-                fold_t, padded.reshape(s, nmax, c), fold_count, pairs, meas.centre_azimuths,
-                alpha, rules, cfg.interp, xp=np,
-            )  # (R, n_c, C)  # fmt: skip
-            vals.append(np.transpose(v, (1, 0, 2)).reshape(v.shape[1], -1))
+            slices.append((fold_t, padded.reshape(s, nmax, c), fold_count))
             rows = np.flatnonzero(test[j].reshape(-1) >= 0)
             held_t = gather(t, test[j])
             wi, wv = held_out_directions(held_t, pairs, alpha, np)
@@ -237,7 +235,8 @@ class _Folds:
             self.held.append(flat[test[j].reshape(-1)[rows]])  # (q_j, C)
             self.eps.append(None if eps is None else eps[0])
             self.sizes.append(rows.size)
-        self.centre_values = np.concatenate(vals, axis=1)  # (n_c, k · R · C)
+        self.slices, self.alpha = slices, alpha  # each fold's (t, y, count): the centre values
+        self.centre_values = None  # (n_c, k · R · C): _set_centre_values, all folds at once
         self.wi, self.wv = np.concatenate(wis), np.concatenate(wvs)
         self.n_rules, self.k = len(rules), k
 
@@ -255,6 +254,38 @@ class _Folds:
             n += q * c
             at += q
         return np.sqrt(total / max(n, 1))
+
+
+def _set_centre_values(folds, pairs, azimuths, rules: tuple, interp: str) -> None:
+    """Each fold's subspaces at the RBF centres under every rule (``_Folds.centre_values``
+    ``(n_c, k · R · C)``) of inputs of one elevation-pair and centre layout: every fold of every
+    input in one pass where the slices are read linearly and the rules are affine
+    (:func:`abrdf_jax._centre_batch.centre_subspaces_many`, the values of one fold at a time:
+    slices padded to the longest, which the counts leave out), else fold by fold."""
+    rows = [(f.alpha, *sl) for f in folds for sl in f.slices]
+    if interp == "linear" and all(r in AFFINE for r in rules):
+        nmax = max(t.shape[-1] for _, t, _, _ in rows)
+
+        def pad(a):  # (S, n, ...) -> (S, nmax, ...)
+            return np.pad(a, [(0, 0), (0, nmax - a.shape[1])] + [(0, 0)] * (a.ndim - 2))
+
+        t, y = (np.stack([pad(r[i]) for r in rows]) for i in (1, 2))
+        count = np.stack([r[3] for r in rows])
+        alpha = np.array([r[0] for r in rows])
+        vals = centre_subspaces_many(t, y, count, pairs, azimuths, alpha, rules)
+    else:
+        vals = [
+            centre_subspaces(t, y, n, pairs, azimuths, a, rules, interp, xp=np)
+            for a, t, y, n in rows
+        ]
+    at = 0
+    for f in folds:
+        mine = vals[at : at + len(f.slices)]
+        at += len(f.slices)
+        f.centre_values = np.concatenate(
+            [np.transpose(v, (1, 0, 2)).reshape(v.shape[1], -1) for v in mine], axis=1
+        )
+        f.slices = None
 
 
 def _pairs(meas) -> tuple:
