@@ -15,7 +15,9 @@ of its last member, whose tables are dropped).
   :func:`~abrdf_jax.reconstruct` to float32 rounding (``tests/test_operator.py``). A job's
   layouts that are too many to build an operator each (jittered captures: a layout a file) take
   the two-stage form where the setting has it (an affine rule on the log of the samples): each
-  capture's subspaces at the RBF centres, then the one second stage of its setting and pairs.
+  capture's subspaces at the RBF centres, then the one second stage of its setting and pairs
+  (:class:`SharedStages`: the captures that read one second stage wait for each other and run
+  it as one product, the same bits as one product each).
 - **Numpy maps** (the learned models, ``abrdf_jax._prior_operator.PriorModel``, and the
   bivariate model, ``abrdf_jax._bivariate.BivariateModel``, passed as ``config``;
   ``operator_only``): one map per slice layout, whatever the group's size, in batches of at

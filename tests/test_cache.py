@@ -428,7 +428,23 @@ def test_two_stage_entry_round_trip_and_check(built, tmp_path):
     assert "inconsistent" in OperatorEntry.check(narrow, meta)
 
 
-def test_a_two_stage_entry_serves_every_layout_of_its_pairs(tmp_path):
+@pytest.fixture
+def counted_builds(monkeypatch):
+    """The operator builds of a test (``_cache.build_entry`` calls, each a real build), with the
+    in-memory shared second stages (``_cache._SHARED``) empty before and after."""
+    built, real = [], _cache.build_entry
+
+    def counted(*a, **k):
+        built.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(_cache, "build_entry", counted)
+    _cache._SHARED.clear()
+    yield built
+    _cache._SHARED.clear()
+
+
+def test_a_two_stage_entry_serves_every_layout_of_its_pairs(tmp_path, counted_builds):
     """The second stage of a two-stage entry (the matrix from the RBF centres) does not depend
     on where the samples lie nor on α: its key leaves them out, and a capture with other angles
     reads the stored entry with its own first stage and layout (no build), to the float64
@@ -437,13 +453,7 @@ def test_a_two_stage_entry_serves_every_layout_of_its_pairs(tmp_path):
     from abrdf_jax import materials
 
     config = aj.preset("recommended", "aniso204")
-    store, built = OperatorStore(tmp_path), []
-    real = _cache.build_entry
-
-    def counted(*a, **k):
-        built.append(1)
-        return real(*a, **k)
-
+    store, built = OperatorStore(tmp_path), counted_builds
     meas, params = [], []
     for k, (name, alpha) in enumerate((("ggx-plastic", 15.0), ("ward-brushed-steel", 17.0))):
         s = aj.simulate_capture(
@@ -454,16 +464,9 @@ def test_a_two_stage_entry_serves_every_layout_of_its_pairs(tmp_path):
         params.append(p.astype(np.float64))
     keys = [operator_key(config, p, m, centres=True) for p, m in zip(params, meas)]
     assert keys[0] == keys[1] != operator_key(config, params[0], meas[0])
-    _cache._SHARED.clear()
-    try:
-        import unittest.mock as mock
-
-        with mock.patch.object(_cache, "build_entry", counted):
-            first, hit0 = cached_entry(store, meas[0], config, params[0])
-            _cache._SHARED.clear()  # the second reads the store, not the memory
-            second, hit1 = cached_entry(store, meas[1], config, params[1])
-    finally:
-        _cache._SHARED.clear()
+    first, hit0 = cached_entry(store, meas[0], config, params[0])
+    _cache._SHARED.clear()  # the second reads the store, not the memory
+    second, hit1 = cached_entry(store, meas[1], config, params[1])
     assert (hit0, hit1, len(built)) == (False, True, 1)
     assert second.matrix is not first.matrix and np.array_equal(second.matrix, first.matrix)
     assert second.t.shape == np.shape(meas[1].t) and second.subspace.alpha == pytest.approx(
@@ -506,7 +509,7 @@ def test_entries_of_one_second_stage_apply_in_one_product(tmp_path):
         OperatorEntry.apply_many([entries[0], other], ys[:2])
 
 
-def test_one_second_stage_serves_every_affine_rule_and_budget(tmp_path):
+def test_one_second_stage_serves_every_affine_rule_and_budget(tmp_path, counted_builds):
     """The second stage reads no first-stage setting (``_cache.FIRST_STAGE``: the rule, the
     budget, the log's ε, the cap, the smoothing), so the recommended models of a jittered
     folder (``--model auto``: iso, aniso-average, aniso-crossing, aniso) share one stored map;
@@ -522,29 +525,17 @@ def test_one_second_stage_serves_every_affine_rule_and_budget(tmp_path):
         aj.preset("recommended", "aniso204", rule="crossing", log_eps=0.05),
         aj.preset("recommended", "aniso204"),
     ]
-    store, built = OperatorStore(tmp_path), []
-    real = _cache.build_entry
-    _cache._SHARED.clear()
-    try:
-        import unittest.mock as mock
-
-        def counted(*a, **k):
-            built.append(1)
-            return real(*a, **k)
-
-        with mock.patch.object(_cache, "build_entry", counted):
-            for config in configs:
-                p = aj.Params.default(config).astype(np.float64)
-                m = aj.group_slices(s, p.alpha_deg, dtype=np.float64)[0]
-                entry, _ = cached_entry(store, m, config, p, shared=True)
-                assert entry.subspace.rule == config.subspace_rule
-                assert entry.log_eps == config.log_eps
-                want = np.asarray(aj.reconstruct(m, config, p))
-                got = entry.apply(np.asarray(m.y, np.float32))
-                bound = APPLY_BOUND["aniso-filip2012-two-stage"]
-                assert np.max(np.abs(got - want)) <= bound * want.max(), config
-    finally:
-        _cache._SHARED.clear()
+    store, built = OperatorStore(tmp_path), counted_builds
+    for config in configs:
+        p = aj.Params.default(config).astype(np.float64)
+        m = aj.group_slices(s, p.alpha_deg, dtype=np.float64)[0]
+        entry, _ = cached_entry(store, m, config, p, shared=True)
+        assert entry.subspace.rule == config.subspace_rule
+        assert entry.log_eps == config.log_eps
+        want = np.asarray(aj.reconstruct(m, config, p))
+        got = entry.apply(np.asarray(m.y, np.float32))
+        bound = APPLY_BOUND["aniso-filip2012-two-stage"]
+        assert np.max(np.abs(got - want)) <= bound * want.max(), config
     assert len(built) == 1 and len(list(store.folder.glob("*.npz"))) == 1
 
 
