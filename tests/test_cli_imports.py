@@ -398,6 +398,42 @@ def test_warm_reconstruct_imports_no_jax(tmp_path):
     assert [e["engine"] for e in record["inputs"]] == ["operator"] * 33
 
 
+def test_one_jittered_file_reads_the_shared_second_stage(tmp_path):
+    """One jittered capture per call (a scanner's run, each capture a layout of its own): the
+    call reads the setting's shared second stage and scores its candidates by the direct fits
+    (``cli/_block_plan.lone_of``), so a second capture of the device builds nothing of its own
+    (the store keeps the shared map and the centres' coefficient map: two entries for both);
+    no JAX; the cold and the warm call give the same bits; an exact capture (the protocol's)
+    still builds its own operator."""
+    import abrdf_jax as aj
+    from abrdf_jax import io, materials
+
+    for k in range(2):
+        s = aj.simulate_capture(
+            materials.get_material("ggx-aniso-metal"), jitter_deg=0.5, noise=0.01, seed=7 + k
+        )
+        io.write_samples_csv(tmp_path / f"j{k}.csv", s)
+    cache = ["--cache-dir", "c"]
+    cases = [(["reconstruct", f"j{k}.csv", "-o", f"j{k}.npz", *cache], 0) for k in range(2)]
+    report, err = _run(
+        [*cases, (["reconstruct", "j0.csv", "-o", "again.npz", *cache], 0)], tmp_path
+    )
+    assert [(code, jax) for _, code, jax in report] == [(0, False)] * 3, err
+    for k in range(2):
+        rec = json.loads((tmp_path / f"j{k}.model.json").read_text())
+        assert rec["engine"] == "operator" and rec["how"] == "auto"
+    stored = sorted((tmp_path / "c" / "operators").glob("*.npz"))
+    kinds = sorted(json.loads(str(np.load(p)["meta"][()]))["kind"] for p in stored)
+    assert kinds == ["centre-map", "rbf"]  # the device's two maps, nothing a capture's own
+    assert (tmp_path / "j0.npz").read_bytes() == (tmp_path / "again.npz").read_bytes()
+    exact = aj.simulate_capture(materials.get_material("ggx-aniso-metal"), noise=0.01, seed=9)
+    io.write_samples_csv(tmp_path / "p.csv", exact)
+    report, err = _run([(["reconstruct", "p.csv", "-o", "p.npz", *cache], 0)], tmp_path)
+    assert report[0][1] == 0, err
+    after = len(list((tmp_path / "c" / "operators").glob("*.npz")))
+    assert after == len(stored) + 2  # its own operator and held-out entry
+
+
 def test_warm_prior_reconstruct_imports_no_jax(tmp_path):
     """``--model prior`` (and ``--model fused``, issue 14) with its entry in the operator store,
     and ``--model auto --prior`` with the held-out entries of every candidate, run in numpy: a prior file and the default prior (found in the cache folder without JAX),

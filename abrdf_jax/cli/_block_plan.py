@@ -11,6 +11,27 @@ get the uninterrupted run's paths and bits.
 
 from __future__ import annotations
 
+#: A capture whose samples lie off their nominal slices by more than this spread (degrees: the
+#: grouping's ``offset_sigma_deg``, the encoder's error) has slice positions of its own
+#: (:func:`lone_of`); an exact capture, such as the protocol's file, spreads by 1e-5° at most,
+#: one with 0.05° of jitter by 0.07°.
+JITTER_MIN_DEG = 0.01
+
+
+def lone_of(item) -> frozenset:
+    """The layout key of a single input (``common.Measured``) that is lone although no other
+    input is there to count (``abrdf_jax._engine.lone_layouts``): a jittered capture's, whose
+    positions are its own and never met again, so that its call reads the setting's shared
+    second stage and scores its candidates by the direct fits instead of building an operator
+    and a held-out entry that would serve it once. Decided from the file alone: a cold and a
+    warm call take the same path and give the same bits. Empty for an exact capture (its
+    layout recurs: its own operator and entry are built once and stored)."""
+    from .._grouping import layout_key
+
+    if not item.used.get("offset_sigma_deg", 0.0) > JITTER_MIN_DEG:
+        return frozenset()
+    return frozenset({layout_key(item.meas)})
+
 
 def block_jobs(items, choices, place: dict, kept: dict, *, block: int, slices) -> list[tuple]:
     """``[(config, members, meas, job)]``: per setting of the block's ``items`` (with their

@@ -478,7 +478,7 @@ from ._caches import CACHE_DIR_HELP, Caches, compilation_cache  # noqa: E402, F4
 from ._resume import kept_batches, resumable, settings_key  # noqa: E402, F401
 
 # A folder block's settings and plans (reconstruct DIR): its own module, used through this one
-from ._block_plan import block_jobs  # noqa: E402, F401
+from ._block_plan import block_jobs, lone_of  # noqa: E402, F401
 
 # ``--uncertainty``: its own module, used through this one
 from ._uncertainty import HELP as UNCERTAINTY_HELP  # noqa: E402, F401

@@ -186,6 +186,7 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
         level=LEVEL,
         min_effect=MIN_EFFECT,
         min_group=1 if len(items) == 1 else MIN_GROUP,
+        lone=common.lone_of(items[0]) if len(items) == 1 else None,
         before_build=caches.numerics,
         where=[it.path for it in items],
         learned=caches.prior,
@@ -350,14 +351,16 @@ def _reconstruct_one(item: common.Measured, choice: dict, out: Path, args, cache
 
     from .. import io
     from .._arrays import check_finite
-    from .._engine import reconstruct_many
+    from .._engine import plan_job, reconstruct_many
 
     config, params = choice["config"], choice["params"]
     meas = common.measurements_for(item, config)
     common.warn_guard(item.path, meas, config, params, args.params)
+    lone = common.lone_of(item)  # a jittered capture: the shared second stage, no own build
+    plan = plan_job([meas], config, min_group=2, small=True, lone=lone) if lone else None
     ((_, tables, engine),) = reconstruct_many(
         [meas], config, params, operator=caches.operator, min_group=1,
-        before_jax=caches.numerics, host=True,
+        before_jax=caches.numerics, host=True, plan=plan,
     )  # fmt: skip
     table = np.asarray(tables[0])
     check_finite(table, str(item.path))

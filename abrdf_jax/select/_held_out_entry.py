@@ -331,6 +331,7 @@ def entry_selections(
     where=None,
     learned=None,
     reports=None,
+    lone=None,
 ):
     """:func:`abrdf_jax.select.select_model` (``candidates="auto"``) of grouped measurements
     ``items`` (``(meas, alpha_deg)`` pairs) wherever it needs no JAX: one candidate left (as
@@ -346,8 +347,10 @@ def entry_selections(
     (:func:`~abrdf_jax.select._isotropy.isotropy_tests`, a folder's at once); ``learned``: a
     prior (:class:`abrdf_jax._prior_operator.PriorSource`) whose prior-only and fused models join
     the candidates (as :func:`~abrdf_jax.select.select_model`'s ``prior``), scored by their own
-    held-out entries (:mod:`abrdf_jax.select._learned_entry`). Parameters are numpy values
-    (:class:`abrdf_jax._config.ParamValues`)."""
+    held-out entries (:mod:`abrdf_jax.select._learned_entry`); ``lone``: the layout keys that
+    take the direct fits, not an entry, whatever ``min_group`` (default: with ``min_group`` above
+    1, those met once among ``items``: ``abrdf_jax._engine.lone_layouts``). Parameters are numpy
+    values (:class:`abrdf_jax._config.ParamValues`)."""
     from .._grouping import layout_key
 
     t0 = time.perf_counter()
@@ -368,7 +371,8 @@ def entry_selections(
     # the reconstruction operators' rule (abrdf_jax._engine.plan_job): the small groups too
     # where they are few, but not a lone layout that the direct fits serve (a jittered
     # capture's: an entry would serve it alone; _engine.lone_layouts)
-    lone = _engine.lone_layouts(key for key, _, _ in groups) if min_group > 1 else frozenset()
+    if lone is None:  # else the caller's (a single jittered capture's: cli/_block_plan)
+        lone = _engine.lone_layouts(k for k, _, _ in groups) if min_group > 1 else frozenset()
     direct = {
         g for g, m in groups.items() if g[0] in lone and len(m) == 1 and direct_plan(plans[m[0]])
     }
@@ -377,7 +381,7 @@ def entry_selections(
         <= _engine.OPERATOR_MAX_BUILDS
     )
     for g, members in groups.items():
-        if len(members) < min_group and (not small or g in direct):
+        if g in direct or (len(members) < min_group and not small):
             continue
         p0 = plans[members[0]]
         ys = np.stack([np.asarray(plans[i].meas.y) for i in members])
