@@ -93,8 +93,12 @@ class OperatorEntry:
         if any(e.matrix is not first.matrix or e.keep is not first.keep for e in entries):
             raise ValueError("apply_many needs entries that share one matrix and kept rows")
         parts = [e._features(e._compact(y)) for e, y in zip(entries, ys)]
-        rx = np.concatenate([r for r, _, _, _ in parts])
-        rxc = None if parts[0][1] is None else np.concatenate([r for _, r, _, _ in parts])
+
+        def joined(i):  # one entry's rows as they are (apply: no copy), else stacked
+            rows = [p[i] for p in parts]
+            return None if rows[0] is None else rows[0] if len(rows) == 1 else np.concatenate(rows)
+
+        rx, rxc = joined(0), joined(1)
         out = first._product(rx, rxc)
         tables, at = [], 0
         for e, y, (r, _, eps, shape) in zip(entries, ys, parts):

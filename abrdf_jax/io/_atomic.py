@@ -68,17 +68,7 @@ def atomic_write(
     if mode not in ("wb", "w", "wt"):
         raise ValueError(f"atomic_write mode must be 'wb', 'w' or 'wt', got {mode!r}")
     path = Path(path)
-    folder = path.parent
-    if not folder.is_dir():
-        raise InputError(f"cannot write {path}: folder {folder} does not exist")
-    if path.is_dir():
-        raise InputError(f"cannot write {path}: it is a folder")
-    try:
-        fd, tmp = _create_temp(path)
-    except OSError as e:
-        raise InputError(
-            f"cannot write {path}: folder {folder} is not writable ({write_cause(e)})"
-        ) from e
+    fd, tmp = _checked_temp(path, path.parent, lambda: _create_temp(path))
     try:
         kw = {} if "b" in mode else {"encoding": "utf-8", "newline": newline}
         f = os.fdopen(fd, "wb" if "b" in mode else "w", **kw)
@@ -101,7 +91,7 @@ def atomic_write(
             os.unlink(tmp)
         raise
     if durable:
-        _fsync_folder(folder)
+        _fsync_folder(path.parent)
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
@@ -116,17 +106,8 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """
     path = os.fspath(path)
     folder = os.path.dirname(path) or "."
-    if not os.path.isdir(folder):
-        raise InputError(f"cannot write {path}: folder {folder} does not exist")
-    if os.path.isdir(path):
-        raise InputError(f"cannot write {path}: it is a folder")
     prefix = os.path.join(folder, f".{os.path.basename(path)}.{os.getpid()}.")
-    try:
-        fd, tmp = _open_temp(prefix)
-    except OSError as e:
-        raise InputError(
-            f"cannot write {path}: folder {folder} is not writable ({write_cause(e)})"
-        ) from e
+    fd, tmp = _checked_temp(path, folder, lambda: _open_temp(prefix))
     try:
         try:
             _write_all(fd, data)
@@ -141,6 +122,23 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def _checked_temp(path, folder, create) -> tuple[int, str]:
+    """The checks of every atomic write (the folder exists, ``path`` is not a folder), then its
+    temporary file ``create()`` (``(descriptor, name)``); an :class:`InputError` naming
+    ``path`` otherwise (one copy of the messages: :func:`atomic_write`,
+    :func:`atomic_write_bytes`)."""
+    if not os.path.isdir(folder):
+        raise InputError(f"cannot write {path}: folder {folder} does not exist")
+    if os.path.isdir(path):
+        raise InputError(f"cannot write {path}: it is a folder")
+    try:
+        return create()
+    except OSError as e:
+        raise InputError(
+            f"cannot write {path}: folder {folder} is not writable ({write_cause(e)})"
+        ) from e
 
 
 def _write_all(fd: int, data: bytes) -> None:

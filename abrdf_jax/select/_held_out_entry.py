@@ -372,10 +372,9 @@ def entry_selections(
     # where they are few, but not a lone layout that the direct fits serve (a jittered
     # capture's: an entry would serve it alone; _engine.lone_layouts)
     if lone is None:  # else the caller's (a single jittered capture's: cli/_block_plan)
-        lone = _engine.lone_layouts(k for k, _, _ in groups) if min_group > 1 else frozenset()
-    direct = {
-        g for g, m in groups.items() if g[0] in lone and len(m) == 1 and direct_plan(plans[m[0]])
-    }
+        keys = (g[0] for g, m in groups.items() for _ in m)  # one a member: lone is a group of 1
+        lone = _engine.lone_layouts(keys) if min_group > 1 else frozenset()
+    direct = {g for g, m in groups.items() if g[0] in lone and direct_plan(plans[m[0]])}
     small = (
         sum(len(m) < min_group for g, m in groups.items() if g not in direct)
         <= _engine.OPERATOR_MAX_BUILDS
