@@ -454,7 +454,7 @@ class SharedStages:
     :func:`reconstruct_many` each, since each has its own α), kept until :data:`SHARED_ROWS`
     captures wait, then their second stages in one product per matrix
     (``OperatorEntry.apply_many``: the same bits as one product each, which read the whole
-    48 MB matrix for three rows). A caller that passes one to several calls (``stages=``) takes
+    27 MB matrix, at the UBO centres, for three rows). A caller that passes one to several calls (``stages=``) takes
     their tables from :meth:`flush`, each with the ``tag`` it gave :meth:`tagged`."""
 
     def __init__(self, rows: int | None = None):

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 #: A capture whose samples lie off their nominal slices by more than this spread (degrees: the
 #: grouping's ``offset_sigma_deg``, the encoder's error) has slice positions of its own
-#: (:func:`lone_of`); an exact capture, such as the protocol's file, spreads by 1e-5° at most,
-#: one with 0.05° of jitter by 0.07°.
+#: (:func:`lone_of`); an exact capture, such as the protocol's file, spreads by its angles'
+#: rounding only, far below it (scratch figures: docs/notes.md, thirtieth session).
 JITTER_MIN_DEG = 0.01
 
 
