@@ -404,10 +404,9 @@ def build_entry(
     mode = "two_stage" if two_stage else nonlinear_mode(config, meas)  # (numpy: no JAX)
     built = host_matrix_or_none(config, params, meas, mode) if build_dtype == "float64" else None
     if built is None:
-        from ._operator import operator_matrix
-
         if before_jax is not None:
             before_jax()
+        from ._operator import operator_matrix
 
         # Host inputs straight into the one compiled build: no eager JAX operation (each
         # compiles a small program on a cold call; _operator.operator_matrix).

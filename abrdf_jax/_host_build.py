@@ -125,11 +125,7 @@ def host_matrix(config, values, template, nonlinear: str = "raise") -> BuiltMatr
             t.astype(np.float64), unit.reshape(s, nmax, -1), count, pairs, azimuths, alpha,
             config.subspace_rule, config.interp, xp=np,
         )  # fmt: skip
-    widths = tuple(float(w) for w in np.ravel(np.asarray(values.widths, np.float64)))
-    key = tuple(tuple(float(x) for x in pair) for pair in pairs)
-    rbf = _rbf_at_targets(
-        config.parameterization, config.kernel, config.degree, widths, key, azimuths
-    )
+    rbf = _rbf_at_targets(*_targets_key(config, values, template))
     coeffs, tail, _ = host_solve(rbf.k, rbf.p, rbf.sc, np.float64(np.asarray(values.reg)), vals)
     out = np.zeros((81 * 81, vals.shape[-1]))
     out[rbf.rest] = combine(rbf.kq, rbf.pq, coeffs, tail, np)  # evaluate(), blocks made once
@@ -143,6 +139,21 @@ def host_matrix_or_none(config, values, template, nonlinear: str = "raise") -> B
         return host_matrix(config, values, template, nonlinear)
     except np.linalg.LinAlgError:
         return None
+
+
+def warm_targets(config, values, template) -> None:
+    """Make the RBF blocks at the UBO targets that :func:`host_matrix` of ``config``,
+    ``values`` and ``template``'s pairs reads (kept for the next build of the setting): ahead
+    of the builds, on a thread of their own (``abrdf_jax.cli._prefetch``)."""
+    _rbf_at_targets(*_targets_key(config, values, template))
+
+
+def _targets_key(config, values, template) -> tuple:
+    """The hashable arguments of :func:`_rbf_at_targets` for a build."""
+    widths = tuple(float(w) for w in np.ravel(np.asarray(values.widths, np.float64)))
+    pairs = tuple(tuple(float(x) for x in pair) for pair in template.pairs)
+    c = config
+    return c.parameterization, c.kernel, c.degree, widths, pairs, template.centre_azimuths
 
 
 class _TargetRbf(NamedTuple):

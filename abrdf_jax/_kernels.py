@@ -130,8 +130,10 @@ def scaled_sqdist(x, y, widths, xp=None):
 
 
 #: Rows of a kernel block made at a time in numpy: the temporaries (``rows × m`` float64) stay
-#: in cache instead of streaming a 55 MB array through memory a dozen times.
-HOST_ROWS = 256
+#: in cache instead of streaming a 55 MB array through memory a dozen times. 32 rows (330 kB
+#: temporaries at the 1,296 centres) made the 5,265 × 1,296 block of an operator's build in
+#: 105 ms, 256 rows in 134 ms, 512 in 163 ms (scratch, docs/notes.md, 31st session).
+HOST_ROWS = 32
 
 
 def kernel_block(x, y, widths, kernel: str, xp=None):

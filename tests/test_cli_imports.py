@@ -263,7 +263,8 @@ def test_materials_listing_imports_no_jax(tmp_path):
 def test_subcommands_import_only_the_shared_module():
     """Arrows point into cli/_common only (which holds cli/_record, the model record,
     cli/_outputs, the output checks and overwrite policy, cli/_caches, --cache-dir,
-    cli/_learned, the prior-only model, cli/_progress, the progress bars and lines,
+    cli/_learned, the prior-only model, cli/_prefetch (through cli/_caches), the builds on a
+    second thread, cli/_progress, the progress bars and lines,
     cli/_resume, what --resume keeps, cli/_block_plan, a folder block's plans, cli/_readers, the reader processes, cli/_blas, the
     BLAS thread count, cli/_malloc, the allocator's thresholds, and cli/_capture_values, the
     warnings of a capture's values): no subcommand imports another, nor the package's __init__ (checked on
@@ -297,7 +298,8 @@ def test_subcommands_import_only_the_shared_module():
                     },
                     "_args.py": set(),
                     "_outputs.py": set(),
-                    "_caches.py": set(),
+                    "_caches.py": {"_prefetch"},
+                    "_prefetch.py": set(),
                     "_progress.py": set(),
                     "_resume.py": set(),
                     "_record.py": set(),

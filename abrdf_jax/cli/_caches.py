@@ -41,6 +41,9 @@ class Caches:
             self.store = _cache.OperatorStore(self.folder, warn=warn)
         self._numerics = False
         self.prior = None  # the run's prior (abrdf_jax._prior_operator.PriorSource), if any
+        from ._prefetch import Prefetch
+
+        self.prefetch = Prefetch(self.store, warn)  # builds on a second core (folder runs)
 
     def numerics(self) -> None:
         """Before the first JAX work of the run: JAX's compilation cache on (once)."""
@@ -59,6 +62,9 @@ class Caches:
 
         if getattr(config, "operator_only", False):  # the prior-only model's own entries
             return config.operator(params, template, self.store, self.warn, self.numerics)
+        entry = None if shared else self.prefetch.take(config, params, template)
+        if entry is not None:  # built on the second thread (cli/_prefetch.py)
+            return entry
         entry, _ = _cache.cached_entry(
             self.store, template, config, params, self.warn, before_build=self.numerics,
             shared=shared,

@@ -191,6 +191,7 @@ def _auto_choices(items, args, forced, caches, on_done=None) -> list[dict]:
         where=[it.path for it in items],
         learned=caches.prior,
         reports=reports,
+        prefetch=caches.prefetch,
     )
     rest = [k for k, s in enumerate(sels) if s is None]
     if rest:
@@ -405,6 +406,7 @@ def _reconstruct_folder(blocks, job: tuple, args, caches, forced) -> int:
     with (
         common.progress(n_files, "reconstruct", args.quiet) as bar,
         ThreadPoolExecutor(max_workers=WRITERS) as pool,
+        caches.prefetch,  # the builds on a second thread (cli/_prefetch.py) end with the run
     ):
         pending: list = []  # (futures, records) of the batch being written
         saved = [time.perf_counter()]
@@ -427,10 +429,10 @@ def _reconstruct_folder(blocks, job: tuple, args, caches, forced) -> int:
             models += [c["record"]["model"] for c in choices]
             budgets |= {c["config"].budget for c in choices}
             jobs = common.block_jobs(
-                items, choices, place, kept, block=common.BLOCK,
-                slices=common.measurements_for,
-            )  # fmt: skip
+                items, choices, place, kept, block=common.BLOCK, slices=common.measurements_for
+            )
             stages = SharedStages()  # jittered captures' second stages: one product
+            caches.prefetch.operators(jobs, lambda m, c=choices: c[m[0]]["params"])
 
             def take(members, idx, tables, path, items=items, targets=targets, choices=choices):
                 paths[path] += len(idx)

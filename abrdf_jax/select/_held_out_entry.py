@@ -18,6 +18,7 @@ to float32 rounding (tests/test_held_out_entry.py). This module imports numpy on
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 
 import numpy as np
@@ -275,13 +276,16 @@ def _jax_terms(meas, alpha_deg: float, cfgs, k: int):
         return tuple(np.asarray(a) for a in held_out_terms(data, cfgs[0], params, centres))
 
 
-def cached_entry(store, meas, alpha_deg, names, cfgs, k, warn, before_build=None):
-    """The entry of one kernel group from ``store`` (no JAX), else built and stored."""
+def cached_entry(store, meas, alpha_deg, names, cfgs, k, warn, before_build=None, on_miss=None):
+    """The entry of one kernel group from ``store`` (no JAX), else built and stored
+    (``on_miss()`` first, when given)."""
     params = default_values(cfgs[0], alpha_deg)
     key = None if store is None else _key(cfgs, names, params, meas, k)
     entry = None if store is None else store.load(key, warn, kind=HeldOutEntry)
     if entry is not None and entry.t.shape == tuple(np.shape(meas.t)):
         return entry
+    if on_miss is not None:
+        on_miss()
     entry = build_entry(meas, alpha_deg, names, cfgs, k, before_jax=before_build)
     if store is not None:
         store.save(key, entry, warn)
@@ -332,6 +336,7 @@ def entry_selections(
     learned=None,
     reports=None,
     lone=None,
+    prefetch=None,
 ):
     """:func:`abrdf_jax.select.select_model` (``candidates="auto"``) of grouped measurements
     ``items`` (``(meas, alpha_deg)`` pairs) wherever it needs no JAX: one candidate left (as
@@ -349,8 +354,12 @@ def entry_selections(
     the candidates (as :func:`~abrdf_jax.select.select_model`'s ``prior``), scored by their own
     held-out entries (:mod:`abrdf_jax.select._learned_entry`); ``lone``: the layout keys that
     take the direct fits, not an entry, whatever ``min_group`` (default: with ``min_group`` above
-    1, those met once among ``items``: ``abrdf_jax._engine.lone_layouts``). Parameters are numpy
-    values (:class:`abrdf_jax._config.ParamValues`)."""
+    1, those met once among ``items``: ``abrdf_jax._engine.lone_layouts``); ``prefetch``: told
+    of each layout group scored by an entry, by ``prefetch.targets(meas, alpha, configs,
+    count)`` before an entry missing from the store is built and ``prefetch.chosen(meas,
+    selections)`` once its members are chosen (the command line builds their operators on a second thread meanwhile,
+    ``abrdf_jax.cli._prefetch``). Parameters are numpy values
+    (:class:`abrdf_jax._config.ParamValues`)."""
     from .._grouping import layout_key
 
     t0 = time.perf_counter()
@@ -386,7 +395,10 @@ def entry_selections(
         ys = np.stack([np.asarray(plans[i].meas.y) for i in members])
         errors = [{} for _ in members]
         for names, cfgs in entry_groups(rbf_configs(p0.configs)):
-            entry = cached_entry(store, p0.meas, p0.alpha, names, cfgs, k, warn, before_build)
+            miss = None  # a new layout: its operators' shared blocks made meanwhile
+            if prefetch is not None:
+                miss = functools.partial(prefetch.targets, p0.meas, p0.alpha, cfgs, len(members))
+            entry = cached_entry(store, p0.meas, p0.alpha, names, cfgs, k, warn, before_build, miss)
             for row, err in zip(errors, entry.errors(ys)):
                 row.update({n: float(e) for n, e in zip(names, err)})
         for name in (n for n in p0.configs if n in LEARNED):
@@ -396,6 +408,8 @@ def entry_selections(
                 row[name] = float(err)
         for i, err in zip(members, errors):
             out[i] = finish(plans[i], err, tol, k, 0.0)
+        if prefetch is not None:
+            prefetch.chosen(p0.meas, [out[i] for i in members])
     direct_selections(plans, out, tol, k, store, warn)  # dense layouts, and those left
     share = (time.perf_counter() - t0) / max(len(items), 1)
     return [None if s is None else dataclasses.replace(s, seconds=share) for s in out]

@@ -1,0 +1,168 @@
+"""A cold folder's operator builds on a second core (issue 13: the cold 1000-file folder).
+
+A folder of a new sample layout builds its operators in numpy, on one core (BLAS runs one
+thread, :mod:`abrdf_jax.cli._blas`): the setting's RBF blocks at the UBO targets (a 5,265 ×
+1,296 kernel block and the centres' system, shared by the candidates of one setting), then per
+chosen model a solve and a product (``abrdf_jax._host_build.host_matrix``). The main thread did
+them one after the other, between the model choice and each model's first batch, while the
+second core, busy while the readers ran, waited: a cold 1000-file aniso204 folder took 0.7 s
+more than a warm one (``python -m benchmarks.cli``, 30th session).
+
+:class:`Prefetch` runs them on one worker thread instead (numpy releases the GIL in its loops
+and products):
+
+- during the model choice, the RBF blocks at the targets of a large layout's setting
+  (:meth:`Prefetch.targets`, told by ``select._held_out_entry.entry_selections`` of a layout
+  group whose held-out entry the store lacks, before the entry is built: a new layout), where
+  the store lacks an operator of its candidates; then, as soon as the group's members are chosen, the
+  operators of the models chosen by many of them (:meth:`Prefetch.chosen`);
+- once a folder block's models are chosen, the operators its jobs read that nothing builds
+  yet (:meth:`Prefetch.operators`; not the shared second stages of jittered captures), in
+  the order the jobs read them; the main thread takes each from its future when its turn
+  comes (:meth:`Prefetch.take`, through ``Caches.operator``), reconstructing the groups before
+  it meanwhile.
+
+The same bits: each build is the function the main thread would call on the same inputs, stored
+the same way. Only what is sure to be read is built (the chosen models' operators; the target
+blocks of a setting whose operators are missing, for layout groups of
+:data:`abrdf_jax._engine.OPERATOR_MIN_GROUP` inputs or more), and only single-stage numpy
+builds (a build that needs JAX, a singular RBF system, is left to the main thread, which reports
+it; so is any error: a build that fails here is built again where the run would have built it).
+A single file's call builds on its main thread (nothing to overlap). Tests: tests/test_cli_prefetch.py.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import contextlib
+
+
+class _NeedsJax(Exception):
+    """A build here would need JAX: left to the main thread."""
+
+
+def _no_jax() -> None:
+    raise _NeedsJax
+
+
+class Prefetch:
+    """The builds of one ``reconstruct`` run on one worker thread (module docstring)."""
+
+    def __init__(self, store, warn):
+        self.store, self.warn = store, warn
+        self._pool: concurrent.futures.ThreadPoolExecutor | None = None
+        self._building: dict[str, concurrent.futures.Future] = {}
+        self._targets: set = set()
+
+    def _submit(self, fn, *args) -> concurrent.futures.Future:
+        if self._pool is None:
+            self._pool = concurrent.futures.ThreadPoolExecutor(1, "abrdf-jax-build")
+        return self._pool.submit(fn, *args)
+
+    def _missing(self, config, params, template) -> str | None:
+        """The store key of a single-stage numpy build of ``config`` on ``template``'s layout
+        that the store lacks and nothing builds yet; ``None`` otherwise."""
+        from .. import _cache
+        from .._centre_step import host_two_stage
+        from .._errors import InputError
+        from .._host_build import build_stage
+
+        if self.store is None or getattr(config, "operator_only", False):
+            return None
+        if host_two_stage(config, template):
+            return None
+        try:
+            build_stage(config, template)
+        except InputError:
+            return None
+        key = _cache.operator_key(config, params, template)
+        if key in self._building or self.store.path(key).exists():
+            return None
+        return key
+
+    def targets(self, meas, alpha: float, configs, count: int) -> None:
+        """Before the held-out entry of a layout group of ``count`` inputs is built
+        (``meas``'s layout, α ``alpha`` in degrees, candidate ``configs``): the RBF blocks at
+        the targets of the first candidate whose operator the store lacks, made on the worker
+        (once a setting)."""
+        from .._config import default_values
+        from .._engine import OPERATOR_MIN_GROUP
+        from .._host_build import _targets_key, warm_targets
+
+        if count < OPERATOR_MIN_GROUP:
+            return
+        for config in configs:
+            params = default_values(config, alpha, meas.y.dtype)  # the choice's (_choice.finish)
+            if self._missing(config, params, meas) is None:
+                continue
+            key = _targets_key(config, params, meas)
+            if key not in self._targets:
+                self._targets.add(key)
+                self._submit(_quietly, warm_targets, config, params, meas)
+            return
+
+    def chosen(self, meas, selections) -> None:
+        """A layout group of ``meas``'s layout chosen (its members' ``selections``): the
+        operators of the models chosen for :data:`~abrdf_jax._engine.OPERATOR_MIN_GROUP`
+        inputs or more, built on the worker while the choice goes on."""
+        from .._engine import OPERATOR_MIN_GROUP
+
+        counts: dict = {}
+        for s in selections:
+            counts.setdefault(s.config, [0, s.params])[0] += 1
+        for config, (count, params) in counts.items():
+            if count >= OPERATOR_MIN_GROUP:
+                self._build_later(config, params, meas)
+
+    def operators(self, jobs, params_of) -> None:
+        """The operators the block's ``jobs`` (``cli._block_plan.block_jobs``) will read and
+        nothing builds yet, built on the worker in the jobs' order; ``params_of(members)``: a
+        job's parameters."""
+        for config, members, meas, job in jobs:
+            params = params_of(members)
+            for g in job["plan"].values():
+                if g["kind"] == "operator" and not g["shared"]:
+                    self._build_later(config, params, meas[g["members"][0]])
+
+    def _build_later(self, config, params, template) -> None:
+        key = self._missing(config, params, template)
+        if key is not None:
+            self._building[key] = self._submit(self._build, key, config, params, template)
+
+    def _build(self, key, config, params, template):
+        from .. import _cache
+
+        try:
+            entry = _cache.build_entry(template, config, params, before_jax=_no_jax)
+        except Exception:  # noqa: BLE001 - the main thread builds it again and reports
+            return None
+        self.store.save(key, entry, self.warn)
+        return entry
+
+    def take(self, config, params, template):
+        """The entry built here for ``config`` on ``template``'s layout (waiting for it), or
+        ``None`` (not built here, or given up: the caller builds it)."""
+        if not self._building:
+            return None
+        from .. import _cache
+
+        future = self._building.pop(_cache.operator_key(config, params, template), None)
+        return None if future is None else future.result()
+
+    def close(self) -> None:
+        """Stop the worker: builds not started are dropped, a running one ends first."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        self._building.clear()
+
+    def __enter__(self) -> "Prefetch":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _quietly(fn, *args) -> None:
+    with contextlib.suppress(Exception):  # a head start only: the build makes it again
+        fn(*args)

@@ -1,0 +1,142 @@
+"""A cold folder's operator builds on a second thread (``abrdf_jax.cli._prefetch``).
+
+The command line builds a new layout's operators on a worker thread while the model choice and
+the earlier groups run: the RBF blocks at the targets while the held-out entry is built, the
+chosen models' operators as soon as a layout group is chosen. Checked here: the builds do run on
+the worker, the tables are the same bits as a run whose main thread builds everything, a build
+that fails on the worker is built again by the main thread (the run does not notice), and a warm
+run starts no worker.
+"""
+
+import threading
+
+import numpy as np
+import pytest
+
+import abrdf_jax as aj
+from abrdf_jax import _cache, _host_build, io, materials
+from abrdf_jax.cli import _prefetch, main
+
+N = 36  # one layout group of at least OPERATOR_MIN_GROUP (32) inputs
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    """``N`` aniso204 captures of one anisotropic material (1 % noise): one layout, one choice."""
+    d = tmp_path_factory.mktemp("prefetch") / "in"
+    d.mkdir()
+    m = materials.get_material("ggx-aniso-metal")
+    for k in range(N):
+        s = aj.simulate_capture(m, budget="aniso204", noise=0.01, seed=k)
+        io.write_samples_csv(d / f"m{k:02d}.csv", s)
+    return d
+
+
+@pytest.fixture
+def threads_of(monkeypatch):
+    """The thread names that ran each build step (operator builds, target blocks)."""
+    seen: dict[str, list[str]] = {"host_matrix": [], "warm_targets": []}
+    for name in seen:
+        real = getattr(_host_build, name)
+
+        def wrapped(*a, _real=real, _name=name, **k):
+            seen[_name].append(threading.current_thread().name)
+            return _real(*a, **k)
+
+        monkeypatch.setattr(_host_build, name, wrapped)
+    _cache._SHARED.clear()
+    _host_build._rbf_at_targets.cache_clear()  # a cold process: the blocks made anew
+    yield seen
+    _host_build._rbf_at_targets.cache_clear()
+
+
+def _run(folder, out, cache) -> dict:
+    assert main(["reconstruct", str(folder), "-o", str(out), "-q", "--cache-dir", str(cache)]) == 0
+    return {p.name: io.read_table(p) for p in sorted(out.glob("*.npz"))}
+
+
+def _no_prefetch(monkeypatch):
+    for name in ("targets", "chosen", "operators"):
+        monkeypatch.setattr(_prefetch.Prefetch, name, lambda self, *a, **k: None)
+
+
+def test_a_cold_folder_builds_on_the_worker_with_the_same_bits(
+    folder, tmp_path, threads_of, monkeypatch
+):
+    worker = "abrdf-jax-build"
+    tables = _run(folder, tmp_path / "out", tmp_path / "cache")
+    assert len(tables) == N
+    assert threads_of["host_matrix"] and all(
+        t.startswith(worker) for t in threads_of["host_matrix"]
+    ), threads_of
+    assert [t.startswith(worker) for t in threads_of["warm_targets"]] == [True], threads_of
+    stored = sorted(p.name for p in (tmp_path / "cache" / "operators").iterdir())
+    # the same run with every build on the main thread: the same tables and store entries
+    _no_prefetch(monkeypatch)
+    _host_build._rbf_at_targets.cache_clear()
+    del threads_of["host_matrix"][:]
+    again = _run(folder, tmp_path / "again", tmp_path / "cache2")
+    assert threads_of["host_matrix"] and all(
+        t == threading.main_thread().name for t in threads_of["host_matrix"]
+    )
+    assert sorted(p.name for p in (tmp_path / "cache2" / "operators").iterdir()) == stored
+    assert again.keys() == tables.keys()
+    for name, table in tables.items():
+        np.testing.assert_array_equal(again[name], table, err_msg=name)
+
+
+def test_a_build_that_fails_on_the_worker_is_built_by_the_main_thread(
+    folder, tmp_path, threads_of, monkeypatch
+):
+    real, failed = _cache.build_entry, []
+
+    def failing(*a, **k):
+        if threading.current_thread() is not threading.main_thread():
+            failed.append(1)
+            raise RuntimeError("a worker's build fails")
+        return real(*a, **k)
+
+    monkeypatch.setattr(_cache, "build_entry", failing)
+    tables = _run(folder, tmp_path / "out", tmp_path / "cache")
+    assert failed, "nothing was built on the worker"
+    assert len(tables) == N
+    assert all(t == threading.main_thread().name for t in threads_of["host_matrix"])
+    # and the same tables as a run without the worker
+    _no_prefetch(monkeypatch)
+    again = _run(folder, tmp_path / "again", tmp_path / "cache2")
+    for name, table in tables.items():
+        np.testing.assert_array_equal(again[name], table, err_msg=name)
+
+
+def test_a_build_that_needs_jax_is_left_to_the_main_thread(folder, tmp_path, monkeypatch):
+    """A singular RBF system (the numpy build gives up) would need the JAX build: the worker
+    gives it up before any JAX work; the main thread builds it (here: the numpy build again,
+    which does not fail on the main thread)."""
+    real, gave_up = _host_build.host_matrix_or_none, []
+
+    def singular_on_the_worker(*a, **k):
+        if threading.current_thread() is not threading.main_thread():
+            gave_up.append(1)
+            return None
+        return real(*a, **k)
+
+    monkeypatch.setattr(_host_build, "host_matrix_or_none", singular_on_the_worker)
+    _cache._SHARED.clear()
+    assert len(_run(folder, tmp_path / "out", tmp_path / "cache")) == N
+    assert gave_up
+
+
+def test_a_warm_folder_starts_no_worker(folder, tmp_path, monkeypatch):
+    _run(folder, tmp_path / "out", tmp_path / "cache")
+    submitted = []
+    monkeypatch.setattr(_prefetch.Prefetch, "_submit", lambda self, *a: submitted.append(a))
+    _run(folder, tmp_path / "warm", tmp_path / "cache")
+    assert submitted == []
+
+
+def test_take_and_close_without_builds():
+    p = _prefetch.Prefetch(None, print)
+    assert p.take(None, None, None) is None
+    with p:
+        pass
+    p.close()  # twice: nothing to stop
