@@ -2,7 +2,8 @@
 
 The command line builds a new layout's operators on a worker thread while the model choice and
 the earlier groups run: the RBF blocks at the targets while the held-out entry is built, the
-chosen models' operators as soon as a layout group is chosen. Checked here: the builds do run on
+chosen models' operators as soon as a layout group is chosen, the shared second stage of jittered
+captures while the direct fits run. Checked here: the builds do run on
 the worker, the tables are the same bits as a run whose main thread builds everything, a build
 that fails on the worker is built again by the main thread (the run does not notice), and a warm
 run starts no worker.
@@ -56,7 +57,7 @@ def _run(folder, out, cache) -> dict:
 
 
 def _no_prefetch(monkeypatch):
-    for name in ("targets", "chosen", "operators"):
+    for name in ("targets", "chosen", "operators", "shared"):
         monkeypatch.setattr(_prefetch.Prefetch, name, lambda self, *a, **k: None)
 
 
@@ -140,3 +141,62 @@ def test_take_and_close_without_builds():
     with p:
         pass
     p.close()  # twice: nothing to stop
+
+
+@pytest.fixture(scope="module")
+def jittered(tmp_path_factory):
+    """Six aniso204 captures with 0.5 degrees of encoder error (a layout each: direct fits, and
+    the setting's shared second stage), one more as a single file, and a dense capture (60
+    samples a slice: a centre layout of its own, whose second stage is shared too)."""
+    d = tmp_path_factory.mktemp("jittered")
+    (d / "in").mkdir()
+    m = materials.get_material("ggx-aniso-metal")
+    for k in range(7):
+        s = aj.simulate_capture(m, budget="aniso204", noise=0.01, jitter_deg=0.5, seed=40 + k)
+        io.write_samples_csv(d / ("one.csv" if k == 6 else f"in/m{k}.csv"), s)
+    s = aj.simulate_capture(m, budget="aniso204", noise=0.01, jitter_deg=0.5, per_slice=60, seed=3)
+    assert aj.group_slices(s)[0].centre_azimuths is not None  # a dense layout
+    io.write_samples_csv(d / "dense.csv", s)
+    return d
+
+
+@pytest.fixture
+def two_stage_builds(monkeypatch):
+    """The thread of each two-stage (shared second stage) build."""
+    seen, real = [], _cache.build_entry
+
+    def counted(*a, two_stage=False, **k):
+        if two_stage:
+            seen.append(threading.current_thread().name)
+        return real(*a, two_stage=two_stage, **k)
+
+    monkeypatch.setattr(_cache, "build_entry", counted)
+    _cache._SHARED.clear()
+    yield seen
+    _cache._SHARED.clear()
+
+
+@pytest.mark.parametrize("what", ["in", "one.csv", "dense.csv"])
+def test_jittered_captures_build_their_shared_stage_on_the_worker(
+    jittered, tmp_path, two_stage_builds, monkeypatch, what
+):
+    """A folder of jittered captures, one jittered file, one dense capture: the second stage
+    their models read is built on the worker while the direct fits choose the models, once;
+    the same tables as with every build on the main thread."""
+
+    def run(out, cache):
+        out = tmp_path / (out if what == "in" else out + ".npz")
+        argv = ["reconstruct", str(jittered / what), "-o", str(out), "-q"]
+        assert main([*argv, "--cache-dir", str(tmp_path / cache)]) == 0
+        paths = sorted(out.glob("*.npz")) if what == "in" else [out]
+        return [io.read_table(p) for p in paths]
+
+    tables = run("out", "cache")
+    assert len(two_stage_builds) == 1 and two_stage_builds[0].startswith("abrdf-jax-build")
+    _no_prefetch(monkeypatch)
+    _cache._SHARED.clear()
+    again = run("again", "cache2")
+    assert two_stage_builds[1:] == [threading.main_thread().name]
+    assert len(again) == len(tables) == (6 if what == "in" else 1)
+    for a, b in zip(again, tables):
+        np.testing.assert_array_equal(a, b)

@@ -62,8 +62,8 @@ class Caches:
 
         if getattr(config, "operator_only", False):  # the prior-only model's own entries
             return config.operator(params, template, self.store, self.warn, self.numerics)
-        entry = None if shared else self.prefetch.take(config, params, template)
-        if entry is not None:  # built on the second thread (cli/_prefetch.py)
+        entry = self.prefetch.take(config, params, template, shared)  # cli/_prefetch.py
+        if entry is not None:  # built on the second thread
             return entry
         entry, _ = _cache.cached_entry(
             self.store, template, config, params, self.warn, before_build=self.numerics,

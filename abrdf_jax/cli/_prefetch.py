@@ -16,9 +16,11 @@ and products):
   group whose held-out entry the store lacks, before the entry is built: a new layout), where
   the store lacks an operator of its candidates; then, as soon as the group's members are chosen, the
   operators of the models chosen by many of them (:meth:`Prefetch.chosen`);
+- before the direct fits of jittered or dense captures (a layout each: no held-out entry),
+  the second stage that their candidates share (:meth:`Prefetch.shared`: one per setting,
+  pairs and centre layout, a 5,265 × 1,296 map or larger, the longest build of such a run);
 - once a folder block's models are chosen, the operators its jobs read that nothing builds
-  yet (:meth:`Prefetch.operators`; not the shared second stages of jittered captures), in
-  the order the jobs read them; the main thread takes each from its future when its turn
+  yet (:meth:`Prefetch.operators`), in the order the jobs read them; the main thread takes each from its future when its turn
   comes (:meth:`Prefetch.take`, through ``Caches.operator``), reconstructing the groups before
   it meanwhile.
 
@@ -114,6 +116,46 @@ class Prefetch:
             if count >= OPERATOR_MIN_GROUP:
                 self._build_later(config, params, meas)
 
+    def shared(self, plans) -> None:
+        """Before the direct fits of ``plans`` (a folder's jittered captures, a dense capture, a
+        single jittered file: :func:`abrdf_jax.select._held_out_entry.direct_plan`): the
+        second stage their affine candidates on the log of the samples read, which every
+        layout of the pairs and centre layout shares (``_cache.cached_entry(shared=True)``;
+        one per setting, whatever the rule), built on the worker while the fits run."""
+        from .. import _cache
+        from .._centre_step import affine_on_log
+        from .._config import default_values
+
+        if self.store is None:
+            return
+        seen = set()  # a folder's captures share their pairs: a key a setting and pairs
+        for p in plans:
+            for config in p.configs.values():
+                if getattr(config, "operator_only", False) or not affine_on_log(config):
+                    continue
+                at = (config, tuple(map(tuple, p.meas.pairs)), p.meas.centre_azimuths)
+                if at in seen:
+                    continue
+                seen.add(at)
+                params = default_values(config, p.alpha, p.meas.y.dtype)
+                key = _cache.operator_key(config, params, p.meas, centres=True)
+                memo = (str(self.store.folder), key)
+                if key in self._building or memo in _cache._SHARED:
+                    continue
+                if self.store.path(key).exists():
+                    continue
+                self._building[key] = self._submit(self._build_shared, config, params, p.meas)
+
+    def _build_shared(self, config, params, template):
+        from .. import _cache
+
+        try:
+            _cache.cached_entry(
+                self.store, template, config, params, self.warn, before_build=_no_jax, shared=True
+            )
+        except Exception:  # noqa: BLE001 - the main thread builds it again and reports
+            pass
+
     def operators(self, jobs, params_of) -> None:
         """The operators the block's ``jobs`` (``cli._block_plan.block_jobs``) will read and
         nothing builds yet, built on the worker in the jobs' order; ``params_of(members)``: a
@@ -139,15 +181,21 @@ class Prefetch:
         self.store.save(key, entry, self.warn)
         return entry
 
-    def take(self, config, params, template):
+    def take(self, config, params, template, shared: bool = False):
         """The entry built here for ``config`` on ``template``'s layout (waiting for it), or
-        ``None`` (not built here, or given up: the caller builds it)."""
+        ``None`` (not built here, or given up: the caller builds it). ``shared``: wait for the
+        setting's second stage, if it is being built here (the caller then reads it from
+        ``_cache.cached_entry``'s memory); ``None``."""
         if not self._building:
             return None
         from .. import _cache
+        from .._centre_step import host_two_stage
 
-        future = self._building.pop(_cache.operator_key(config, params, template), None)
-        return None if future is None else future.result()
+        shared = shared or host_two_stage(config, template)  # as _cache.cached_entry decides
+        key = _cache.operator_key(config, params, template, centres=shared)
+        future = self._building.pop(key, None)
+        entry = None if future is None else future.result()
+        return None if shared else entry
 
     def close(self) -> None:
         """Stop the worker: builds not started are dropped, a running one ends first."""

@@ -357,9 +357,10 @@ def entry_selections(
     1, those met once among ``items``: ``abrdf_jax._engine.lone_layouts``); ``prefetch``: told
     of each layout group scored by an entry, by ``prefetch.targets(meas, alpha, configs,
     count)`` before an entry missing from the store is built and ``prefetch.chosen(meas,
-    selections)`` once its members are chosen (the command line builds their operators on a second thread meanwhile,
-    ``abrdf_jax.cli._prefetch``). Parameters are numpy values
-    (:class:`abrdf_jax._config.ParamValues`)."""
+    selections)`` once its members are chosen, and of the direct fits' plans by
+    ``prefetch.shared(plans)`` before they run (the command line builds the operators they
+    will read on a second thread meanwhile, ``abrdf_jax.cli._prefetch``). Parameters are
+    numpy values (:class:`abrdf_jax._config.ParamValues`)."""
     from .._grouping import layout_key
 
     t0 = time.perf_counter()
@@ -410,6 +411,8 @@ def entry_selections(
             out[i] = finish(plans[i], err, tol, k, 0.0)
         if prefetch is not None:
             prefetch.chosen(p0.meas, [out[i] for i in members])
+    if prefetch is not None:  # the second stage the direct fits' models read, meanwhile
+        prefetch.shared([p for p, s in zip(plans, out) if s is None and direct_plan(p)])
     direct_selections(plans, out, tol, k, store, warn)  # dense layouts, and those left
     share = (time.perf_counter() - t0) / max(len(items), 1)
     return [None if s is None else dataclasses.replace(s, seconds=share) for s in out]
