@@ -200,3 +200,25 @@ def test_jittered_captures_build_their_shared_stage_on_the_worker(
     assert len(again) == len(tables) == (6 if what == "in" else 1)
     for a, b in zip(again, tables):
         np.testing.assert_array_equal(a, b)
+
+
+def test_one_files_choice_makes_the_target_blocks_on_the_worker(
+    folder, tmp_path, threads_of, monkeypatch
+):
+    """One aniso204 file with ``--model auto``, cold: the target blocks are made on the worker
+    while the held-out entry is built; the chosen model's build on the main thread waits for
+    them and reads them (made once), and the table is the same bits as without the worker."""
+    one = folder / "m00.csv"
+
+    def run(out, cache):
+        argv = ["reconstruct", str(one), "-o", str(tmp_path / out), "-q"]
+        assert main([*argv, "--cache-dir", str(tmp_path / cache)]) == 0
+        return io.read_table(tmp_path / out)
+
+    table = run("one.npz", "cache")
+    assert [t.startswith("abrdf-jax-build") for t in threads_of["warm_targets"]] == [True]
+    assert threads_of["host_matrix"] == [threading.main_thread().name]
+    assert _host_build._rbf_at_targets.cache_info().misses == 1
+    _no_prefetch(monkeypatch)
+    _host_build._rbf_at_targets.cache_clear()
+    np.testing.assert_array_equal(run("again.npz", "cache2"), table)

@@ -1,36 +1,37 @@
-"""A cold folder's operator builds on a second core (issue 13: the cold 1000-file folder).
+"""A cold call's operator builds on a second core (issue 13: the cold 1000-file folder).
 
-A folder of a new sample layout builds its operators in numpy, on one core (BLAS runs one
-thread, :mod:`abrdf_jax.cli._blas`): the setting's RBF blocks at the UBO targets (a 5,265 ×
-1,296 kernel block and the centres' system, shared by the candidates of one setting), then per
-chosen model a solve and a product (``abrdf_jax._host_build.host_matrix``). The main thread did
-them one after the other, between the model choice and each model's first batch, while the
-second core, busy while the readers ran, waited: a cold 1000-file aniso204 folder took 0.7 s
-more than a warm one (``python -m benchmarks.cli``, 30th session).
+A new sample layout's operators are built in numpy, on one core (BLAS runs one thread,
+:mod:`abrdf_jax.cli._blas`): the setting's RBF blocks at the UBO targets (a 5,265 × 1,296
+kernel block and the centres' system, shared by the candidates of one setting), then per chosen
+model a solve and a product (``abrdf_jax._host_build.host_matrix``). The main thread did them
+one after the other, between the model choice and each model's first batch, while the second
+core, busy while the readers ran, waited: a cold 1000-file aniso204 folder took 0.7 s more than
+a warm one (``python -m benchmarks.cli``, 30th session).
 
 :class:`Prefetch` runs them on one worker thread instead (numpy releases the GIL in its loops
 and products):
 
-- during the model choice, the RBF blocks at the targets of a large layout's setting
+- during the model choice, the RBF blocks at the targets of a layout's setting
   (:meth:`Prefetch.targets`, told by ``select._held_out_entry.entry_selections`` of a layout
-  group whose held-out entry the store lacks, before the entry is built: a new layout), where
-  the store lacks an operator of its candidates; then, as soon as the group's members are chosen, the
-  operators of the models chosen by many of them (:meth:`Prefetch.chosen`);
+  group whose held-out entry the store lacks, before that entry is built: a new layout, in a
+  folder or one file's call), where the store lacks an operator of its candidates; then, as
+  soon as a group's members are chosen, the operators of the models chosen by many of them
+  (:meth:`Prefetch.chosen`);
 - before the direct fits of jittered or dense captures (a layout each: no held-out entry),
   the second stage that their candidates share (:meth:`Prefetch.shared`: one per setting,
   pairs and centre layout, a 5,265 × 1,296 map or larger, the longest build of such a run);
 - once a folder block's models are chosen, the operators its jobs read that nothing builds
-  yet (:meth:`Prefetch.operators`), in the order the jobs read them; the main thread takes each from its future when its turn
-  comes (:meth:`Prefetch.take`, through ``Caches.operator``), reconstructing the groups before
-  it meanwhile.
+  yet (:meth:`Prefetch.operators`), in the order the jobs read them.
 
-The same bits: each build is the function the main thread would call on the same inputs, stored
-the same way. Only what is sure to be read is built (the chosen models' operators; the target
-blocks of a setting whose operators are missing, for layout groups of
-:data:`abrdf_jax._engine.OPERATOR_MIN_GROUP` inputs or more), and only single-stage numpy
-builds (a build that needs JAX, a singular RBF system, is left to the main thread, which reports
-it; so is any error: a build that fails here is built again where the run would have built it).
-A single file's call builds on its main thread (nothing to overlap). Tests: tests/test_cli_prefetch.py.
+The main thread takes each from its future when its turn comes (:meth:`Prefetch.take`, through
+``Caches.operator``; it waits for the target blocks before any build of its own, so none is
+made twice), reconstructing the groups before it meanwhile. The same bits: each build is the
+function the main thread would call on the same inputs, stored the same way. What is built is
+what the run reads: the chosen models' operators; the target blocks and the shared second stage
+of candidates of which one is about to be chosen (every RBF candidate reads them). Only numpy
+builds run here (a build that needs JAX, a singular RBF system, is left to the main thread,
+which reports it; so is any error: a build that fails here is built again where the run would
+have built it). Tests: tests/test_cli_prefetch.py.
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ class Prefetch:
         self.store, self.warn = store, warn
         self._pool: concurrent.futures.ThreadPoolExecutor | None = None
         self._building: dict[str, concurrent.futures.Future] = {}
-        self._targets: set = set()
+        self._targets: dict = {}  # the target blocks made here, by setting
 
     def _submit(self, fn, *args) -> concurrent.futures.Future:
         if self._pool is None:
@@ -82,25 +83,22 @@ class Prefetch:
             return None
         return key
 
-    def targets(self, meas, alpha: float, configs, count: int) -> None:
-        """Before the held-out entry of a layout group of ``count`` inputs is built
-        (``meas``'s layout, α ``alpha`` in degrees, candidate ``configs``): the RBF blocks at
-        the targets of the first candidate whose operator the store lacks, made on the worker
-        (once a setting)."""
+    def targets(self, meas, alpha: float, configs) -> None:
+        """Before a held-out entry missing from the store is built (``meas``'s layout, α
+        ``alpha`` in degrees, candidate ``configs``): the RBF blocks at the targets of the
+        first candidate whose operator the store lacks, made on the worker (once a setting).
+        The candidates are compared because one of them will be chosen, and its operator's
+        build reads these blocks (:meth:`take` waits for them: no build makes them twice)."""
         from .._config import default_values
-        from .._engine import OPERATOR_MIN_GROUP
         from .._host_build import _targets_key, warm_targets
 
-        if count < OPERATOR_MIN_GROUP:
-            return
         for config in configs:
             params = default_values(config, alpha, meas.y.dtype)  # the choice's (_choice.finish)
             if self._missing(config, params, meas) is None:
                 continue
             key = _targets_key(config, params, meas)
             if key not in self._targets:
-                self._targets.add(key)
-                self._submit(_quietly, warm_targets, config, params, meas)
+                self._targets[key] = self._submit(_quietly, warm_targets, config, params, meas)
             return
 
     def chosen(self, meas, selections) -> None:
@@ -186,6 +184,8 @@ class Prefetch:
         ``None`` (not built here, or given up: the caller builds it). ``shared``: wait for the
         setting's second stage, if it is being built here (the caller then reads it from
         ``_cache.cached_entry``'s memory); ``None``."""
+        for future in self._targets.values():  # a build of the caller's reads them
+            future.result()
         if not self._building:
             return None
         from .. import _cache

@@ -355,8 +355,8 @@ def entry_selections(
     held-out entries (:mod:`abrdf_jax.select._learned_entry`); ``lone``: the layout keys that
     take the direct fits, not an entry, whatever ``min_group`` (default: with ``min_group`` above
     1, those met once among ``items``: ``abrdf_jax._engine.lone_layouts``); ``prefetch``: told
-    of each layout group scored by an entry, by ``prefetch.targets(meas, alpha, configs,
-    count)`` before an entry missing from the store is built and ``prefetch.chosen(meas,
+    of each layout group scored by an entry, by ``prefetch.targets(meas, alpha, configs)``
+    before an entry missing from the store is built and ``prefetch.chosen(meas,
     selections)`` once its members are chosen, and of the direct fits' plans by
     ``prefetch.shared(plans)`` before they run (the command line builds the operators they
     will read on a second thread meanwhile, ``abrdf_jax.cli._prefetch``). Parameters are
@@ -398,7 +398,7 @@ def entry_selections(
         for names, cfgs in entry_groups(rbf_configs(p0.configs)):
             miss = None  # a new layout: its operators' shared blocks made meanwhile
             if prefetch is not None:
-                miss = functools.partial(prefetch.targets, p0.meas, p0.alpha, cfgs, len(members))
+                miss = functools.partial(prefetch.targets, p0.meas, p0.alpha, cfgs)
             entry = cached_entry(store, p0.meas, p0.alpha, names, cfgs, k, warn, before_build, miss)
             for row, err in zip(errors, entry.errors(ys)):
                 row.update({n: float(e) for n, e in zip(names, err)})
