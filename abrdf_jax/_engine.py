@@ -349,7 +349,7 @@ def reconstruct_many(
     order: Sequence[int] | None = None,
     plan: dict[str, dict] | None = None,
     host: bool = False,
-    stages: "SharedStages | None" = None,
+    stages: "SharedStages | _Tagged | None" = None,
 ) -> Iterator[tuple[list[int], np.ndarray, str]]:
     """Reconstruct measurements that share ``config`` and ``params`` (module docstring).
 
@@ -379,10 +379,11 @@ def reconstruct_many(
             (one file's call computes one row, not a batch of copies; still the same shape
             in a resumed run), as a learned model's are; else every batch has ``batch``
             rows (one compiled shape).
-        stages: a :class:`SharedStages` of the caller's, which keeps the batches of the
-            groups that read a shared second stage (their tables come from its ``flush``, not
-            from this generator: a folder's jittered captures, one call each, share one
-            product); default: this call's own, flushed before it ends.
+        stages: a :class:`SharedStages` of the caller's (or its :meth:`SharedStages.tagged`
+            view), which keeps the batches of the groups that read a shared second stage
+            (their tables come from its ``flush``, not from this generator: a folder's
+            jittered captures, one call each, share one product); default: this call's own,
+            flushed before it ends.
 
     Yields:
         ``(indices, tables, path)``: positions in ``meas``, their ``(len(indices), 81, 81, 3)``

@@ -222,3 +222,24 @@ def test_one_files_choice_makes_the_target_blocks_on_the_worker(
     _no_prefetch(monkeypatch)
     _host_build._rbf_at_targets.cache_clear()
     np.testing.assert_array_equal(run("again.npz", "cache2"), table)
+
+
+def test_without_a_cache_the_worker_builds_too(folder, tmp_path, threads_of, monkeypatch):
+    """``--cache-dir off``: every call builds; the builds run on the worker as well (kept for
+    the run), with the same tables as a run without the worker."""
+
+    def run(out):
+        argv = ["reconstruct", str(folder), "-o", str(tmp_path / out), "-q", "--cache-dir", "off"]
+        assert main(argv) == 0
+        return {p.name: io.read_table(p) for p in sorted((tmp_path / out).glob("*.npz"))}
+
+    tables = run("out")
+    assert threads_of["host_matrix"] and all(
+        t.startswith("abrdf-jax-build") for t in threads_of["host_matrix"]
+    ), threads_of
+    _no_prefetch(monkeypatch)
+    _host_build._rbf_at_targets.cache_clear()
+    again = run("again")
+    assert again.keys() == tables.keys() and len(tables) == N
+    for name, table in tables.items():
+        np.testing.assert_array_equal(again[name], table, err_msg=name)

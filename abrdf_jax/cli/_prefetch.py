@@ -49,13 +49,17 @@ def _no_jax() -> None:
 
 
 class Prefetch:
-    """The builds of one ``reconstruct`` run on one worker thread (module docstring)."""
+    """The builds of one ``reconstruct`` run on one worker thread (module docstring), stored
+    in ``store`` (``None``: ``--cache-dir off``, kept for the run only)."""
 
     def __init__(self, store, warn):
         self.store, self.warn = store, warn
         self._pool: concurrent.futures.ThreadPoolExecutor | None = None
         self._building: dict[str, concurrent.futures.Future] = {}
         self._targets: dict = {}  # the target blocks made here, by setting
+
+    def _stored(self, key: str) -> bool:
+        return self.store is not None and self.store.path(key).exists()
 
     def _submit(self, fn, *args) -> concurrent.futures.Future:
         if self._pool is None:
@@ -70,7 +74,7 @@ class Prefetch:
         from .._errors import InputError
         from .._host_build import build_stage
 
-        if self.store is None or getattr(config, "operator_only", False):
+        if getattr(config, "operator_only", False):
             return None
         if host_two_stage(config, template):
             return None
@@ -79,7 +83,7 @@ class Prefetch:
         except InputError:
             return None
         key = _cache.operator_key(config, params, template)
-        if key in self._building or self.store.path(key).exists():
+        if key in self._building or self._stored(key):
             return None
         return key
 
@@ -124,8 +128,6 @@ class Prefetch:
         from .._centre_step import affine_on_log
         from .._config import default_values
 
-        if self.store is None:
-            return
         seen = set()  # a folder's captures share their pairs: a key a setting and pairs
         for p in plans:
             for config in p.configs.values():
@@ -137,10 +139,8 @@ class Prefetch:
                 seen.add(at)
                 params = default_values(config, p.alpha, p.meas.y.dtype)
                 key = _cache.operator_key(config, params, p.meas, centres=True)
-                memo = (str(self.store.folder), key)
-                if key in self._building or memo in _cache._SHARED:
-                    continue
-                if self.store.path(key).exists():
+                memo = ("" if self.store is None else str(self.store.folder), key)
+                if key in self._building or memo in _cache._SHARED or self._stored(key):
                     continue
                 self._building[key] = self._submit(self._build_shared, config, params, p.meas)
 
@@ -176,7 +176,8 @@ class Prefetch:
             entry = _cache.build_entry(template, config, params, before_jax=_no_jax)
         except Exception:  # noqa: BLE001 - the main thread builds it again and reports
             return None
-        self.store.save(key, entry, self.warn)
+        if self.store is not None:
+            self.store.save(key, entry, self.warn)
         return entry
 
     def take(self, config, params, template, shared: bool = False):
