@@ -43,7 +43,7 @@ class Caches:
         self.prior = None  # the run's prior (abrdf_jax._prior_operator.PriorSource), if any
         from ._prefetch import Prefetch
 
-        self.prefetch = Prefetch(self.store, warn)  # builds on a second core (folder runs)
+        self.prefetch = Prefetch(self.store, warn)  # cold builds on a second core
 
     def numerics(self) -> None:
         """Before the first JAX work of the run: JAX's compilation cache on (once)."""
