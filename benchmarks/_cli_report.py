@@ -1,4 +1,5 @@
-"""Output of :mod:`benchmarks.cli`: derived figures, issue 13's targets, the markdown table.
+"""Output of :mod:`benchmarks.cli`: derived figures, issue 13's targets, the markdown table and
+the chart of the ratios.
 
 Imports neither JAX nor the package, so that the target checks and the table can be tested on a
 made-up result (``tests/test_benchmark_cli.py``). A result is ``payload["runs"][key] =
@@ -212,7 +213,7 @@ def _floors(f: dict | None) -> list[str]:
     ]
 
 
-def markdown(payload: dict) -> str:
+def markdown(payload: dict, image: str | None = None) -> str:
     runs = payload["runs"]
     m = payload["machine"]
     out = [
@@ -240,6 +241,7 @@ def markdown(payload: dict) -> str:
     out += [
         "",
         "ratio = peer s per file / package s per file (above 1: the package is faster).",
+        *(["", f"![the ratio of every row, cold and warm]({image})"] if image else []),
         "",
         "## Targets (issue 13)",
         "",
@@ -257,6 +259,77 @@ def markdown(payload: dict) -> str:
     if payload["mode"] == "quick":
         out += ["", "Quick run: a smoke test of the harness (small folders), not figures to quote."]
     return "\n".join(out) + "\n"
+
+
+_STATES = {", cold cache": 0, ", warm cache": 1, ", warm": 1}
+
+
+def chart_rows(runs: dict) -> list[tuple[str, float | None, float | None, float | None]]:
+    """``(label, cold ratio, warm ratio, other ratio)`` of every run with a peer: a cold call
+    and its warm one on one row, a run that names no cache state (``--help``, a bad file, a
+    run with other settings) as ``other`` (``None``: not measured that way), in the table's
+    order."""
+    rows: dict[str, list] = {}
+    for entry in runs.values():
+        what = entry["what"]
+        state = next((st for st in _STATES if what.endswith(st)), None)
+        label = what[: len(what) - len(state)] if state else what
+        rows.setdefault(label, [None, None, None])[_STATES.get(state, 2)] = entry.get("ratio")
+    return [(label, *values) for label, values in rows.items()]
+
+
+def chart(payload: dict, path) -> None:
+    """The ratio to the peer of every row (log scale), cold and warm, with parity and issue
+    13's folder targets (100x aniso204, 200x iso102) as lines."""
+    import textwrap
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = chart_rows(payload["runs"])
+    fig, ax = plt.subplots(figsize=(11, 0.42 * len(rows) + 1.6))
+    ys = range(len(rows))
+    kinds = (
+        (-0.2, 1, "cold cache (first call)", "C0"),
+        (0.2, 2, "warm cache", "C1"),
+        (0.0, 3, "one kind of call", "0.6"),
+    )
+    for dy, k, name, color in kinds:
+        at = [(y + dy, r[k]) for y, r in zip(ys, rows) if r[k]]
+        if at:
+            ax.barh(*zip(*at), height=0.38, label=name, color=color)
+    for x, text in ((1, "parity"), (100, "100x"), (200, "200x")):
+        ax.axvline(x, color="grey", lw=0.8, ls="--")
+        ax.text(x, -0.7, f" {text}", fontsize=7, color="grey")
+    ax.set_xscale("log")
+    ax.set_yticks(list(ys))
+    ax.set_yticklabels([textwrap.fill(r[0], 44) for r in rows], fontsize=7)
+    ax.set_ylim(len(rows) - 0.5, -1.0)
+    ax.set_xlabel("peer seconds per file / package seconds per file (above 1: abrdf-jax faster)")
+    ax.legend(fontsize=8, loc="center right")
+    m = payload["machine"]
+    ax.set_title(
+        f"{payload['commands']['benchmark']}, {m.get('date')}, {m.get('cpu_count')} CPUs, "
+        f"load {payload['load_average_before'][0]:.2f} before",
+        fontsize=8,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+
+def write_reports(payload: dict, folder, suffix: str) -> str:
+    """``cli{suffix}.md`` (the table, the targets) and ``cli{suffix}.png`` (:func:`chart`) in
+    ``folder``; returns the markdown."""
+    from pathlib import Path
+
+    folder = Path(folder)
+    chart(payload, folder / f"cli{suffix}.png")
+    md = markdown(payload, f"cli{suffix}.png")
+    (folder / f"cli{suffix}.md").write_text(md)
+    return md
 
 
 def pass_fail_lines(targets: list[dict]) -> list[str]:

@@ -63,7 +63,7 @@ from ._cli_runner import (
     output_exists,
     median_run,
 )
-from ._cli_report import check_targets, derive, markdown, pass_fail_lines
+from ._cli_report import check_targets, derive, pass_fail_lines, write_reports
 from ._common import RESULTS, load_average, machine, write_json
 
 SEED = 13  # file i's capture's seed: SEED + i
@@ -483,8 +483,7 @@ def main(argv=None, log=None) -> dict:
     payload["load_average_after"] = load_average()
     payload["targets"] = check_targets(payload["runs"])
     args.out.mkdir(parents=True, exist_ok=True)
-    md = markdown(payload)
-    (args.out / f"cli{suffix}.md").write_text(md)
+    md = write_reports(payload, args.out, suffix)
     write_json(args.out / f"cli{suffix}.json", payload)
     log(md)
     for line in pass_fail_lines(payload["targets"]):

@@ -13,7 +13,14 @@ import pytest
 import abrdf_jax as aj
 from abrdf_jax import io, materials
 from benchmarks import cli, scipy_cli
-from benchmarks._cli_report import check_targets, derive, markdown, pass_fail_lines
+from benchmarks._cli_report import (
+    chart_rows,
+    check_targets,
+    derive,
+    markdown,
+    pass_fail_lines,
+    write_reports,
+)
 from benchmarks.scipy_peer import scipy_kwargs
 from tests.cli_runner import run_module
 from tests.scipy_oracle import reconstruct_scipy
@@ -217,9 +224,9 @@ def test_targets_pass_and_fail():
     ]
 
 
-def test_markdown_of_fake_results():
+def _fake_payload():
     runs = _fake_runs()
-    payload = {
+    return {
         "mode": "quick",
         "machine": {"processor": "x86_64", "cpu_count": 2, "platform": "Linux", "date": "now"},
         "commands": {"benchmark": "python -m benchmarks.cli --quick"},
@@ -232,11 +239,35 @@ def test_markdown_of_fake_results():
         "runs": runs,
         "targets": check_targets(runs),
     }
+
+
+def test_markdown_of_fake_results():
+    payload = _fake_payload()
+    runs = payload["runs"]
     md = markdown(payload)
     assert md.count("| package |") == len(runs)
     assert md.count("| peer |") == 3  # the one-file peer run is shared: one row
     assert "FAIL" not in md and md.count("PASS") == 15
     assert len(pass_fail_lines(payload["targets"])) == 15
+
+
+def test_chart_of_fake_results(tmp_path):
+    """The chart's rows pair each cold call with its warm one (their ratios), and the report
+    writes the chart beside the table, which shows it."""
+    payload = _fake_payload()
+    for key, entry in payload["runs"].items():  # the benchmark's labels
+        for state in ("cold", "warm"):
+            if key.endswith("_" + state):
+                entry["what"] = f"{key.removesuffix('_' + state)}, {state} cache"
+    rows = {label: tuple(values) for label, *values in chart_rows(payload["runs"])}
+    for key, entry in payload["runs"].items():
+        label = entry["what"].removesuffix(", cold cache").removesuffix(", warm cache")
+        assert entry["ratio"] in rows[label], (key, rows[label])
+    assert any(None not in r[:2] for r in rows.values()), rows  # a cold and a warm call paired
+    assert len(rows) < len(payload["runs"])
+    md = write_reports(payload, tmp_path, "_t")
+    assert (tmp_path / "cli_t.png").stat().st_size > 0 and "](cli_t.png)" in md
+    assert (tmp_path / "cli_t.md").read_text() == md
 
 
 def test_timed_child_reports_the_command(tmp_path):
